@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -109,18 +110,19 @@ class LinearPlant:
         y = lti.simulate_zoh(self.sys, u, self.fs, delay_s=self.delay_s)
         return self._measure(y, rng)
 
+    @cached_property
     def _discrete(self):
         A, B, C, D, _ = lti.as_matrices(self.sys)
         Ad, B0, B1, m = lti.c2d_zoh(A, B, 1.0 / self.fs, delay_s=self.delay_s)
         return Ad, B0, B1, m, C, D
 
     def init(self, rng: np.random.Generator) -> LinearPlantState:
-        Ad, B0, B1, m, C, D = self._discrete()
+        Ad, B0, B1, m, C, D = self._discrete
         return LinearPlantState(np.zeros(Ad.shape[0]), np.zeros((m + 2, self.n_u)), rng)
 
     def step(self, state: LinearPlantState, u_k: np.ndarray) -> tuple[np.ndarray, LinearPlantState]:
         """Output y[k] at k/fs, then advance the state with u[k] held over the sample."""
-        Ad, B0, B1, m, C, D = self._discrete()  # cheap next to a Python loop? cache in subclasses
+        Ad, B0, B1, m, C, D = self._discrete
         hist = np.vstack([np.asarray(u_k, float)[None, :], state.u_hist[:-1]])  # u[k], u[k-1], ...
         y = C @ state.x + D @ hist[m]
         y = self._measure(y[None, :], state.rng)[0]
