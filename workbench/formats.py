@@ -46,12 +46,15 @@ def _frozen(a: np.ndarray) -> np.ndarray:
     return a
 
 
-def _names(names, n: int, default: str) -> tuple[str, ...]:
+def _names(
+    names, n: int, default: str, src: str = "channel names", key: str = ""
+) -> tuple[str, ...]:
     if names is None or len(names) == 0:
         return tuple(f"{default}{i}" for i in range(n))
     names = tuple(str(s) for s in names)
     if len(names) != n:
-        raise InputError(f"channel names: expected {n} names, got {len(names)}")
+        where = f"{src}: key '{key}'" if key else src
+        raise InputError(f"{where}: expected {n} names, got {len(names)}")
     return names
 
 
@@ -116,8 +119,12 @@ class TimeData:
         object.__setattr__(self, "r", None if r is None else _frozen(r))
         object.__setattr__(self, "fs", fs)
         object.__setattr__(self, "period", period)
-        object.__setattr__(self, "input_names", _names(self.input_names, u.shape[1], "u"))
-        object.__setattr__(self, "output_names", _names(self.output_names, y.shape[1], "y"))
+        object.__setattr__(
+            self, "input_names", _names(self.input_names, u.shape[1], "u", src, "input_names")
+        )
+        object.__setattr__(
+            self, "output_names", _names(self.output_names, y.shape[1], "y", src, "output_names")
+        )
 
     @property
     def n_samples(self) -> int:
@@ -208,8 +215,12 @@ class FrfData:
         object.__setattr__(self, "G", _frozen(G))
         object.__setattr__(self, "G_var", None if G_var is None else _frozen(G_var))
         object.__setattr__(self, "fs", fs)
-        object.__setattr__(self, "input_names", _names(self.input_names, G.shape[2], "u"))
-        object.__setattr__(self, "output_names", _names(self.output_names, G.shape[1], "y"))
+        object.__setattr__(
+            self, "input_names", _names(self.input_names, G.shape[2], "u", src, "input_names")
+        )
+        object.__setattr__(
+            self, "output_names", _names(self.output_names, G.shape[1], "y", src, "output_names")
+        )
 
     @property
     def n_f(self) -> int:
@@ -315,7 +326,10 @@ def read_npz(path: str | os.PathLike) -> dict[str, np.ndarray]:
     if not p.is_file():
         raise InputError(f"{path}: no such file")
     if not zipfile.is_zipfile(p):
-        raise InputError(f"{path}: expected an .npz archive written by numpy.savez, got another kind of file")
+        raise InputError(
+            f"{path}: expected an .npz archive written by numpy.savez, got a file that is not "
+            "a complete zip archive (truncated, or another kind of file)"
+        )
     out: dict[str, np.ndarray] = {}
     try:
         with zipfile.ZipFile(p) as zf:
@@ -377,7 +391,12 @@ def measurement_from_arrays(arrays: dict[str, Any], src: str = "measurement") ->
             period = get("period")
             if period is not None:
                 period = np.asarray(period)
-                if period.ndim != 0 or period.dtype.kind not in "iuf" or float(period) != int(period):
+                if (
+                    period.ndim != 0
+                    or period.dtype.kind not in "iuf"
+                    or not np.isfinite(period)
+                    or float(period) != int(period)
+                ):
                     raise InputError(f"time data: key 'period': expected an integer, got {describe(period)}")
                 period = int(period)
             return TimeData(
@@ -469,11 +488,8 @@ def model_from_arrays(arrays: dict[str, Any], src: str = "model"):
     get = arrays.get
     in_names = _string_list(None if get("input_names") is None else np.asarray(get("input_names")), src, "input_names")
     out_names = _string_list(None if get("output_names") is None else np.asarray(get("output_names")), src, "output_names")
-    try:
-        in_names = _names(in_names, B.shape[1], "u")
-        out_names = _names(out_names, C.shape[0], "y")
-    except InputError as exc:
-        raise InputError(f"{src}: {exc}") from None
+    in_names = _names(in_names, B.shape[1], "u", src, "input_names")
+    out_names = _names(out_names, C.shape[0], "y", src, "output_names")
     return control.ss(A, B, C, D, dt, inputs=list(in_names), outputs=list(out_names))
 
 
