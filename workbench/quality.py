@@ -193,16 +193,18 @@ def _clipped(x: np.ndarray, names: tuple[str, ...], what: str) -> list[str]:
 def _excitation_spectrum(data: TimeData) -> tuple[np.ndarray, np.ndarray, bool]:
     """Total excitation power per line, (n_lines,), and the line frequencies, Hz.
 
-    Periodic data: the DFT of the mean period (exact lines, zeros where not
-    excited). Otherwise a Welch estimate, smooth by construction.
+    Periodic data: the DFT power per period averaged over periods (exact lines,
+    zeros where not excited). Otherwise a Welch estimate, smooth by construction.
     """
     e, _ = _excitation(data)
     e = e - e.mean(axis=0)
     if data.period is not None and data.period >= 8:
         P = data.period
         M = data.n_samples // P
-        E = np.fft.rfft(e.reshape(M, P, -1).mean(axis=0), axis=0)
-        return np.sum(np.abs(E[1:]) ** 2, axis=1), np.arange(1, E.shape[0]) * data.fs / P, True
+        # mean power over periods (multi-experiment periods differ in phase)
+        E = np.fft.rfft(e.reshape(M, P, -1), axis=1)
+        power = np.mean(np.sum(np.abs(E[:, 1:]) ** 2, axis=2), axis=0)
+        return power, np.arange(1, E.shape[1]) * data.fs / P, True
     import scipy.signal
 
     nper = int(min(data.n_samples, max(64, 2 ** int(np.log2(max(data.n_samples // 8, 1))))))
@@ -228,10 +230,14 @@ def _excitation_gaps(data: TimeData) -> list[str]:
     if lines.size < 5:
         return []
     out = []
-    # (a) lines much weaker than their excited neighbours
+    # (a) lines much weaker than their excited neighbours; the reference is the
+    # upper quartile over a window of +-10 % of the lines, so that a gap up to a
+    # quarter of the window wide does not pull the reference down with it
+    import scipy.ndimage
+
     p = power[lines]
-    half = max(5, lines.size // 50)
-    ref = np.array([np.median(p[max(0, k - half) : k + half + 1]) for k in range(lines.size)])
+    half = max(10, lines.size // 10)
+    ref = scipy.ndimage.percentile_filter(p, 75, size=2 * half + 1, mode="reflect")
     weak = p < _WEAK_POWER * ref
     min_run = 1 if periodic else 3  # Welch lines are correlated: one weak bin is not a gap
     spans = [(s, e) for s, e in runs(weak) if e - s >= min_run]
