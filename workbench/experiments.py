@@ -1,0 +1,476 @@
+"""Simulated experiments on any :class:`plants.base.Plant`, open or closed loop.
+
+Data flow::
+
+    signals.multisine(...) -> Multisine --.
+    signals.white_noise / step_signal ----+--> run_multisine / run_noise / run_step
+                                                  (plant, controller=None or K, rng)
+                                                      |
+            MultisineExperiment (R, n_exp, P, period, n_ch) arrays   or   TimeData
+                    .to_time_data() -> TimeData (spec 1a, experiments concatenated, `period` set)
+
+Closed loop (``controller`` given): the excitation ``r`` enters at the plant
+input, ``u = r + u_c`` with ``u_c = -K y``; the controller sees the measured
+``y`` (noise included); any computation delay of the plant is the plant's own
+(``plant.delay_s``), the controller's own is ``controller.delay_samples``.
+Every run starts at rest and is reproducible from its ``rng``.
+
+Two ways to simulate a closed loop, picked by ``method="auto"``:
+
+- ``"linear"``: when the plant is linear with additive output noise (checked
+  by superposition on a probe of the actual excitation, with a fixed seed:
+  ``simulate(u) - simulate(0) == ZOH response of plant.linear_model()`` to
+  1e-6), the loop is one discrete LTI system driven by ``r`` and the plant's
+  noise ``v = plant.simulate(0)``: a 6x6 wafer stage, 10,000 samples, takes
+  a few tens of milliseconds.
+- ``"step"``: otherwise, ``plant.step`` and ``controller.step`` sample by
+  sample (needs ``controller.delay_samples >= 1``).
+
+Multi-experiment multisines: ``run_multisine`` applies realization r,
+experiment e (r-major order) one after the other in a single run, ``n_periods``
+periods each; the first period of each block holds the switching transient and
+is dropped by the estimator (``frf_estimation.frf_multisine(n_transient=1)``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+
+from controllers.pid import DecentralizedController, tune_pid
+from workbench import lti
+from workbench.errors import InputError
+from workbench.formats import TimeData
+from workbench.signals import Multisine, as_rng, multisine, step_signal, white_noise
+
+__all__ = [
+    "MultisineExperiment",
+    "simulate_open_loop",
+    "simulate_closed_loop",
+    "run_multisine",
+    "run_noise",
+    "run_step",
+    "effective_mass",
+    "default_controller",
+    "wafer_stage_closed_loop_record",
+]
+
+
+@dataclass(frozen=True)
+class MultisineExperiment:
+    """A periodic multisine experiment with its structure kept.
+
+    Parameters
+    ----------
+    design : Multisine
+        The excitation (lines, amplitudes, realizations R, experiments n_exp).
+    u : (R, n_exp, P, period, n_u) array
+        Applied plant input, N.
+    y : (R, n_exp, P, period, n_y) array
+        Measured output, m.
+    r : (R, n_exp, P, period, n_u) array or None
+        Excitation at the plant input (closed loop); None in open loop (u is it).
+    loop : {"open", "closed"}
+    """
+
+    design: Multisine
+    u: np.ndarray
+    y: np.ndarray
+    r: np.ndarray | None = None
+    loop: str = "open"
+    input_names: tuple[str, ...] = field(default=())
+    output_names: tuple[str, ...] = field(default=())
+
+    def __post_init__(self):
+        d = self.design
+        want = (d.n_realizations, d.n_exp)
+        for name in ("u", "y", "r"):
+            a = getattr(self, name)
+            if a is None:
+                continue
+            a = np.array(a, float)
+            if a.ndim != 5 or a.shape[:2] != want or a.shape[3] != d.period:
+                raise InputError(
+                    f"{name}: expected shape {want} + (P, {d.period}, n_ch), got {a.shape}"
+                )
+            a.setflags(write=False)
+            object.__setattr__(self, name, a)
+        if self.u.shape[:4] != self.y.shape[:4] or (
+            self.r is not None and self.r.shape != self.u.shape
+        ):
+            raise InputError(f"u, y, r: shapes disagree: {self.u.shape}, {self.y.shape}")
+        if self.loop not in ("open", "closed"):
+            raise InputError(f"loop: expected 'open' or 'closed', got {self.loop!r}")
+
+    @property
+    def fs(self) -> float:
+        return self.design.fs
+
+    @property
+    def period(self) -> int:
+        return self.design.period
+
+    @property
+    def n_periods(self) -> int:
+        return self.u.shape[2]
+
+    def to_time_data(self) -> TimeData:
+        """The record as one TimeData (spec 1a): blocks concatenated, r-major, ``period`` set."""
+
+        def flat(a):
+            return None if a is None else a.reshape(-1, a.shape[-1])
+
+        return TimeData(
+            fs=self.fs,
+            u=flat(self.u),
+            y=flat(self.y),
+            r=flat(self.r),
+            loop=self.loop,
+            period=self.period,
+            input_names=self.input_names,
+            output_names=self.output_names,
+        )
+
+
+# ------------------------------------------------------------------ simulation
+def simulate_open_loop(plant, u: np.ndarray, *, rng: np.random.Generator | int) -> np.ndarray:
+    """Measured output (N, n_y) of ``plant`` to the input ``u`` (N, n_u), from rest."""
+    u = _check_input(plant, u, "u")
+    return np.asarray(plant.simulate(u, rng=as_rng(rng)), float)
+
+
+def _check_input(plant, x, name: str) -> np.ndarray:
+    x = np.asarray(x, float)
+    if x.ndim != 2 or x.shape[1] != plant.n_u:
+        raise InputError(
+            f"{name}: expected shape (N, {plant.n_u}) for the plant's inputs, got {x.shape}"
+        )
+    return x
+
+
+def _discrete_plant(plant) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """ZOH model of the plant's linear part with its input delay, input u[k] (no noise)."""
+    A, B, C, D, _ = lti.as_matrices(plant.linear_model())
+    Ad, B0, B1, m = lti.c2d_zoh(A, B, 1.0 / plant.fs, delay_s=plant.delay_s)
+    n, n_u = B.shape
+    L = m + 1  # stored past inputs d_i = u[k-i], i = 1..L
+    N = n + L * n_u
+    Aa = np.zeros((N, N))
+    Ba = np.zeros((N, n_u))
+    Ca = np.zeros((C.shape[0], N))
+    Da = np.zeros((C.shape[0], n_u))
+    Aa[:n, :n] = Ad
+    Ca[:, :n] = C
+
+    def blk(i):  # columns of d_i
+        return slice(n + (i - 1) * n_u, n + i * n_u)
+
+    if m == 0:
+        Ba[:n] = B0
+        Da[:] = D
+    else:
+        Aa[:n, blk(m)] = B0
+        Ca[:, blk(m)] = D
+    Aa[:n, blk(m + 1)] += B1
+    Ba[blk(1)] = np.eye(n_u)
+    for i in range(2, L + 1):
+        Aa[blk(i), blk(i - 1)] = np.eye(n_u)
+    return Aa, Ba, Ca, Da
+
+
+def _closed_loop_matrices(plant, controller: DecentralizedController):
+    """Discrete closed loop, inputs [r; v] (v: noise on y), outputs [u; y_measured]."""
+    Ap, Bp, Cp, Dp = _discrete_plant(plant)
+    Ac, Bc, Cc, Dc = controller.matrices
+    n_p, n_c = Ap.shape[0], Ac.shape[0]
+    n_u, n_y = Bp.shape[1], Cp.shape[0]
+    M = np.linalg.inv(np.eye(n_u) - Dc @ Dp)
+    # u = M (r + Cc xc + Dc Cp xi + Dc v)
+    Ux = np.hstack([M @ Dc @ Cp, M @ Cc])
+    Uw = np.hstack([M, M @ Dc])
+    # y = Cp xi + Dp u + v
+    Yx = np.hstack([Cp, np.zeros((n_y, n_c))]) + Dp @ Ux
+    Yw = Dp @ Uw + np.hstack([np.zeros((n_y, n_u)), np.eye(n_y)])
+    A = np.block([[Ap, np.zeros((n_p, n_c))], [np.zeros((n_c, n_p)), Ac]])
+    A = A + np.vstack([Bp @ Ux, Bc @ Yx])
+    B = np.vstack([Bp @ Uw, Bc @ Yw])
+    return A, B, np.vstack([Ux, Yx]), np.vstack([Uw, Yw])
+
+
+def _is_linear_additive(plant, u_probe: np.ndarray) -> bool:
+    seed = 20240601  # any fixed seed: the same noise in both runs cancels
+    y1 = np.asarray(plant.simulate(u_probe, rng=np.random.default_rng(seed)), float)
+    y0 = np.asarray(plant.simulate(np.zeros_like(u_probe), rng=np.random.default_rng(seed)), float)
+    y_lin = lti.simulate_zoh(plant.linear_model(), u_probe, plant.fs, delay_s=plant.delay_s)
+    scale = np.linalg.norm(y_lin)
+    return bool(scale > 0 and np.linalg.norm(y1 - y0 - y_lin) <= 1e-6 * scale)
+
+
+def simulate_closed_loop(
+    plant,
+    controller: DecentralizedController,
+    r: np.ndarray,
+    *,
+    rng: np.random.Generator | int,
+    method: Literal["auto", "linear", "step"] = "auto",
+) -> tuple[np.ndarray, np.ndarray]:
+    """Closed-loop response to the excitation ``r`` at the plant input, from rest.
+
+    Parameters
+    ----------
+    plant : Plant
+    controller : DecentralizedController
+        Maps the plant's n_y outputs to its n_u inputs, at the plant's fs.
+    r : (N, n_u) array
+        Excitation added at the plant input, N.
+    rng : Generator or int
+        Source of the plant's noise.
+    method : {"auto", "linear", "step"}
+        See the module docstring; ``"linear"`` skips the linearity probe.
+
+    Returns
+    -------
+    u : (N, n_u) array
+        Applied input, N.
+    y : (N, n_y) array
+        Measured output, m.
+    """
+    rng = as_rng(rng)
+    r = _check_input(plant, r, "r")
+    if controller.n_u != plant.n_u or controller.n_y != plant.n_y:
+        raise InputError(
+            f"controller: expected {plant.n_y} inputs and {plant.n_u} outputs to match the plant, "
+            f"got {controller.n_y} and {controller.n_u}"
+        )
+    if abs(controller.fs - plant.fs) > 1e-9 * plant.fs:
+        raise InputError(
+            f"controller: expected fs = {plant.fs:g} Hz like the plant, got {controller.fs:g}"
+        )
+    if method == "auto":
+        method = "linear" if _is_linear_additive(plant, r[: min(r.shape[0], 512)]) else "step"
+    if method == "linear":
+        A, B, C, D = _closed_loop_matrices(plant, controller)
+        rho = np.max(np.abs(np.linalg.eigvals(A))) if A.size else 0.0
+        if rho >= 1:
+            raise InputError(
+                f"controller: the closed loop is unstable (spectral radius {rho:.4f} >= 1); "
+                "lower the crossover or add a notch"
+            )
+        v = np.asarray(plant.simulate(np.zeros_like(r), rng=rng), float)
+        import control
+
+        sys = control.ss(A, B, C, D, 1.0 / plant.fs)
+        out = lti.simulate_zoh(sys, np.hstack([r, v]), plant.fs)
+        return out[:, : plant.n_u], out[:, plant.n_u :]
+    if method == "step":
+        if controller.delay_samples < 1:
+            raise InputError(
+                "controller: stepping a nonlinear plant needs delay_samples >= 1 (u[k] must not "
+                "depend on y[k])"
+            )
+        N = r.shape[0]
+        u = np.empty_like(r)
+        y = np.empty((N, plant.n_y))
+        ps: Any = plant.init(rng)
+        cs = controller.init()
+        for k in range(N):
+            u[k] = r[k] + controller.output(cs)
+            y[k], ps = plant.step(ps, u[k])
+            _, cs = controller.step(cs, y[k])
+        return u, y
+    raise InputError(f"method: expected 'auto', 'linear' or 'step', got {method!r}")
+
+
+def _run(plant, r, controller, rng, method):
+    if controller is None:
+        return r, simulate_open_loop(plant, r, rng=rng), None, "open"
+    u, y = simulate_closed_loop(plant, controller, r, rng=rng, method=method)
+    return u, y, r, "closed"
+
+
+def _names(plant) -> dict:
+    return dict(input_names=tuple(plant.input_names), output_names=tuple(plant.output_names))
+
+
+# ----------------------------------------------------------------- experiments
+def run_multisine(
+    plant,
+    design: Multisine,
+    *,
+    n_periods: int,
+    controller: DecentralizedController | None = None,
+    rng: np.random.Generator | int,
+    method: Literal["auto", "linear", "step"] = "auto",
+) -> MultisineExperiment:
+    """Apply every experiment and realization of ``design``, ``n_periods`` periods each.
+
+    Parameters
+    ----------
+    plant : Plant
+    design : Multisine
+        With ``n_ch == plant.n_u`` and ``fs == plant.fs``.
+    n_periods : int
+        Periods per block (the first is the transient, dropped by the estimator).
+    controller : DecentralizedController, optional
+        Closed loop when given.
+    rng : Generator or int
+    method : {"auto", "linear", "step"}
+        Closed-loop simulation method.
+
+    Returns
+    -------
+    MultisineExperiment
+    """
+    rng = as_rng(rng)
+    if design.n_ch != plant.n_u:
+        raise InputError(f"design: expected {plant.n_u} channels for the plant, got {design.n_ch}")
+    if abs(design.fs - plant.fs) > 1e-9 * plant.fs:
+        raise InputError(f"design: expected fs = {plant.fs:g} Hz like the plant, got {design.fs:g}")
+    n_periods = int(n_periods)
+    if n_periods < 1:
+        raise InputError(f"n_periods: expected >= 1, got {n_periods}")
+    sig = design.signal(n_periods)  # (R, n_exp, P*period, n_u)
+    R, E = sig.shape[:2]
+    r = sig.reshape(-1, plant.n_u)
+    u, y, r_rec, loop = _run(plant, r, controller, rng, method)
+
+    def shape(a):
+        return None if a is None else a.reshape(R, E, n_periods, design.period, a.shape[-1])
+
+    return MultisineExperiment(
+        design=design, u=shape(u), y=shape(y), r=shape(r_rec), loop=loop, **_names(plant)
+    )
+
+
+def run_noise(
+    plant,
+    *,
+    n_samples: int,
+    rms: float | np.ndarray,
+    band_hz: tuple[float, float] | None = None,
+    controller: DecentralizedController | None = None,
+    rng: np.random.Generator | int,
+    method: Literal["auto", "linear", "step"] = "auto",
+) -> TimeData:
+    """White (or band-limited) Gaussian noise on every input, open or closed loop.
+
+    ``rms`` per input in N (or N m); see :func:`workbench.signals.white_noise`.
+    """
+    rng = as_rng(rng)
+    r = white_noise(n_samples, plant.n_u, fs=plant.fs, rms=rms, band_hz=band_hz, rng=rng)
+    u, y, r_rec, loop = _run(plant, r, controller, rng, method)
+    return TimeData(fs=plant.fs, u=u, y=y, r=r_rec, loop=loop, **_names(plant))
+
+
+def run_step(
+    plant,
+    *,
+    n_samples: int,
+    amplitude: float | np.ndarray,
+    start_sample: int = 0,
+    controller: DecentralizedController | None = None,
+    rng: np.random.Generator | int,
+    method: Literal["auto", "linear", "step"] = "auto",
+) -> TimeData:
+    """Step of ``amplitude`` (per input, N) at ``start_sample``, open or closed loop."""
+    rng = as_rng(rng)
+    r = step_signal(n_samples, amplitude=amplitude, n_ch=plant.n_u, start_sample=start_sample)
+    u, y, r_rec, loop = _run(plant, r, controller, rng, method)
+    return TimeData(fs=plant.fs, u=u, y=y, r=r_rec, loop=loop, **_names(plant))
+
+
+# ------------------------------------------------------------ wafer-stage record
+def effective_mass(plant, freq_hz: float, *, sensor_index: tuple[int, ...] = ()) -> np.ndarray:
+    """Rigid-body mass/inertia seen by each input at ``freq_hz``: 1 / (w^2 |G_ij|), shape (n_u,).
+
+    ``sensor_index[j]`` is the output paired with input j (default j). Read from
+    ``plant.frf``, the model a control engineer would tune on.
+    """
+    idx = tuple(range(plant.n_u)) if not sensor_index else tuple(sensor_index)
+    G = plant.frf(np.array([float(freq_hz)]))[0]
+    g = np.abs(G[list(idx), list(range(plant.n_u))])
+    return 1.0 / ((2 * np.pi * freq_hz) ** 2 * g)
+
+
+def default_controller(
+    plant,
+    *,
+    crossover_hz: float,
+    sensor_index: tuple[int, ...] = (),
+    delay_samples: int = 1,
+) -> DecentralizedController:
+    """Decentralized lead-lag PID tuned on :func:`effective_mass` at ``crossover_hz``."""
+    mass = effective_mass(plant, crossover_hz, sensor_index=sensor_index)
+    return tune_pid(
+        mass,
+        crossover_hz=crossover_hz,
+        fs=plant.fs,
+        n_y=plant.n_y,
+        sensor_index=sensor_index,
+        delay_samples=delay_samples,
+    )
+
+
+def wafer_stage_closed_loop_record(
+    plant,
+    *,
+    rng: np.random.Generator | int,
+    controller: DecentralizedController | None = None,
+    crossover_hz: float = 100.0,
+    accel_rms: float = 0.3,
+    band_hz: tuple[float, float] = (7.5, 1500.0),
+    n_samples: int = 10_000,
+    period: int = 2000,
+    kind: Literal["full", "odd", "random_odd"] = "random_odd",
+) -> TimeData:
+    """The closed-loop wafer-stage record: 10,000 samples, period 2000, 5 periods.
+
+    A random-odd multisine on all inputs at once (one experiment, independent
+    random phases per input, the same lines), ``r`` rms per input =
+    ``accel_rms`` x the effective mass (so 0.3 m/s^2 on 20 kg is 6 N rms, the
+    level of the shared example record, giving sub-micrometre motion), under
+    the decentralized PID of :func:`default_controller`.
+
+    Parameters
+    ----------
+    plant : Plant
+        Square plant (the 6x6 wafer stage at 5 kHz).
+    rng : Generator or int
+    controller : DecentralizedController, optional
+        Default: ``default_controller(plant, crossover_hz=crossover_hz)``.
+    crossover_hz : float
+    accel_rms : float
+        Rigid-body acceleration per input, m/s^2 or rad/s^2 rms.
+    band_hz : (float, float)
+        Excited band; 7.5 .. 1500 Hz at 2.5 Hz resolution as in the example.
+    n_samples, period : int
+        Record length and period, samples (n_samples a multiple of period).
+    kind : {"full", "odd", "random_odd"}
+
+    Returns
+    -------
+    TimeData
+        ``loop="closed"``, ``r`` recorded, ``period`` set.
+    """
+    rng = as_rng(rng)
+    if n_samples % period:
+        raise InputError(f"n_samples: expected a multiple of period = {period}, got {n_samples}")
+    if controller is None:
+        controller = default_controller(plant, crossover_hz=crossover_hz)
+    rms = accel_rms * effective_mass(plant, crossover_hz, sensor_index=controller.sensor_index)
+    design = multisine(
+        fs=plant.fs,
+        period=period,
+        band_hz=band_hz,
+        n_ch=plant.n_u,
+        rms=rms,
+        kind=kind,
+        n_exp=1,
+        rng=rng,
+    )
+    exp = run_multisine(
+        plant, design, n_periods=n_samples // period, controller=controller, rng=rng
+    )
+    return exp.to_time_data()

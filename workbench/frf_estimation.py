@@ -1,0 +1,579 @@
+"""Frequency-response estimation from time data.
+
+Data flow::
+
+    MultisineExperiment (in memory) --.
+                                      +--> frf_multisine(...) --> FrfEstimate(frf, lines)
+    TimeData with `period` (a file) --'
+    TimeData (noise, any loop)      -----> frf_h1(...)        --> FrfEstimate(frf)
+    either                          -----> estimate_frf(..., method="auto")
+
+Every estimate uses a reference signal ``x_ref``: the excitation ``r`` when
+the data has one (closed loop, or open loop with the excitation recorded),
+else the applied input ``u``. Per frequency line, with columns over
+independent experiments (multisine blocks) or segments (H1)::
+
+    G = S_yr S_ur^-1 = (Y R^H) (U R^H)^-1
+
+With ``r = u`` this is the least-squares / H1 estimate ``Y U^H (U U^H)^-1``
+(``Y U^-1`` for a square design); with ``r`` in a closed loop it is the
+indirect, "3-point" estimate through the reference, which stays unbiased when
+the noise on ``y`` feeds back into ``u`` (Pintelon & Schoukens, *System
+Identification*, 2nd ed., 2012, section 2.7 and chapter 9; Wellstead, 1981).
+
+**Zero-order hold.** The DFT ratio of sampled data is the frequency response
+of the ZOH-discretized plant. The estimate is divided by
+:func:`workbench.lti.zoh_frf` (``zoh="compensate"``, the default, spec 1b) to
+return the pseudo continuous-time FRF. This is exact up to aliasing: the
+discrete response also holds ``G(j(w + k ws))`` for ``k != 0``; for a plant
+rolling off as 1/f^2 (a mass) that is about 1.5 % of ``|G|`` at fs/8 and
+about 4 % at fs/4, so near Nyquist the compensated FRF is not the continuous
+one. ``zoh="none"`` returns the discrete-time FRF.
+
+**Multisines.** The record of a multisine experiment is a sequence of blocks,
+each a number of identical periods of one excitation (one experiment of one
+realization); a file concatenates them with ``period`` set. Blocks are found
+from the reference: a period starts a new block when it differs from the
+previous one by more than 10 % (relative norm). In every block the first
+``n_transient`` periods are dropped, the DFT of each remaining period taken,
+and the periods averaged. The excited lines are the bins where the reference
+carries power (more than 1e-4 of the strongest bin) unless given.
+
+``G_var`` (per element, ``E|G_hat - G|^2``) comes from the spread over periods
+(``variance="noise"``, default): per block, the residual ``e_p = Y_p - G U_p`` of
+period p scatters around its mean with the noise alone, and
+``G_hat - G = sum_b e_mean_b W_b`` with ``W = R^H (U R^H)^-1``, so
+``var G_ij = sum_b var(e_mean_ib) |W_bj|^2``. With ``variance="total"`` and at
+least two groups of ``n_u`` consecutive blocks (realizations), ``G_var`` is the
+sample variance of the per-realization estimates divided by their number,
+which also holds the stochastic nonlinear distortion.
+
+The lines the multisine leaves out (even lines; odd lines of a random-odd
+design) show the noise plus nonlinear distortion: :class:`LineAnalysis`.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import scipy.fft
+
+from workbench import lti
+from workbench.errors import DataWarning, InputError
+from workbench.formats import FrfData, TimeData
+
+__all__ = [
+    "FrfEstimate",
+    "LineAnalysis",
+    "estimate_frf",
+    "frf_multisine",
+    "frf_h1",
+    "split_blocks",
+]
+
+EXCITED, ODD_FREE, EVEN_FREE = 0, 1, 2
+_EXCITED_REL_POWER = (
+    1e-4  # a bin is excited when its reference power exceeds this share of the peak
+)
+_BLOCK_REL_CHANGE = 0.1  # a period starts a new block when it differs by this relative norm
+_COND_LIMIT = 1e8  # refuse an input matrix (U R^H) more ill-conditioned than this
+
+
+@dataclass(frozen=True)
+class LineAnalysis:
+    """Output spectrum of a multisine experiment at every DFT bin of the excited band.
+
+    Parameters
+    ----------
+    freq : (n_bins,) array
+        Bin frequencies, Hz, from the lowest to the highest excited line.
+    category : (n_bins,) int array
+        0 excited, 1 odd bin left out (odd distortion + noise), 2 even bin left
+        out (even distortion + noise).
+    y_power : (n_bins, n_y) array
+        Mean over blocks of ``|Y|^2`` of the period-averaged output, as squared
+        sine amplitude (m^2).
+    noise_var : (n_bins, n_y) array
+        Variance of the period-averaged output from the spread over periods
+        (m^2), mean over blocks; NaN with a single period per block.
+    """
+
+    freq: np.ndarray
+    category: np.ndarray
+    y_power: np.ndarray
+    noise_var: np.ndarray
+
+    def __post_init__(self):
+        for name in ("freq", "category", "y_power", "noise_var"):
+            a = np.array(getattr(self, name))
+            a.setflags(write=False)
+            object.__setattr__(self, name, a)
+
+    def excess_db(self, category: int) -> np.ndarray:
+        """Power at the bins of ``category`` over the noise there, dB, per output, shape (n_y,).
+
+        About 0 dB when those bins hold only noise; a nonlinearity raises the
+        left-out odd (category 1) or even (category 2) bins above it. NaN if the
+        design has no such bins or no noise estimate.
+        """
+        sel = self.category == category
+        if not np.any(sel):
+            return np.full(self.y_power.shape[1], np.nan)
+        p = self.y_power[sel].mean(axis=0)
+        n = self.noise_var[sel].mean(axis=0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return 10 * np.log10(p / n)
+
+
+@dataclass(frozen=True)
+class FrfEstimate:
+    """An estimated FRF with its diagnostics.
+
+    Parameters
+    ----------
+    frf : FrfData
+        The estimate (spec 1b), ZOH compensated unless asked otherwise;
+        ``frf.G_var`` is the variance selected by ``variance``.
+    method : str
+        ``"multisine"`` or ``"h1"``.
+    reference : str
+        ``"r"`` (indirect, through the excitation) or ``"u"``.
+    n_averages : int
+        Periods averaged per block (multisine) or segments (H1).
+    n_blocks : int
+        Independent excitations (multisine blocks; H1: segments).
+    G_var_noise : (n_f, n_y, n_u) array or None
+        Variance from the spread over periods (multisine) or the residual (H1).
+    G_var_total : (n_f, n_y, n_u) array or None
+        Variance from the spread over realizations (multisine, >= 2 realizations).
+    lines : LineAnalysis or None
+        Non-excited-line analysis (multisine only).
+    """
+
+    frf: FrfData
+    method: str
+    reference: str
+    n_averages: int
+    n_blocks: int
+    G_var_noise: np.ndarray | None = None
+    G_var_total: np.ndarray | None = None
+    lines: LineAnalysis | None = None
+
+
+# ------------------------------------------------------------------- helpers
+def _zoh_divisor(freq: np.ndarray, fs: float, zoh: str) -> np.ndarray:
+    if zoh == "compensate":
+        return lti.zoh_frf(freq, fs)
+    if zoh == "none":
+        return np.ones(freq.size, complex)
+    raise InputError(f"zoh: expected 'compensate' or 'none', got {zoh!r}")
+
+
+def _inverse(B: np.ndarray, what: str) -> np.ndarray:
+    """Inverse of a stack (n_f, n_u, n_u) of input matrices U R^H; refuses singular ones."""
+    cond = np.linalg.cond(B)
+    bad = ~np.isfinite(cond) | (cond > _COND_LIMIT)
+    if np.any(bad):
+        raise InputError(
+            f"{what}: the excitation does not separate the {B.shape[1]} inputs at "
+            f"{int(bad.sum())} of {B.shape[0]} lines "
+            f"(condition number up to {np.nanmax(cond):.3g}); "
+            f"expected at least {B.shape[1]} independent experiments (multisine blocks) or "
+            "a random excitation on every input"
+        )
+    return np.linalg.inv(B)
+
+
+def split_blocks(x: np.ndarray, period: int) -> list[tuple[int, int]]:
+    """Blocks of identical periods in an excitation record.
+
+    Parameters
+    ----------
+    x : (N, n_ch) array
+        The excitation (``r``, or ``u`` in open loop), N a multiple of ``period``.
+    period : int
+        Samples per period.
+
+    Returns
+    -------
+    list of (first_period, n_periods)
+        Periods whose excitation is zero are skipped.
+    """
+    per = x.reshape(-1, period, x.shape[1])
+    norm = np.linalg.norm(per, axis=(1, 2))
+    diff = np.linalg.norm(np.diff(per, axis=0), axis=(1, 2))
+    scale = np.maximum(norm[1:], norm[:-1])
+    new = np.concatenate([[True], diff > _BLOCK_REL_CHANGE * np.where(scale > 0, scale, 1.0)])
+    starts = list(np.flatnonzero(new)) + [per.shape[0]]
+    peak = norm.max() if norm.size else 0.0
+    blocks = []
+    for a, b in zip(starts[:-1], starts[1:]):
+        if norm[a] > 1e-12 * peak:
+            blocks.append((int(a), int(b - a)))
+    return blocks
+
+
+# ----------------------------------------------------------------- multisine
+def frf_multisine(
+    data,
+    *,
+    n_transient: int = 1,
+    lines: np.ndarray | None = None,
+    zoh: Literal["compensate", "none"] = "compensate",
+    variance: Literal["noise", "total"] = "noise",
+    reference: Literal["auto", "r", "u"] = "auto",
+    workers: int | None = None,
+) -> FrfEstimate:
+    """FRF from a periodic multisine experiment.
+
+    Parameters
+    ----------
+    data : MultisineExperiment or TimeData
+        In memory (blocks known) or a record with ``period`` set (blocks found
+        from the excitation, module docstring).
+    n_transient : int
+        Periods dropped at the start of every block.
+    lines : (n_lines,) int array, optional
+        Excited DFT bins of one period; default: found from the reference.
+    zoh : {"compensate", "none"}
+        Divide by the zero-order-hold response (spec 1b) or not.
+    variance : {"noise", "total"}
+        Which variance goes into ``frf.G_var`` (module docstring).
+    reference : {"auto", "r", "u"}
+        ``"auto"``: ``r`` when recorded, else ``u``.
+    workers : int, optional
+        Threads for the FFT (``scipy.fft`` workers).
+
+    Returns
+    -------
+    FrfEstimate
+        ``frf.freq`` are the excited lines, Hz.
+    """
+    from workbench.experiments import MultisineExperiment
+
+    if isinstance(data, MultisineExperiment):
+        fs, period = data.fs, data.period
+        n_u, n_y = data.u.shape[-1], data.y.shape[-1]
+        Y = data.y.reshape((-1,) + data.y.shape[2:])
+        U = data.u.reshape((-1,) + data.u.shape[2:])
+        Rr = None if data.r is None else data.r.reshape((-1,) + data.r.shape[2:])
+        names = dict(input_names=data.input_names, output_names=data.output_names)
+        if lines is None:
+            lines = data.design.lines
+        blocks_y, blocks_u = [Y], [U]
+        blocks_r = None if Rr is None else [Rr]
+    elif isinstance(data, TimeData):
+        if data.period is None:
+            raise InputError(
+                "data: key 'period': expected a periodic (multisine) record with 'period' set; "
+                "use frf_h1 (method 'h1') for a non-periodic record"
+            )
+        fs, period, n_u, n_y = data.fs, data.period, data.n_u, data.n_y
+        names = dict(input_names=data.input_names, output_names=data.output_names)
+        x = data.r if data.r is not None else data.u
+        found = split_blocks(x, period)
+        if not found:
+            raise InputError("data: the excitation is zero in every period")
+        # blocks of equal length are stacked into one array; unequal ones kept apart
+        order = sorted(found)
+        lengths = {n for _, n in order}
+
+        def stack(sig):
+            if sig is None:
+                return None
+            per = sig.reshape(-1, period, sig.shape[1])
+            if len(lengths) == 1:
+                n = order[0][1]
+                idx = np.array([a for a, _ in order])[:, None] + np.arange(n)[None, :]
+                return [per[idx]]
+            return [per[a : a + n][None] for a, n in order]
+
+        blocks_y, blocks_u, blocks_r = stack(data.y), stack(data.u), stack(data.r)
+    else:
+        raise InputError(
+            f"data: expected a MultisineExperiment or TimeData, got {type(data).__name__}"
+        )
+    if reference not in ("auto", "r", "u"):
+        raise InputError(f"reference: expected 'auto', 'r' or 'u', got {reference!r}")
+    if reference == "r" and blocks_r is None:
+        raise InputError("reference: 'r' asked for, but the data has no excitation 'r'")
+    use_r = blocks_r is not None and reference != "u"
+    n_transient = int(n_transient)
+    if n_transient < 0:
+        raise InputError(f"n_transient: expected an integer >= 0, got {n_transient}")
+    min_periods = min(b.shape[1] for b in blocks_y)
+    if min_periods <= n_transient:
+        raise InputError(
+            f"n_transient: every block must keep a period after dropping {n_transient}; "
+            f"the shortest block has {min_periods} period(s)"
+        )
+
+    # ---- DFT per period, averaged per block
+    scale = 2.0 / period  # DFT -> sine amplitude
+    Ym, Um, Rm, dY, dU = [], [], [], [], []
+    for i in range(len(blocks_y)):
+        yb = blocks_y[i][:, n_transient:]
+        ub = blocks_u[i][:, n_transient:]
+        Yf = scipy.fft.rfft(yb, axis=2, workers=workers) * scale  # (b, P', n_bins, n_y)
+        Uf = scipy.fft.rfft(ub, axis=2, workers=workers) * scale
+        Ym.append(Yf.mean(axis=1))
+        Um.append(Uf.mean(axis=1))
+        dY.append(Yf - Ym[-1][:, None])
+        dU.append(Uf - Um[-1][:, None])
+        if use_r:
+            Rm.append(scipy.fft.rfft(blocks_r[i][:, n_transient:].mean(axis=1), axis=1) * scale)
+    Ym = np.concatenate(Ym)  # (n_b, n_bins, n_y)
+    Um = np.concatenate(Um)
+    Rm = np.concatenate(Rm) if use_r else Um
+    n_b = Ym.shape[0]
+    n_bins = Ym.shape[1]
+    n_per = [d.shape[1] for d in dY]
+
+    # ---- excited lines
+    if lines is None:
+        p = np.sum(np.abs(Rm[:, 1 : period // 2 + (period % 2)]) ** 2, axis=(0, 2))
+        lines = 1 + np.flatnonzero(p > _EXCITED_REL_POWER * p.max())
+    lines = np.asarray(lines, int)
+    if lines.size == 0 or lines.min() < 1 or lines.max() >= n_bins or np.any(np.diff(lines) <= 0):
+        raise InputError(
+            f"lines: expected strictly increasing bins in [1, {n_bins - 1}], got {lines!r}"
+        )
+    if n_b < n_u:
+        raise InputError(
+            f"data: {n_b} multisine block(s) for {n_u} inputs; expected at least {n_u} "
+            "experiments with independent excitation (a single multisine applied to all "
+            "inputs at once does not separate them): use method 'h1' on random data or "
+            "record n_u experiments"
+        )
+
+    # ---- G = (Y R^H)(U R^H)^-1 per excited line
+    Yl = np.moveaxis(Ym[:, lines], 0, -1)  # (n_l, n_y, n_b)
+    Ul = np.moveaxis(Um[:, lines], 0, -1)  # (n_l, n_u, n_b)
+    RlH = np.conj(np.moveaxis(Rm[:, lines], 0, 1))  # (n_l, n_b, n_u)
+    W = RlH @ _inverse(Ul @ RlH, "data")  # R^H (U R^H)^-1, (n_l, n_b, n_u)
+    G = Yl @ W  # (n_l, n_y, n_u)
+
+    # ---- variance from the spread over periods
+    var_e = np.empty((lines.size, n_y, n_b))
+    have_periods = min(n_per) >= 2
+    noise_bins = np.full((n_bins, n_y), np.nan)
+    k = 0
+    if have_periods:
+        noise_acc = np.zeros((n_bins, n_y))
+        for i in range(len(dY)):
+            P = n_per[i]
+            # residual of each period around its block mean: dY - G dU, (b, P, n_l, n_y)
+            e = dY[i][:, :, lines] - np.einsum("lyu,bplu->bply", G, dU[i][:, :, lines])
+            nb_i = e.shape[0]
+            var_e[:, :, k : k + nb_i] = np.moveaxis(
+                np.sum(np.abs(e) ** 2, axis=1) / (P * (P - 1)), 0, -1
+            )
+            noise_acc += np.sum(np.abs(dY[i]) ** 2, axis=1).sum(axis=0) / (P * (P - 1))
+            k += nb_i
+        noise_bins = noise_acc / n_b
+        G_var_noise = np.einsum("lyb,lbu->lyu", var_e, np.abs(W) ** 2)
+    else:
+        G_var_noise = None
+
+    # ---- variance from the spread over realizations (groups of n_u blocks)
+    G_var_total = None
+    n_groups = n_b // n_u if n_b % n_u == 0 else 0
+    if n_groups >= 2:
+        Yg = Yl.reshape(lines.size, n_y, n_groups, n_u)
+        Ug = Ul.reshape(lines.size, n_u, n_groups, n_u)
+        Rg = np.conj(RlH).reshape(lines.size, n_groups, n_u, n_u)  # (l, g, b, u): R^T per group
+        Gg = np.empty((n_groups, lines.size, n_y, n_u), complex)
+        for g in range(n_groups):
+            RH = np.conj(Rg[:, g])  # (l, b, u)
+            Gg[g] = Yg[:, :, g] @ RH @ _inverse(Ug[:, :, g] @ RH, "data")
+        G_var_total = np.sum(np.abs(Gg - Gg.mean(axis=0)) ** 2, axis=0) / (
+            n_groups * (n_groups - 1)
+        )
+
+    if variance == "noise":
+        G_var = G_var_noise
+    elif variance == "total":
+        if G_var_total is None:
+            raise InputError(
+                f"variance: 'total' needs at least 2 realizations of {n_u} blocks, got {n_b} blocks"
+            )
+        G_var = G_var_total
+    else:
+        raise InputError(f"variance: expected 'noise' or 'total', got {variance!r}")
+    if G_var is None:
+        warnings.warn(
+            "one period per block after dropping the transient: no variance estimate; "
+            "record more periods",
+            DataWarning,
+            stacklevel=2,
+        )
+
+    freq = lines * fs / period
+    z = _zoh_divisor(freq, fs, zoh)
+    G = G / z[:, None, None]
+    zz = np.abs(z)[:, None, None] ** 2
+    if G_var is not None:
+        G_var = G_var / zz
+    G_var_noise = None if G_var_noise is None else G_var_noise / zz
+    G_var_total = None if G_var_total is None else G_var_total / zz
+
+    # ---- non-excited lines
+    band = np.arange(lines.min(), lines.max() + 1)
+    category = np.where(band % 2 == 1, ODD_FREE, EVEN_FREE)
+    category[np.isin(band, lines)] = EXCITED
+    analysis = LineAnalysis(
+        freq=band * fs / period,
+        category=category,
+        y_power=np.mean(np.abs(Ym[:, band]) ** 2, axis=0),
+        noise_var=noise_bins[band],
+    )
+    return FrfEstimate(
+        frf=FrfData(freq=freq, G=G, G_var=G_var, fs=fs, **names),
+        method="multisine",
+        reference="r" if use_r else "u",
+        n_averages=min(n_per),
+        n_blocks=n_b,
+        G_var_noise=G_var_noise,
+        G_var_total=G_var_total,
+        lines=analysis,
+    )
+
+
+# ------------------------------------------------------------------------ H1
+def frf_h1(
+    data: TimeData,
+    *,
+    nperseg: int | None = None,
+    overlap: float = 0.5,
+    window: str = "hann",
+    zoh: Literal["compensate", "none"] = "compensate",
+    reference: Literal["auto", "r", "u"] = "auto",
+    workers: int | None = None,
+) -> FrfEstimate:
+    """Welch-averaged H1 estimate ``S_yx S_ux^-1`` (x = r or u) for random excitation.
+
+    Parameters
+    ----------
+    data : TimeData
+        Open- or closed-loop record.
+    nperseg : int, optional
+        Segment length, samples; default the largest power of two that gives
+        at least ``max(16, 4 n_u)`` averages at the given overlap.
+    overlap : float
+        Segment overlap as a share of ``nperseg``, in [0, 1).
+    window : str
+        A ``scipy.signal.get_window`` name (periodic form, as ``scipy.signal.csd``).
+    zoh : {"compensate", "none"}
+    reference : {"auto", "r", "u"}
+        ``"auto"``: ``r`` when recorded (the closed-loop indirect estimate),
+        else ``u``; ``"u"`` on closed-loop data gives the classical, biased H1.
+    workers : int, optional
+        Threads for the FFT.
+
+    Returns
+    -------
+    FrfEstimate
+        ``frf.freq`` are the bins ``k fs / nperseg``, 1 <= k < nperseg / 2.
+
+    Notes
+    -----
+    Each segment has its mean removed and is windowed. ``G_var`` uses the
+    residual ``V_s = Y_s - G U_s`` of every segment: ``sigma_i^2 = sum_s
+    |V_si|^2 / (n_seg - n_u)`` and ``var G_ij = sigma_i^2 sum_s |W_sj|^2``
+    with ``W = R^H (U R^H)^-1``; the correlation between overlapping segments
+    (1/6 for a Hann window at 50 %) is neglected in it. Leakage biases lightly
+    damped resonances by about (resolution / half-power bandwidth)^2.
+    """
+    import scipy.signal
+
+    if not isinstance(data, TimeData):
+        raise InputError(f"data: expected TimeData, got {type(data).__name__}")
+    if not 0 <= overlap < 1:
+        raise InputError(f"overlap: expected a share in [0, 1), got {overlap}")
+    if reference not in ("auto", "r", "u"):
+        raise InputError(f"reference: expected 'auto', 'r' or 'u', got {reference!r}")
+    if reference == "r" and data.r is None:
+        raise InputError("reference: 'r' asked for, but the data has no excitation 'r'")
+    use_r = data.r is not None and reference != "u"
+    N, n_u = data.n_samples, data.n_u
+    if nperseg is None:
+        n_avg = max(16, 4 * n_u)
+        nperseg = 2 ** int(np.floor(np.log2(N / (1 + (n_avg - 1) * (1 - overlap)))))
+    nperseg = int(nperseg)
+    if not 8 <= nperseg <= N:
+        raise InputError(f"nperseg: expected 8 <= nperseg <= N = {N}, got {nperseg}")
+    step = max(1, int(round(nperseg * (1 - overlap))))
+    n_seg = 1 + (N - nperseg) // step
+    if n_seg <= n_u:
+        raise InputError(
+            f"nperseg: {n_seg} segments for {n_u} inputs; expected more segments than inputs "
+            "(shorten nperseg)"
+        )
+    win = scipy.signal.get_window(window, nperseg)
+
+    def spectra(x):
+        seg = np.lib.stride_tricks.sliding_window_view(x, nperseg, axis=0)[::step]  # (s, ch, n)
+        seg = seg - seg.mean(axis=-1, keepdims=True)
+        X = scipy.fft.rfft(seg * win, axis=-1, workers=workers)[..., 1 : (nperseg + 1) // 2]
+        return np.moveaxis(X, -1, 0)  # (n_f, s, ch)
+
+    Yf = spectra(data.y)
+    Uf = spectra(data.u)
+    Rf = spectra(data.r) if use_r else Uf
+    RH = np.conj(Rf)  # (n_f, s, n_u)
+    B = np.swapaxes(Uf, 1, 2) @ RH  # (n_f, n_u, n_u) = sum_s U R^H
+    W = RH @ _inverse(B, "data")  # (n_f, s, n_u)
+    G = np.swapaxes(Yf, 1, 2) @ W  # (n_f, n_y, n_u) = S_yr S_ur^-1
+    V = Yf - Uf @ np.swapaxes(G, 1, 2)  # (n_f, s, n_y)
+    sigma2 = np.sum(np.abs(V) ** 2, axis=1) / (n_seg - n_u)  # (n_f, n_y)
+    G_var = sigma2[:, :, None] * np.sum(np.abs(W) ** 2, axis=1)[:, None, :]
+
+    freq = np.arange(1, (nperseg + 1) // 2) * data.fs / nperseg
+    z = _zoh_divisor(freq, data.fs, zoh)
+    G = G / z[:, None, None]
+    G_var = G_var / np.abs(z)[:, None, None] ** 2
+    return FrfEstimate(
+        frf=FrfData(
+            freq=freq,
+            G=G,
+            G_var=G_var,
+            fs=data.fs,
+            input_names=data.input_names,
+            output_names=data.output_names,
+        ),
+        method="h1",
+        reference="r" if use_r else "u",
+        n_averages=n_seg,
+        n_blocks=n_seg,
+        G_var_noise=G_var,
+    )
+
+
+def estimate_frf(
+    data,
+    *,
+    method: Literal["auto", "multisine", "h1"] = "auto",
+    zoh: Literal["compensate", "none"] = "compensate",
+    reference: Literal["auto", "r", "u"] = "auto",
+    n_transient: int = 1,
+    nperseg: int | None = None,
+    overlap: float = 0.5,
+) -> FrfEstimate:
+    """One entry point: ``"auto"`` picks the multisine estimator for periodic data, else H1."""
+    from workbench.experiments import MultisineExperiment
+
+    if method == "auto":
+        periodic = isinstance(data, MultisineExperiment) or (
+            isinstance(data, TimeData) and data.period is not None
+        )
+        method = "multisine" if periodic else "h1"
+    if method == "multisine":
+        return frf_multisine(data, n_transient=n_transient, zoh=zoh, reference=reference)
+    if method == "h1":
+        if isinstance(data, MultisineExperiment):
+            data = data.to_time_data()
+        return frf_h1(data, nperseg=nperseg, overlap=overlap, zoh=zoh, reference=reference)
+    raise InputError(f"method: expected 'auto', 'multisine' or 'h1', got {method!r}")
