@@ -1,0 +1,236 @@
+"""Sampled simulation of a :class:`~plants.modal.LinearChain`: fast linear path and nonlinear path.
+
+Linear path: exact zero-order-hold discretization with the (fractional) input
+delay (:func:`workbench.lti.c2d_zoh`), then the recursion
+x[k+1] = Ad x[k] + B0 u[k-m] + B1 u[k-m-1] is run block by block: Ad is block
+lower triangular (actuator lags, then 2 x 2 mode blocks, then sensor lags), so
+every block is a first- or second-order recursion driven by the blocks before
+it, which :func:`scipy.signal.lfilter` runs in compiled code. The result equals
+the plain state recursion to rounding (tested), at a fraction of its cost.
+
+Nonlinear path (friction, cubic spring, saturation): a per-sample loop with
+``substeps`` substeps; over each substep the linear part is propagated exactly
+(matrix exponential, with the input switching at the fractional delay) and the
+nonlinear port force is held at its value at the start of the substep
+(explicit, first order in the substep). The smooth Coulomb friction is
+F = -F_c tanh(v / v0); keep v0 so that F_c / v0 times the port mobility times
+the substep stays well below 1.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+import scipy.linalg
+import scipy.signal
+
+from workbench import lti
+
+from .modal import LinearChain
+
+__all__ = ["DiscreteChain"]
+
+#: Modes whose drive is formed at once in the fast linear path (bounds memory to N x 2 x this).
+_CHUNK_MODES = 24
+
+
+def _phi_gamma(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """(e^{Ah}, int_0^h e^{As} ds B)."""
+    n, m = B.shape
+    M = np.zeros((n + m, n + m))
+    M[:n, :n] = A * h
+    M[:n, n:] = B * h
+    E = scipy.linalg.expm(M)
+    return E[:n, :n], E[:n, n:]
+
+
+def _delayed(u: np.ndarray, m: int) -> np.ndarray:
+    out = np.zeros_like(u)
+    if m < u.shape[0]:
+        out[m:] = u[: u.shape[0] - m]
+    return out
+
+
+@dataclass(frozen=True)
+class DiscreteChain:
+    """A linear chain sampled at ``fs`` behind a ZOH, with an input delay and port nonlinearities.
+
+    Parameters
+    ----------
+    chain : LinearChain
+        Continuous linear dynamics; its ``effects`` also give the nonlinear
+        port forces, the saturation and the number of substeps.
+    fs : float
+        Sampling frequency, Hz.
+    delay_s : float
+        Input delay, s.
+    """
+
+    chain: LinearChain
+    fs: float
+    delay_s: float = 0.0
+
+    @cached_property
+    def zoh(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+        """(Ad, B0, B1, m) of :func:`workbench.lti.c2d_zoh`."""
+        mats = self.chain.matrices
+        return lti.c2d_zoh(mats["A"], mats["B"], 1.0 / self.fs, delay_s=self.delay_s)
+
+    # -- nonlinear port model ------------------------------------------------------------
+    @cached_property
+    def _nl(self) -> dict[str, np.ndarray]:
+        e = self.chain.effects
+        n_u = self.chain.n_u
+        zero = np.zeros(n_u)
+
+        def vec(v):
+            return (
+                zero.copy() if v is None else np.broadcast_to(np.asarray(v, float), (n_u,)).copy()
+            )
+
+        sat = np.full(n_u, np.inf) if e.saturation is None else vec(e.saturation)
+        return {
+            "fc": vec(e.friction_force),
+            "k3": vec(e.cubic_stiffness),
+            "sat": sat,
+            "v0": np.array(e.friction_velocity),
+        }
+
+    @property
+    def nonlinear(self) -> bool:
+        """True when a port force (friction, cubic spring) needs the substep loop.
+
+        Saturation alone is memoryless at the input: the fast linear path runs
+        on the saturated input.
+        """
+        nl = self._nl
+        return bool(np.any(nl["fc"] > 0) or np.any(nl["k3"] > 0))
+
+    def saturate(self, u: np.ndarray) -> np.ndarray:
+        sat = self._nl["sat"]
+        return np.clip(u, -sat, sat) if np.any(np.isfinite(sat)) else u
+
+    @cached_property
+    def substep(self) -> dict[str, np.ndarray]:
+        """Per-substep propagation: Phi, Gp (port force), G_old[j], G_new[j] (delayed input)."""
+        mats = self.chain.matrices
+        A, B, Bp = mats["A"], mats["B"], mats["Bp"]
+        n_sub = int(self.chain.effects.substeps)
+        T = 1.0 / self.fs
+        h = T / n_sub
+        m = int(np.floor(self.delay_s / T + 1e-12))
+        tau = self.delay_s - m * T
+        if tau < 1e-12 * T:
+            tau = 0.0
+        Phi, Gp = _phi_gamma(A, Bp, h)
+        G_old, G_new = [], []
+        for j in range(n_sub):
+            t0, t1 = j * h, (j + 1) * h
+            ts = min(max(tau, t0), t1)
+            P1, Gn = _phi_gamma(A, B, t1 - ts)  # new input over [ts, t1]
+            _, Go = _phi_gamma(A, B, ts - t0)  # old input over [t0, ts]
+            G_old.append(P1 @ Go)
+            G_new.append(Gn)
+        return {"Phi": Phi, "Gp": Gp, "G_old": np.array(G_old), "G_new": np.array(G_new), "m": m}
+
+    def port_force(self, x: np.ndarray) -> np.ndarray:
+        """Friction and cubic-spring force at the ports, (n_u,), for state x (n_x,)."""
+        nl = self._nl
+        mats = self.chain.matrices
+        f = np.zeros(self.chain.n_u)
+        if np.any(nl["fc"] > 0):
+            f -= nl["fc"] * np.tanh((mats["Cv"] @ x) / nl["v0"])
+        if np.any(nl["k3"] > 0):
+            f -= nl["k3"] * (mats["Cp"] @ x) ** 3
+        return f
+
+    def advance_nonlinear(self, x: np.ndarray, u_new: np.ndarray, u_old: np.ndarray) -> np.ndarray:
+        """State after one sample; ``u_new`` = u[k-m], ``u_old`` = u[k-m-1], both saturated."""
+        sub = self.substep
+        Phi, Gp, G_old, G_new = sub["Phi"], sub["Gp"], sub["G_old"], sub["G_new"]
+        for j in range(G_old.shape[0]):
+            x = Phi @ x + G_old[j] @ u_old + G_new[j] @ u_new + Gp @ self.port_force(x)
+        return x
+
+    # -- simulation ----------------------------------------------------------------------
+    def simulate(self, u: np.ndarray) -> np.ndarray:
+        """Noise-free output (N, n_y) from rest for input u (N, n_u), y[k] at k / fs."""
+        if self.nonlinear:
+            return self._simulate_nonlinear(u)
+        return self._simulate_linear(self.saturate(u))
+
+    def _simulate_nonlinear(self, u: np.ndarray) -> np.ndarray:
+        C = self.chain.matrices["C"]
+        m = self.substep["m"]
+        us = self.saturate(u)
+        um, um1 = _delayed(us, m), _delayed(us, m + 1)
+        N = u.shape[0]
+        X = np.zeros((N, C.shape[1]))
+        x = np.zeros(C.shape[1])
+        for k in range(N):
+            X[k] = x
+            x = self.advance_nonlinear(x, um[k], um1[k])
+        return X @ C.T
+
+    def _simulate_linear(self, u: np.ndarray) -> np.ndarray:
+        Ad, B0, B1, m = self.zoh
+        mats = self.chain.matrices
+        C, D = mats["C"], mats["D"]
+        n_a, n_m2, n_s = self.chain.layout[2]
+        N = u.shape[0]
+        um, um1 = _delayed(u, m), _delayed(u, m + 1)
+        has_b1 = bool(np.any(B1))
+
+        def drive(rows):
+            d = um @ B0[rows].T
+            if has_b1:
+                d += um1 @ B1[rows].T
+            return d
+
+        y = um @ D.T if np.any(D) else np.zeros((N, C.shape[0]))
+        # group 1: actuator lags, scalar recursions
+        g1 = np.arange(n_a)
+        X1 = np.zeros((N, n_a))
+        if n_a:
+            d1 = drive(g1)
+            for i in range(n_a):
+                X1[:, i] = scipy.signal.lfilter([0.0, 1.0], [1.0, -Ad[i, i]], d1[:, i])
+            y += X1 @ C[:, g1].T
+        g3 = np.arange(n_a + n_m2, n_a + n_m2 + n_s)
+        acc3 = drive(g3) + X1 @ Ad[np.ix_(g3, g1)].T if n_s else None
+        # group 2: 2 x 2 blocks, one per mode, in chunks to bound the memory
+        n_modes = n_m2 // 2
+        for start in range(0, n_modes, _CHUNK_MODES):
+            k = np.arange(start, min(start + _CHUNK_MODES, n_modes))
+            q, v = n_a + 2 * k, n_a + 2 * k + 1
+            rows = np.concatenate([q, v])
+            W = drive(rows)
+            if n_a:
+                W += X1 @ Ad[np.ix_(rows, g1)].T
+            Wq, Wv = W[:, : k.size], W[:, k.size :]
+            F11, F12, F21, F22 = Ad[q, q], Ad[q, v], Ad[v, q], Ad[v, v]
+            # (zI - F)^-1 = adj(zI - F) / det(zI - F), written in z^-1
+            Vq = np.zeros((N, k.size))
+            Vv = np.zeros((N, k.size))
+            Vq[1:] = Wq[:-1]
+            Vq[2:] += -F22 * Wq[:-2] + F12 * Wv[:-2]
+            Vv[1:] = Wv[:-1]
+            Vv[2:] += -F11 * Wv[:-2] + F21 * Wq[:-2]
+            Xq = np.empty_like(Vq)
+            Xv = np.empty_like(Vv)
+            for i in range(k.size):
+                den = [1.0, -(F11[i] + F22[i]), F11[i] * F22[i] - F12[i] * F21[i]]
+                Xi = scipy.signal.lfilter(
+                    [1.0], den, np.stack([Vq[:, i], Vv[:, i]], axis=1), axis=0
+                )
+                Xq[:, i], Xv[:, i] = Xi[:, 0], Xi[:, 1]
+            y += Xq @ C[:, q].T + Xv @ C[:, v].T
+            if n_s:
+                acc3 += Xq @ Ad[np.ix_(g3, q)].T + Xv @ Ad[np.ix_(g3, v)].T
+        # group 3: sensor lags, scalar recursions driven by everything before
+        for i, r in enumerate(g3):
+            x3 = scipy.signal.lfilter([0.0, 1.0], [1.0, -Ad[r, r]], acc3[:, i])
+            y += np.outer(x3, C[:, r])
+        return y
