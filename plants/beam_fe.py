@@ -87,7 +87,7 @@ def element_matrices(le: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def point_vector(x_m: float, *, length_m: float, n_elements: int) -> np.ndarray:
-    """Row (n_dof,) that gives the deflection at ``x_m`` from the nodal DOFs (Hermite interpolation).
+    """Row (n_dof,) giving the deflection at ``x_m`` from the nodal DOFs (Hermite interpolation).
 
     Its transpose is the consistent nodal load of a unit point force at ``x_m``.
     """

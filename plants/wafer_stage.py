@@ -308,7 +308,7 @@ def frame_rotation_crosstalk(angles_rad) -> np.ndarray:
     Examples
     --------
     >>> X = frame_rotation_crosstalk([0.0, 0.0, 1e-3])
-    >>> round(X[0, 1], 6), round(X[1, 0], 6)
+    >>> float(X[0, 1]), float(X[1, 0])
     (0.001, -0.001)
     """
     w = np.asarray(angles_rad, float).reshape(3)
