@@ -1,0 +1,25 @@
+"""System identification from time records: subspace methods and their order choice.
+
+Data flow::
+
+    TimeData (u, y, r, fs)
+        -> gram.hankel_gram        structured Gram of the block-Hankel data (O(N rows))
+        -> subspace._data_factor   small LQ factor L, projected onto r for closed loop
+        -> subspace._weighted_svd  N4SID / MOESP / CVA weighting, singular values
+        -> order.suggest_order     order at the largest gap (user may override)
+        -> A, C (shift invariance), B, D (Toeplitz least squares)
+        -> SubspaceResult.model    control.StateSpace, dt = 1/fs
+    then workbench.d2c -> workbench.modal -> workbench.minimality.
+"""
+
+from workbench.ident.order import format_singular_values, plot_singular_values, suggest_order
+from workbench.ident.subspace import METHODS, SubspaceResult, identify_subspace
+
+__all__ = [
+    "METHODS",
+    "SubspaceResult",
+    "identify_subspace",
+    "suggest_order",
+    "format_singular_values",
+    "plot_singular_values",
+]

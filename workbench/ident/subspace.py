@@ -1,0 +1,412 @@
+"""Subspace identification, open loop and closed loop (orthogonal projection).
+
+One entry point, :func:`identify_subspace`, for five methods:
+
+============  ===============================================================
+``cl-n4sid``  project u, y onto the row space of [R_p; R_f], then N4SID
+``cl-moesp``  ... then MOESP (PO-MOESP weighting)
+``cl-cva``    ... then CVA
+``n4sid``     open-loop N4SID on (u, y); biased on closed-loop data
+``moesp``     open-loop MOESP on (u, y); biased on closed-loop data
+============  ===============================================================
+
+Every method reduces the data to a small factor ``L`` (rows x c) with
+``L L^T`` the Gram of the (projected) block-Hankel data, so all later steps
+cost nothing in ``N``; see :mod:`workbench.ident.gram`.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+import scipy.linalg
+
+from workbench.errors import DataWarning, InputError
+from workbench.formats import TimeData
+from workbench.ident.gram import hankel, hankel_gram
+from workbench.ident.order import suggest_order
+
+__all__ = ["SubspaceResult", "identify_subspace", "METHODS"]
+
+Method = Literal["cl-n4sid", "cl-moesp", "cl-cva", "n4sid", "moesp"]
+METHODS: tuple[str, ...] = ("cl-n4sid", "cl-moesp", "cl-cva", "n4sid", "moesp")
+
+
+def _frozen(a) -> np.ndarray:
+    a = np.array(a, dtype=float, copy=True)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True)
+class SubspaceResult:
+    """An identified discrete-time model and what the order choice rests on.
+
+    Attributes
+    ----------
+    model : control.StateSpace
+        Discrete model, ``dt = 1 / fs``; input N (``u``), output m (``y``).
+        With ``input_delay > 0`` it maps ``u[k - input_delay]`` to ``y[k]``.
+    singular_values : (n_sv,) array
+        Singular values of the weighted projection, largest first (scaled
+        data, so dimensionless).
+    order : int
+        Order of ``model``.
+    suggested_order : int
+        Order at the largest gap of ``singular_values`` (see
+        :func:`~workbench.ident.order.suggest_order`).
+    gap : float
+        ``s[suggested_order - 1] / s[suggested_order]``, the ratio it rests on.
+    method : str
+        One of :data:`METHODS`.
+    block_rows : int
+        ``i``, block rows of the past and of the future.
+    input_delay : int
+        Input delay in samples removed from the data before identification.
+    fs : float
+        Sampling frequency, Hz.
+    """
+
+    model: object
+    singular_values: np.ndarray
+    order: int
+    suggested_order: int
+    gap: float
+    method: str
+    block_rows: int
+    input_delay: int = 0
+    fs: float = 1.0
+    notes: tuple[str, ...] = field(default=())
+
+    def __post_init__(self):
+        object.__setattr__(self, "singular_values", _frozen(self.singular_values))
+
+    @property
+    def delay_s(self) -> float:
+        """Input delay removed before identification, s."""
+        return self.input_delay / self.fs
+
+
+def identify_subspace(
+    data: TimeData,
+    *,
+    method: Method = "cl-moesp",
+    order: int | None = None,
+    block_rows: int = 20,
+    input_delay: int = 0,
+    feedthrough: bool = True,
+    max_order: int | None = None,
+    factorization: Literal["gram", "qr"] = "gram",
+    chunk: int = 1024,
+) -> SubspaceResult:
+    """Identify a discrete state-space model from a time record.
+
+    Parameters
+    ----------
+    data : TimeData
+        ``u`` (N, n_u) plant input, N; ``y`` (N, n_y) output, m; ``r``
+        (N, n_u) exogenous excitation at the plant input (required by the
+        ``cl-*`` methods); ``fs`` Hz.
+    method : {"cl-n4sid", "cl-moesp", "cl-cva", "n4sid", "moesp"}
+        Closed-loop (projection onto r) or plain open-loop method.
+    order : int, optional
+        Model order; default the suggested order.
+    block_rows : int
+        ``i``: block rows of the past and of the future Hankel matrices.
+        Must satisfy ``i * n_y > order``.
+    input_delay : int
+        Known input delay in samples: ``y[k]`` is paired with
+        ``u[k - input_delay]`` (and ``r``), so the model needs no delay
+        states. The result keeps it (``delay_s``).
+    feedthrough : bool
+        Estimate ``D``; if False, ``D = 0`` (strictly proper plant).
+    max_order : int, optional
+        Largest order considered by the suggestion; default ``i * n_y // 2``.
+    factorization : {"gram", "qr"}
+        ``"gram"``: the structured Gram of the block-Hankel matrix from
+        correlation sums, ``O(N * rows)`` work, memory independent of N.
+        ``"qr"``: QR of the explicit Hankel matrix (reference; memory ``O(N)``).
+    chunk : int
+        Samples per chunk of the correlation sums.
+
+    Returns
+    -------
+    SubspaceResult
+
+    Notes
+    -----
+    With ``Z = [U_f; W_p; Y_f]``, ``W_p = [U_p; Y_p]``, and ``L`` its lower
+    LQ factor with blocks ``L_ab`` (Van Overschee & De Moor 1996, sec. 4.3):
+    N4SID takes the SVD of the oblique projection ``L32 L22^+ [L21 L22]``;
+    MOESP that of ``L32 L22^+ L22`` (``W2 = Pi_perp(U_f)``); CVA that of
+    ``W1 L32 L22^+ L22`` with ``W1 = ((Y_f/U_f^perp)(Y_f/U_f^perp)^T)^(-1/2)``.
+    ``Gamma = W1^-1 U_n S_n^(1/2)``, ``C`` its first block row and ``A`` from
+    shift invariance. ``B, D`` by least squares from the Toeplitz relation
+    ``Gamma^perp Y_f U_f^+ = Gamma^perp H_i`` (Verhaegen 1994), linear in
+    ``[D; B]``.
+
+    Closed loop (Huang, Ding & Qin 2005): ``U`` and ``Y`` are first projected
+    onto the row space of ``[R_p; R_f]``. With ``G_RR = L_R L_R^T`` (Cholesky)
+    the projected data are ``M Q_R`` with ``M = G_XR L_R^-T`` and ``Q_R``
+    orthonormal, so the open-loop problem is solved on the small ``M``.
+
+    References
+    ----------
+    P. Van Overschee, B. De Moor, Subspace Identification for Linear Systems,
+    Kluwer, 1996. B. Huang, S.X. Ding, S.J. Qin, Closed-loop subspace
+    identification: an orthogonal projection approach, J. Process Control 15
+    (2005) 53-66. M. Verhaegen, Identification of the deterministic part of
+    MIMO state space models given in innovations form from input-output data,
+    Automatica 30 (1994) 61-74.
+    """
+    if not isinstance(data, TimeData):
+        raise InputError(f"data: expected time-domain data (TimeData), got {type(data).__name__}")
+    if method not in METHODS:
+        raise InputError(f"method: expected one of {', '.join(METHODS)}, got {method!r}")
+    if factorization not in ("gram", "qr"):
+        raise InputError(f"factorization: expected 'gram' or 'qr', got {factorization!r}")
+    closed = method.startswith("cl-")
+    if closed and data.r is None:
+        raise InputError(
+            f"method {method!r}: expected closed-loop data with the excitation 'r', got none; "
+            "use n4sid or moesp for open-loop data"
+        )
+    i = int(block_rows)
+    n_u, n_y = data.n_u, data.n_y
+    input_delay = int(input_delay)
+    if input_delay < 0:
+        raise InputError(f"input_delay: expected an integer >= 0 samples, got {input_delay}")
+    N = data.n_samples - input_delay
+    if i < 2:
+        raise InputError(f"block_rows: expected an integer >= 2, got {block_rows}")
+    n_rows = 2 * i * (n_u + n_y + (n_u if closed else 0))
+    if N - 2 * i + 1 < 2 * n_rows:
+        raise InputError(
+            f"data: expected at least {2 * n_rows + 2 * i - 1} samples for {i} block rows, "
+            f"got {N}; use fewer block rows"
+        )
+    if max_order is None:
+        max_order = max(1, i * n_y // 2)
+    max_order = min(int(max_order), i * n_y - 1)
+    if order is not None and not 1 <= int(order) < i * n_y:
+        raise InputError(
+            f"order: expected 1 <= order < block_rows * n_y = {i * n_y}, got {order}; "
+            "increase block_rows"
+        )
+
+    # Align u, r with y for a known input delay; views, no copies.
+    u = data.u[: data.n_samples - input_delay]
+    y = data.y[input_delay:]
+    su = _scale(u, "u")
+    sy = _scale(y, "y")
+    signals = [u, y]
+    scales = [su, sy]
+    if closed:
+        r = data.r[: data.n_samples - input_delay]
+        _scale(r, "r")
+        signals = [r, u, y]
+        scales = [su, su, sy]
+
+    L, S_cva = _data_factor(
+        signals,
+        scales,
+        i=i,
+        n_r=n_u if closed else 0,
+        n_u=n_u,
+        n_y=n_y,
+        N=N,
+        factorization=factorization,
+        chunk=chunk,
+        cva=method.endswith("cva"),
+    )
+    Gamma_full, sv, W1inv = _weighted_svd(L, S_cva, i=i, n_u=n_u, n_y=n_y, method=method)
+    suggested, gap = suggest_order(sv, max_order=max_order)
+    n = suggested if order is None else int(order)
+    Gamma = W1inv @ Gamma_full[:, :n] * np.sqrt(sv[:n])
+    C = Gamma[:n_y]
+    A = np.linalg.lstsq(Gamma[:-n_y], Gamma[n_y:], rcond=None)[0]
+    B, D = _b_d(L, A, C, i=i, n_u=n_u, n_y=n_y, feedthrough=feedthrough)
+
+    # undo the channel scaling: y = sy * y_s, u = su * u_s
+    B = B / su[None, :]
+    C = sy[:, None] * C
+    D = sy[:, None] * D / su[None, :]
+    import control
+
+    model = control.ss(
+        A, B, C, D, 1.0 / data.fs, inputs=list(data.input_names), outputs=list(data.output_names)
+    )
+    notes = ()
+    if np.max(np.abs(np.linalg.eigvals(A))) >= 1.0:
+        notes = ("the identified model has poles on or outside the unit circle",)
+    return SubspaceResult(
+        model=model,
+        singular_values=sv,
+        order=n,
+        suggested_order=suggested,
+        gap=gap,
+        method=method,
+        block_rows=i,
+        input_delay=input_delay,
+        fs=data.fs,
+        notes=notes,
+    )
+
+
+# ----------------------------------------------------------------- internals
+def _scale(x: np.ndarray, name: str) -> np.ndarray:
+    s = np.sqrt(np.einsum("ij,ij->j", x, x) / x.shape[0])  # no O(N) temporary
+    if np.any(s == 0):
+        k = int(np.flatnonzero(s == 0)[0])
+        raise InputError(
+            f"data: key '{name}': channel {k} is identically zero; it cannot be identified"
+        )
+    return s
+
+
+def _data_factor(signals, scales, *, i, n_r, n_u, n_y, N, factorization, chunk, cva):
+    """Lower factor L (rows x c) of Z = [U_f; U_p; Y_p; Y_f] (projected onto R if n_r).
+
+    Also returns the Gram of the raw (unprojected) ``Y_f / U_f^perp``, the CVA
+    weight's argument: on projected closed-loop data with ``n_y <= n_u`` that
+    Gram is square and full rank within the projected space, so weighting by
+    it would whiten every direction alike.
+    """
+    k = 2 * i
+    m = n_r + n_u + n_y
+
+    def rows(offset: int, width: int, blocks) -> np.ndarray:
+        return np.concatenate([np.arange(a * m + offset, a * m + offset + width) for a in blocks])
+
+    past, future = range(0, i), range(i, k)
+    iu, iy = n_r, n_r + n_u
+    order_z = np.concatenate(
+        [rows(iu, n_u, future), rows(iu, n_u, past), rows(iy, n_y, past), rows(iy, n_y, future)]
+    )
+    if factorization == "qr":
+        H = hankel(signals, scales, n_blocks=k, n_samples=N)
+        iuf, iyf = rows(iu, n_u, future), rows(iy, n_y, future)
+        S = _perp_gram(H[iyf] @ H[iyf].T, H[iyf] @ H[iuf].T, H[iuf] @ H[iuf].T) if cva else None
+        if n_r:
+            ir = rows(0, n_r, range(k))
+            Rt = np.linalg.qr(np.vstack([H[ir], H[order_z]]).T, mode="r")
+            M = Rt[: ir.size, ir.size :].T  # coordinates of Z in the orthonormal basis of R
+            return np.linalg.qr(M.T, mode="r").T, S
+        Rt = np.linalg.qr(H[order_z].T, mode="r")
+        return Rt.T, S
+    G = hankel_gram(signals, scales, n_blocks=k, n_samples=N, chunk=chunk)
+    iuf, iyf = rows(iu, n_u, future), rows(iy, n_y, future)
+    S = _perp_gram(G[np.ix_(iyf, iyf)], G[np.ix_(iyf, iuf)], G[np.ix_(iuf, iuf)]) if cva else None
+    if n_r:
+        ir = rows(0, n_r, range(k))
+        M = _project_onto(G[np.ix_(ir, ir)], G[np.ix_(ir, order_z)])
+        return np.linalg.qr(M.T, mode="r").T, S
+    Gz = G[np.ix_(order_z, order_z)]
+    try:
+        return np.linalg.cholesky(Gz), S
+    except np.linalg.LinAlgError:
+        # rank-deficient (noise-free) data: a symmetric square root, then LQ
+        lam, V = np.linalg.eigh(Gz)
+        lam = np.clip(lam, 0.0, None)
+        keep = lam > lam[-1] * 1e-15 * Gz.shape[0]
+        F = V[:, keep] * np.sqrt(lam[keep])
+        return np.linalg.qr(F.T, mode="r").T, S
+
+
+def _perp_gram(G_yy, G_yu, G_uu) -> np.ndarray:
+    """Gram of Y / U^perp: ``G_yy - G_yu G_uu^+ G_uy`` (symmetric, PSD)."""
+    lam, V = np.linalg.eigh(G_uu)
+    keep = lam > lam[-1] * 1e-12
+    W = (G_yu @ V[:, keep]) / np.sqrt(lam[keep])
+    S = G_yy - W @ W.T
+    return 0.5 * (S + S.T)
+
+
+def _project_onto(G_RR: np.ndarray, G_RZ: np.ndarray) -> np.ndarray:
+    """Coordinates ``M`` (n_z, r) of Z/R in an orthonormal basis of the row space of R.
+
+    ``M = G_ZR V diag(lam)^-1/2`` with ``G_RR = V diag(lam) V^T``, keeping the
+    eigenvalues above ``1e-12 lam_max``: a band-limited excitation (a multisine
+    up to 60 % of Nyquist, say) leaves a numerically null part of its lagged
+    row space, which carries no data and is dropped rather than inverted.
+    """
+    lam, V = np.linalg.eigh(G_RR)
+    keep = lam > lam[-1] * 1e-12
+    if not np.any(keep) or lam[-1] <= 0:
+        raise InputError("data: key 'r': the excitation is zero; closed-loop methods need r")
+    return (G_RZ.T @ V[:, keep]) / np.sqrt(lam[keep])
+
+
+def _weighted_svd(L, S_cva, *, i, n_u, n_y, method):
+    """Left singular vectors, singular values, and W1^-1 of the weighted projection."""
+    a = i * n_u
+    b = i * (n_u + n_y)
+    c = L.shape[1]
+    c1 = slice(0, min(a, c))
+    c2 = slice(min(a, c), min(a + b, c))
+    L21, L22 = L[a : a + b, c1], L[a : a + b, c2]
+    L32 = L[a + b :, c2]
+    # orthonormal basis of the row space of L22 (rank-revealing)
+    U22, s22, Vt22 = np.linalg.svd(L22, full_matrices=False)
+    tol = s22[0] * 1e-10 if s22.size else 0.0
+    r22 = int(np.sum(s22 > tol))
+    V = Vt22[:r22].T  # (cols of c2, r22)
+    if method.endswith("n4sid"):
+        # O_i = L32 L22^+ [L21 L22]
+        L22p = V @ (U22[:, :r22] / s22[:r22]).T
+        O = L32 @ L22p @ np.hstack([L21, L22])
+        W1inv = np.eye(i * n_y)
+        target = O
+    else:
+        target = L32 @ V  # L32 L22^+ L22 in the basis V
+        W1inv = np.eye(i * n_y)
+        if method.endswith("cva"):
+            lam, E = np.linalg.eigh(S_cva)
+            floor = lam[-1] * 1e-12
+            if np.any(lam <= floor):
+                warnings.warn(
+                    "cva: (Y_f/U_f^perp) is rank-deficient (noise-free data); "
+                    "its inverse square root is regularized",
+                    DataWarning,
+                    stacklevel=3,
+                )
+            lam = np.maximum(lam, floor)
+            W1 = (E / np.sqrt(lam)) @ E.T
+            W1inv = (E * np.sqrt(lam)) @ E.T
+            target = W1 @ target
+    Us, sv, _ = np.linalg.svd(target, full_matrices=False)
+    return Us, sv, W1inv
+
+
+def _b_d(L, A, C, *, i, n_u, n_y, feedthrough):
+    """[D; B] by least squares from Gamma^perp Y_f U_f^+ = Gamma^perp H_i."""
+    n = A.shape[0]
+    a = i * n_u
+    b = i * (n_u + n_y)
+    Gam = np.empty((i * n_y, n))
+    Gam[:n_y] = C
+    for p in range(1, i):
+        Gam[p * n_y : (p + 1) * n_y] = Gam[(p - 1) * n_y : p * n_y] @ A
+    Ug = np.linalg.svd(Gam, full_matrices=True)[0]
+    P = Ug[:, n:].T  # (i n_y - n, i n_y), P Gamma = 0
+    L11 = L[:a, :a]
+    L31 = L[a + b :, :a]
+    K = P @ scipy.linalg.solve_triangular(L11, L31.T, lower=True, trans="T").T  # P L31 L11^-1
+    rows = []
+    rhs = []
+    for q in range(i):
+        Pq = P[:, q * n_y : (q + 1) * n_y]
+        tail = (
+            P[:, (q + 1) * n_y :] @ Gam[: (i - q - 1) * n_y]
+            if q < i - 1
+            else np.zeros((P.shape[0], n))
+        )
+        rows.append(np.hstack([Pq, tail]) if feedthrough else tail)
+        rhs.append(K[:, q * n_u : (q + 1) * n_u])
+    sol = np.linalg.lstsq(np.vstack(rows), np.vstack(rhs), rcond=None)[0]
+    if feedthrough:
+        return sol[n_y:], sol[:n_y]
+    return sol, np.zeros((n_y, n_u))
