@@ -177,8 +177,8 @@ class DecentralizedController:
 
     def _channel_ss(self, ch: PidChannel):
         num, den = ch.transfer_function(fs=self.fs)
-        numd, dend, _ = scipy.signal.cont2discrete((num, den), 1.0 / self.fs, method="bilinear")
-        a, b, c, d = scipy.signal.tf2ss(np.atleast_1d(np.squeeze(numd)), dend)
+        numd, dend = scipy.signal.bilinear(num, den, fs=self.fs)  # polynomial Tustin map
+        a, b, c, d = scipy.signal.tf2ss(numd, dend)
         a, b, c, d = (np.atleast_2d(np.asarray(m, float)) for m in (a, b, c, d))
         if a.size == 0:
             a, b, c = np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0))
