@@ -226,7 +226,9 @@ class DiscreteChain:
                     [1.0], den, np.stack([Vq[:, i], Vv[:, i]], axis=1), axis=0
                 )
                 Xq[:, i], Xv[:, i] = Xi[:, 0], Xi[:, 1]
-            y += Xq @ C[:, q].T + Xv @ C[:, v].T
+            y += Xq @ C[:, q].T
+            if np.any(C[:, v]):
+                y += Xv @ C[:, v].T
             if n_s:
                 acc3 += Xq @ Ad[np.ix_(g3, q)].T + Xv @ Ad[np.ix_(g3, v)].T
         # group 3: sensor lags, scalar recursions driven by everything before
