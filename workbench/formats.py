@@ -102,7 +102,9 @@ class TimeData:
         if self.r is not None:
             r = _real_2d(self.r, src, "r")
             if r.shape != u.shape:
-                raise InputError(f"{src}: key 'r': expected shape {u.shape} like 'u', got {r.shape}")
+                raise InputError(
+                    f"{src}: key 'r': expected shape {u.shape} like 'u', got {r.shape}"
+                )
         fs = _positive_scalar(self.fs, src, "fs")
         if self.loop not in ("open", "closed"):
             raise InputError(f"{src}: key 'loop': expected 'open' or 'closed', got {self.loop!r}")
@@ -306,7 +308,9 @@ def _string_list(value: np.ndarray | None, src: str, key: str) -> tuple[str, ...
     if value is None:
         return ()
     if value.ndim != 1 or value.dtype.kind not in "US":
-        raise InputError(f"{src}: key '{key}': expected a 1-D array of strings, got {describe(value)}")
+        raise InputError(
+            f"{src}: key '{key}': expected a 1-D array of strings, got {describe(value)}"
+        )
     return tuple(str(s) for s in value)
 
 
@@ -344,7 +348,9 @@ def read_npz(path: str | os.PathLike) -> dict[str, np.ndarray]:
                         else:
                             shape, fortran, dtype = np.lib.format.read_array_header_2_0(fh)
                     except ValueError as exc:
-                        raise InputError(f"{path}: key '{key}': unreadable array header ({exc})") from None
+                        raise InputError(
+                            f"{path}: key '{key}': unreadable array header ({exc})"
+                        ) from None
                     if dtype.hasobject:
                         raise InputError(
                             f"{path}: key '{key}': expected a numeric or string array, got an "
@@ -362,7 +368,9 @@ def read_npz(path: str | os.PathLike) -> dict[str, np.ndarray]:
     except InputError:
         raise
     except (zipfile.BadZipFile, EOFError, OSError, ValueError, KeyError) as exc:
-        raise InputError(f"{path}: truncated or corrupt .npz archive ({type(exc).__name__}: {exc})") from None
+        raise InputError(
+            f"{path}: truncated or corrupt .npz archive ({type(exc).__name__}: {exc})"
+        ) from None
     return out
 
 
@@ -384,8 +392,14 @@ def measurement_from_arrays(arrays: dict[str, Any], src: str = "measurement") ->
     """Build a :class:`TimeData` or :class:`FrfData` from spec arrays."""
     kind = _string(np.asarray(_require(arrays, "kind", src, "'time' or 'frf'")), src, "kind")
     get = arrays.get
-    in_names = _string_list(None if get("input_names") is None else np.asarray(get("input_names")), src, "input_names")
-    out_names = _string_list(None if get("output_names") is None else np.asarray(get("output_names")), src, "output_names")
+    in_names = _string_list(
+        None if get("input_names") is None else np.asarray(get("input_names")), src, "input_names"
+    )
+    out_names = _string_list(
+        None if get("output_names") is None else np.asarray(get("output_names")),
+        src,
+        "output_names",
+    )
     try:
         if kind == "time":
             period = get("period")
@@ -397,14 +411,18 @@ def measurement_from_arrays(arrays: dict[str, Any], src: str = "measurement") ->
                     or not np.isfinite(period)
                     or float(period) != int(period)
                 ):
-                    raise InputError(f"time data: key 'period': expected an integer, got {describe(period)}")
+                    raise InputError(
+                        f"time data: key 'period': expected an integer, got {describe(period)}"
+                    )
                 period = int(period)
             return TimeData(
                 fs=_require(arrays, "fs", src, "sampling frequency, Hz"),
                 u=_require(arrays, "u", src, "(N, n_u) plant input"),
                 y=_require(arrays, "y", src, "(N, n_y) measured output"),
                 r=get("r"),
-                loop=_string(np.asarray(_require(arrays, "loop", src, "'open' or 'closed'")), src, "loop"),
+                loop=_string(
+                    np.asarray(_require(arrays, "loop", src, "'open' or 'closed'")), src, "loop"
+                ),
                 period=period,
                 input_names=in_names,
                 output_names=out_names,
@@ -471,23 +489,37 @@ def model_from_arrays(arrays: dict[str, Any], src: str = "model"):
     if A.shape != (n, n):
         raise InputError(f"{src}: key 'A': expected a square matrix, got shape {A.shape}")
     if B.shape[0] != n:
-        raise InputError(f"{src}: key 'B': expected {n} rows to match A {A.shape}, got shape {B.shape}")
+        raise InputError(
+            f"{src}: key 'B': expected {n} rows to match A {A.shape}, got shape {B.shape}"
+        )
     if C.shape[1] != n:
-        raise InputError(f"{src}: key 'C': expected {n} columns to match A {A.shape}, got shape {C.shape}")
+        raise InputError(
+            f"{src}: key 'C': expected {n} columns to match A {A.shape}, got shape {C.shape}"
+        )
     if D.shape != (C.shape[0], B.shape[1]):
         raise InputError(
             f"{src}: key 'D': expected shape {(C.shape[0], B.shape[1])} (n_y from C, n_u from B), "
             f"got {D.shape}"
         )
-    dt_arr = np.asarray(_require(arrays, "dt", src, "0.0 for continuous time, else the sample time in s"))
+    dt_arr = np.asarray(
+        _require(arrays, "dt", src, "0.0 for continuous time, else the sample time in s")
+    )
     if dt_arr.ndim != 0 or not np.issubdtype(dt_arr.dtype, np.number) or np.iscomplexobj(dt_arr):
         raise InputError(f"{src}: key 'dt': expected a real scalar, got {describe(dt_arr)}")
     dt = float(dt_arr)
     if not np.isfinite(dt) or dt < 0:
-        raise InputError(f"{src}: key 'dt': expected 0.0 (continuous) or a sample time > 0 s, got {dt:g}")
+        raise InputError(
+            f"{src}: key 'dt': expected 0.0 (continuous) or a sample time > 0 s, got {dt:g}"
+        )
     get = arrays.get
-    in_names = _string_list(None if get("input_names") is None else np.asarray(get("input_names")), src, "input_names")
-    out_names = _string_list(None if get("output_names") is None else np.asarray(get("output_names")), src, "output_names")
+    in_names = _string_list(
+        None if get("input_names") is None else np.asarray(get("input_names")), src, "input_names"
+    )
+    out_names = _string_list(
+        None if get("output_names") is None else np.asarray(get("output_names")),
+        src,
+        "output_names",
+    )
     in_names = _names(in_names, B.shape[1], "u", src, "input_names")
     out_names = _names(out_names, C.shape[0], "y", src, "output_names")
     return control.ss(A, B, C, D, dt, inputs=list(in_names), outputs=list(out_names))
@@ -535,10 +567,14 @@ def load_any(path: str | os.PathLike):
     if "A" in arrays:
         return model_from_arrays(arrays, src=str(path))
     have = ", ".join(sorted(arrays)) or "none"
-    raise InputError(f"{path}: expected a measurement (key 'kind') or a model (keys A, B, C, D, dt), got keys: {have}")
+    raise InputError(
+        f"{path}: expected a measurement (key 'kind') or a model (keys A, B, C, D, dt), got keys: {have}"
+    )
 
 
-def check_model_matches(sys, data: Measurement, *, model_src: str = "model", data_src: str = "data") -> None:
+def check_model_matches(
+    sys, data: Measurement, *, model_src: str = "model", data_src: str = "data"
+) -> None:
     """Refuse a model whose input/output count does not match the data."""
     if sys.ninputs != data.n_u or sys.noutputs != data.n_y:
         raise InputError(

@@ -162,7 +162,9 @@ def simulate_zoh(sys, u: np.ndarray, fs: float, *, delay_s: float = 0.0, x0=None
     n = A.shape[0]
     if dt > 0:
         if abs(dt * fs - 1) > 1e-9:
-            raise ValueError(f"sys: expected a discrete model with dt = {1 / fs:g} s, got dt = {dt:g} s")
+            raise ValueError(
+                f"sys: expected a discrete model with dt = {1 / fs:g} s, got dt = {dt:g} s"
+            )
         if delay_s:
             raise ValueError("delay_s with a discrete model: add the delay to the model instead")
         Ad, B0, B1, m = A, B, np.zeros_like(B), 0
