@@ -1,0 +1,332 @@
+"""``workbench run``: a scenario file, executed stage by stage.
+
+Data flow::
+
+    [plant] ─► [experiment] ─► time record (measurement.npz)
+                                  │
+                 [frf] ◄──────────┤──────────► [identify] ─► model (discrete)
+                   │                                 │
+                   ▼                                 ▼
+            FRF (frf.npz, plots)          [modes] modal model ─► [minimality]
+                   │                                 │
+                   └────────► identified-vs-measured FRF plot ◄┘
+
+    [model] (a user's model file, or the nominal plant model) ─► [compare] ─►
+    [diagnose] ─► [augment] ─► compare again
+
+Every stage writes JSON figures and PNG plots into the results folder,
+atomically, and returns what later stages consume. The run draws all its
+randomness from one generator seeded by ``[scenario] seed``.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from workbench import atomic, lti
+from workbench.errors import InputError
+from workbench.scenario import Scenario, refuse_leftovers, take
+
+
+@dataclass
+class RunState:
+    """What the stages of one run hand to each other (and the summary they build)."""
+
+    scenario: Scenario
+    out: Path
+    rng: np.random.Generator
+    plant: Any = None
+    data: Any = None  # TimeData
+    frf: Any = None  # FrfData
+    ident: Any = None  # SubspaceResult
+    modal: Any = None  # ModalModel
+    model: Any = None  # the user's model (StateSpace) for compare/diagnose
+    model_delay_s: float = 0.0
+    summary: dict[str, Any] = field(default_factory=dict)
+    files: list[str] = field(default_factory=list)
+
+    def write_json(self, name: str, payload: dict) -> Path:
+        path = self.out / name
+        atomic.write_text(path, json.dumps(_jsonable(payload), indent=2) + "\n")
+        self.files.append(name)
+        return path
+
+    def path(self, name: str) -> Path:
+        self.files.append(name)
+        return self.out / name
+
+
+def _jsonable(x):
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
+    if isinstance(x, (np.floating, float)):
+        return float(x) if np.isfinite(x) else None
+    if isinstance(x, (np.integer,)):
+        return int(x)
+    if isinstance(x, complex):
+        return {"re": x.real, "im": x.imag}
+    return x
+
+
+# --------------------------------------------------------------------- stages
+def stage_plant(st: RunState, table: dict) -> None:
+    import plants
+
+    name = take(table, "name", None, where="plant", kind=str)
+    if name is None:
+        raise InputError(f"[plant]: missing key 'name' (one of {', '.join(plants.PLANTS)})")
+    effects = take(table, "effects", {}, where="plant", kind=dict)
+    refuse_leftovers(table, where="plant")
+    st.plant = plants.get_plant(name, **effects)
+    st.summary["plant"] = {
+        "name": name,
+        "fs_hz": st.plant.fs,
+        "n_u": st.plant.n_u,
+        "n_y": st.plant.n_y,
+    }
+
+
+def stage_experiment(st: RunState, table: dict) -> None:
+    from workbench import formats
+    from workbench.experiments import ExperimentConfig, run_experiment
+
+    if st.plant is None:
+        raise InputError("[experiment] needs a [plant] table")
+    config = ExperimentConfig.from_table(table)
+    st.data = run_experiment(st.plant, config, rng=st.rng)
+    formats.save_measurement(st.path("measurement.npz"), st.data)
+    d = st.data
+    st.summary["experiment"] = {
+        "kind": config.kind,
+        "loop": d.loop,
+        "n_samples": d.n_samples,
+        "fs_hz": d.fs,
+        "period": d.period,
+        "u_rms": np.sqrt(np.mean(d.u**2, axis=0)),
+        "y_rms": np.sqrt(np.mean(d.y**2, axis=0)),
+    }
+
+
+def stage_frf(st: RunState, table: dict) -> None:
+    from workbench import formats
+    from workbench.frf_estimation import estimate_frf
+
+    if st.data is None:
+        raise InputError("[frf] needs recorded data: an [experiment] table")
+    method = take(table, "method", "auto", where="frf", kind=str)
+    mark_hz = take(table, "mark_hz", [], where="frf", kind=list)
+    refuse_leftovers(table, where="frf")
+    est = estimate_frf(st.data, method=method)
+    st.frf = est.frf
+    formats.save_measurement(st.path("frf.npz"), st.frf)
+    _plot_frf_grid(st.path("frf_measured.png"), st.frf, mark_hz=mark_hz, title="measured FRF")
+    st.summary["frf"] = {
+        "method": est.method,
+        "reference": est.reference,
+        "n_lines": st.frf.n_f,
+        "band_hz": [st.frf.freq[0], st.frf.freq[-1]],
+        "mark_hz": mark_hz,
+        "median_relative_std": float(
+            np.median(np.sqrt(st.frf.G_var) / np.maximum(np.abs(st.frf.G), 1e-300))
+        )
+        if st.frf.G_var is not None
+        else None,
+    }
+
+
+def stage_identify(st: RunState, table: dict) -> None:
+    from workbench import formats
+    from workbench.ident.order import plot_singular_values
+    from workbench.ident.subspace import identify_subspace
+
+    if st.data is None:
+        raise InputError("[identify] needs recorded data: an [experiment] table")
+    method = take(table, "method", "cl-moesp", where="identify", kind=str)
+    order = take(table, "order", None, where="identify", kind=int)
+    block_rows = take(table, "block_rows", 20, where="identify", kind=int)
+    input_delay = take(table, "input_delay", 0, where="identify", kind=int)
+    refuse_leftovers(table, where="identify")
+    res = identify_subspace(
+        st.data, method=method, order=order, block_rows=block_rows, input_delay=input_delay
+    )
+    st.ident = res
+    formats.save_model(st.path("model_identified.npz"), res.model, delay_s=np.array(res.delay_s))
+    plot_singular_values(
+        st.path("singular_values.png"),
+        res.singular_values,
+        order=res.order,
+        suggested=res.suggested_order,
+    )
+    st.summary["identify"] = {
+        "method": res.method,
+        "order": res.order,
+        "suggested_order": res.suggested_order,
+        "gap": res.gap,
+        "block_rows": res.block_rows,
+        "input_delay_samples": res.input_delay,
+        "singular_values": res.singular_values[: 3 * max(res.order, 1)],
+        "notes": list(res.notes),
+    }
+
+
+def stage_modes(st: RunState, table: dict) -> None:
+    from workbench import formats
+    from workbench.modal import modal_model_from_statespace
+
+    if st.ident is None:
+        raise InputError("[modes] needs an identified model: an [identify] table")
+    threshold = take(table, "rigid_threshold_hz", None, where="modes", kind=(int, float))
+    refuse_leftovers(table, where="modes")
+    kwargs = {} if threshold is None else {"rigid_threshold_hz": float(threshold)}
+    st.modal = modal_model_from_statespace(st.ident.model, **kwargs)
+    formats.save_model(
+        st.path("model_modal.npz"), st.modal.to_statespace(), delay_s=np.array(st.ident.delay_s)
+    )
+    st.write_json("modes.json", st.modal.table_dict())
+    st.summary["modes"] = st.modal.table_dict()
+    if st.frf is not None:
+        G_model = lti.frf(st.modal.to_statespace(), st.frf.freq, delay_s=st.ident.delay_s)
+        from workbench.plotting import save_bode_overlay
+
+        save_bode_overlay(
+            st.path("frf_identified_vs_measured.png"),
+            st.frf.freq,
+            st.frf.G,
+            G_model,
+            st.frf.G_var,
+            input_names=st.frf.input_names,
+            output_names=st.frf.output_names,
+        )
+        st.summary["modes"]["frf_relative_error"] = lti.relative_error_frf(st.frf.G, G_model)
+
+
+def stage_minimality(st: RunState, table: dict) -> None:
+    from workbench.minimality import check_minimality
+
+    if st.modal is None:
+        raise InputError("[minimality] needs a modal model: a [modes] table")
+    refuse_leftovers(table, where="minimality")
+    report = check_minimality(st.modal)
+    st.write_json("minimality.json", report.to_dict())
+    st.summary["minimality"] = {"minimal": report.minimal, "failures": len(report.failures)}
+
+
+def stage_model(st: RunState, table: dict) -> None:
+    from workbench import formats
+
+    source = take(table, "file", None, where="model", kind=str)
+    nominal_of = take(table, "nominal_plant", None, where="model", kind=dict)
+    refuse_leftovers(table, where="model")
+    if (source is None) == (nominal_of is None):
+        raise InputError("[model]: give exactly one of 'file' (a model file) or 'nominal_plant'")
+    if source is not None:
+        st.model = formats.load_model(st.scenario.resolve(source))
+    else:
+        # The engineer's model: the plant as designed, without the effects the
+        # scenario hides in the true system. It is built from the nominal
+        # configuration named here, never from the [plant] table's effects.
+        import plants
+
+        name = nominal_of.pop("name", None)
+        if name is None:
+            raise InputError("[model] key 'nominal_plant': missing key 'name'")
+        st.model = plants.get_plant(name, **nominal_of).linear_model()
+        st.model_delay_s = float(plants.get_plant(name, **nominal_of).delay_s)
+    formats.save_model(st.path("model_nominal.npz"), st.model, delay_s=np.array(st.model_delay_s))
+
+
+# ---------------------------------------------------------------- plotting
+def _plot_frf_grid(path: Path, frf, *, mark_hz=(), title: str = "", G_model=None) -> None:
+    """Magnitude of every element on one page, modes marked by vertical lines."""
+    from workbench.plotting import _figure, _save
+
+    n_y, n_u = frf.n_y, frf.n_u
+    fig = _figure(2.2 * n_u + 1, 1.8 * n_y + 1)
+    axes = fig.subplots(n_y, n_u, squeeze=False, sharex=True)
+    for i in range(n_y):
+        for j in range(n_u):
+            ax = axes[i, j]
+            ax.loglog(frf.freq, np.abs(frf.G[:, i, j]), "k", lw=0.6)
+            if G_model is not None:
+                ax.loglog(frf.freq, np.abs(G_model[:, i, j]), "r", lw=0.6)
+            for f in mark_hz:
+                ax.axvline(f, color="tab:blue", lw=0.6, ls="--")
+            ax.set_title(f"{frf.output_names[i]} / {frf.input_names[j]}", fontsize=7)
+            ax.tick_params(labelsize=6)
+    fig.suptitle(
+        title + (f" (dashed: {', '.join(f'{f:g} Hz' for f in mark_hz)})" if mark_hz else ""),
+        fontsize=9,
+    )
+    fig.subplots_adjust(left=0.06, right=0.98, bottom=0.05, top=0.92, hspace=0.5, wspace=0.35)
+    _save(fig, path)
+
+
+STAGE_FUNCTIONS = {
+    "plant": stage_plant,
+    "experiment": stage_experiment,
+    "frf": stage_frf,
+    "identify": stage_identify,
+    "modes": stage_modes,
+    "minimality": stage_minimality,
+    "model": stage_model,
+}
+
+
+def register_stage(name: str, function) -> None:
+    """Add a stage implemented elsewhere (compare/diagnose/augment live in their modules)."""
+    STAGE_FUNCTIONS[name] = function
+
+
+def run_scenario(scenario: Scenario, *, progress: bool = True) -> dict[str, Any]:
+    """Run every stage the scenario names, in pipeline order; return the summary."""
+    from workbench.scenario import STAGES
+
+    out = Path(scenario.results)
+    out.mkdir(parents=True, exist_ok=True)
+    st = RunState(scenario=scenario, out=out, rng=np.random.default_rng(scenario.seed))
+    stages = [s for s in STAGES if scenario.has(s)]
+    timings = {}
+    _load_late_stages()
+    for k, stage in enumerate(stages, 1):
+        if stage not in STAGE_FUNCTIONS:
+            raise InputError(f"[{stage}]: this stage is not available in this version")
+        if progress:
+            print(f"[{k}/{len(stages)}] {stage} ...", file=sys.stderr, flush=True)
+        t0 = time.perf_counter()
+        STAGE_FUNCTIONS[stage](st, scenario.table(stage))
+        timings[stage] = time.perf_counter() - t0
+        if progress:
+            print(f"[{k}/{len(stages)}] {stage} done in {timings[stage]:.2f} s", file=sys.stderr)
+    st.summary["scenario"] = {
+        "name": scenario.name,
+        "seed": scenario.seed,
+        "file": str(scenario.path) if scenario.path else None,
+        "description": scenario.description,
+        "stage_seconds": timings,
+    }
+    st.write_json("summary.json", st.summary)
+    st.summary["files"] = sorted(set(st.files))
+    return st.summary
+
+
+def _load_late_stages() -> None:
+    """Stages of the model-versus-measurement loop register themselves on import."""
+    import importlib
+
+    for module in ("workbench.loop_stages",):
+        try:
+            importlib.import_module(module)
+        except ModuleNotFoundError as exc:
+            if exc.name != module:
+                raise
