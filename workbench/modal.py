@@ -1,0 +1,612 @@
+"""Modal analysis by similarity: a state-space model to the modal canonical form.
+
+Data flow::
+
+    control.StateSpace (discrete, from identify)  --d2c-->  continuous (A, B, C, D)
+        --> rigid-body cluster (|s| < 2 pi f_rigid): invariant subspace, projected
+            onto double integrators, one per DOF
+        --> every other pole pair: a real 2x2 block [[0, 1], [-w^2, -2 z w]]
+            with B rows [0; b_k] and C columns [c_k, 0]; real poles: 1x1 blocks
+        --> ModalModel (frozen)  .to_statespace()  .table_text()  .to_json()
+
+Per mode k the transfer function is ``c_k b_k^T / (s^2 + 2 z_k w_k s + w_k^2)``
+(rigid: ``c_k b_k^T / s^2``; real pole ``p``: ``c_k b_k^T / (s - p)``).
+The split of the scale between ``b_k`` and ``c_k`` is not identifiable from
+input-output data; we take ``|b_k| = |c_k|`` (rigid modes per output DOF: see
+:meth:`ModalModel.from_statespace`).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+import scipy.linalg
+
+from workbench.errors import InputError
+from workbench.lti import as_matrices
+
+__all__ = ["Mode", "ModalModel", "plot_model_bode", "plot_mode_superposition"]
+
+Kind = Literal["rigid", "flexible", "real"]
+
+
+def _frozen(a, dtype=float) -> np.ndarray:
+    a = np.array(a, dtype=dtype, copy=True)
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True)
+class Mode:
+    """One mode of a :class:`ModalModel`.
+
+    Attributes
+    ----------
+    kind : {"rigid", "flexible", "real"}
+        Rigid body (double integrator), flexible (complex pole pair) or a real
+        pole (first order: overdamped, or a lag).
+    freq_hz : float
+        Natural frequency ``w / 2 pi``, Hz (rigid: 0; real pole ``p``: ``|p| / 2 pi``).
+    damping : float
+        Damping ratio (rigid: 0; real pole: +1 stable, -1 unstable).
+    b : (n_u,) array
+        Modal input vector (modal force per input unit).
+    c : (n_y,) array
+        Modal output vector (output per unit modal displacement).
+    residual : float
+        Relative size of what the idealized form drops from the identified
+        mode (velocity-proportional numerator, rank > 1 residue), at the
+        mode's frequency; 0 for an exact modal system.
+    """
+
+    kind: str
+    freq_hz: float
+    damping: float
+    b: np.ndarray
+    c: np.ndarray
+    residual: float = 0.0
+
+    def __post_init__(self):
+        if self.kind not in ("rigid", "flexible", "real"):
+            raise InputError(
+                f"mode kind: expected 'rigid', 'flexible' or 'real', got {self.kind!r}"
+            )
+        b = _frozen(self.b)
+        c = _frozen(self.c)
+        if b.ndim != 1 or c.ndim != 1:
+            raise InputError(
+                f"mode: expected b (n_u,) and c (n_y,), got shapes {b.shape}, {c.shape}"
+            )
+        if not (np.isfinite(self.freq_hz) and self.freq_hz >= 0 and np.isfinite(self.damping)):
+            raise InputError(f"mode: expected a finite frequency >= 0 Hz, got {self.freq_hz}")
+        object.__setattr__(self, "b", b)
+        object.__setattr__(self, "c", c)
+        object.__setattr__(self, "freq_hz", float(self.freq_hz))
+        object.__setattr__(self, "damping", float(self.damping))
+        object.__setattr__(self, "residual", float(self.residual))
+
+    @property
+    def omega(self) -> float:
+        """Natural frequency, rad/s."""
+        return 2 * np.pi * self.freq_hz
+
+    @property
+    def n_states(self) -> int:
+        return 1 if self.kind == "real" else 2
+
+    @property
+    def pole(self) -> complex:
+        """The pole (upper half plane for a pair), rad/s."""
+        w, z = self.omega, self.damping
+        if self.kind == "rigid":
+            return 0j
+        if self.kind == "real":
+            return complex(-z * w)
+        return complex(-z * w, w * np.sqrt(max(0.0, 1 - z * z)))
+
+    def response(self, s: np.ndarray) -> np.ndarray:
+        """This mode's contribution ``c b^T / den(s)``, (n_f, n_y, n_u) complex."""
+        s = np.asarray(s, complex)
+        w, z = self.omega, self.damping
+        if self.kind == "rigid":
+            den = s**2
+        elif self.kind == "real":
+            den = s - self.pole.real
+        else:
+            den = s**2 + 2 * z * w * s + w**2
+        return (1.0 / den)[:, None, None] * np.outer(self.c, self.b)[None]
+
+
+@dataclass(frozen=True)
+class ModalModel:
+    """A continuous-time model in modal coordinates (seed 000, eq. 7).
+
+    Attributes
+    ----------
+    modes : tuple of Mode
+        Rigid modes first, then flexible modes by frequency, then real poles.
+    D : (n_y, n_u) array
+        Feedthrough.
+    transform : (n, n) array or None
+        Similarity back to the realization it came from: ``x_source = T x_modal``
+        for the ``"companion"`` form of :meth:`to_statespace`. Exact for the
+        state matrix of the flexible and real modes; for the rigid cluster the
+        least-squares map of the observability matrices.
+    rigid_poles : (n_rigid_states,) complex array
+        The poles the rigid cluster had before projection (near 0), rad/s.
+    input_names, output_names : tuple of str
+    """
+
+    modes: tuple[Mode, ...]
+    D: np.ndarray
+    transform: np.ndarray | None = None
+    rigid_poles: np.ndarray = field(default_factory=lambda: np.zeros(0, complex))
+    input_names: tuple[str, ...] = ()
+    output_names: tuple[str, ...] = ()
+
+    def __post_init__(self):
+        D = _frozen(self.D)
+        if D.ndim != 2:
+            raise InputError(f"modal model: expected D of shape (n_y, n_u), got {D.shape}")
+        modes = tuple(self.modes)
+        for k, m in enumerate(modes):
+            if not isinstance(m, Mode):
+                raise InputError(f"modal model: mode {k}: expected a Mode, got {type(m).__name__}")
+            if m.b.shape != (D.shape[1],) or m.c.shape != (D.shape[0],):
+                raise InputError(
+                    f"modal model: mode {k}: expected b ({D.shape[1]},) and c ({D.shape[0]},) "
+                    f"to match D {D.shape}, got {m.b.shape} and {m.c.shape}"
+                )
+        object.__setattr__(self, "modes", modes)
+        object.__setattr__(self, "D", D)
+        if self.transform is not None:
+            object.__setattr__(self, "transform", _frozen(self.transform))
+        object.__setattr__(self, "rigid_poles", _frozen(self.rigid_poles, complex))
+        n_u, n_y = D.shape[1], D.shape[0]
+        object.__setattr__(
+            self, "input_names", tuple(self.input_names) or tuple(f"u{i}" for i in range(n_u))
+        )
+        object.__setattr__(
+            self, "output_names", tuple(self.output_names) or tuple(f"y{i}" for i in range(n_y))
+        )
+
+    # ------------------------------------------------------------ properties
+    @property
+    def n_u(self) -> int:
+        return self.D.shape[1]
+
+    @property
+    def n_y(self) -> int:
+        return self.D.shape[0]
+
+    @property
+    def n_states(self) -> int:
+        return sum(m.n_states for m in self.modes)
+
+    @property
+    def freq_hz(self) -> np.ndarray:
+        """(n_modes,) natural frequencies, Hz."""
+        return np.array([m.freq_hz for m in self.modes])
+
+    @property
+    def damping(self) -> np.ndarray:
+        """(n_modes,) damping ratios."""
+        return np.array([m.damping for m in self.modes])
+
+    @property
+    def kinds(self) -> tuple[str, ...]:
+        return tuple(m.kind for m in self.modes)
+
+    def modes_of_kind(self, kind: str) -> tuple[Mode, ...]:
+        return tuple(m for m in self.modes if m.kind == kind)
+
+    # -------------------------------------------------------------- to / from
+    def to_statespace(self, *, form: Literal["companion", "scaled"] = "companion"):
+        """The modal realization as a continuous ``control.StateSpace``.
+
+        Parameters
+        ----------
+        form : {"companion", "scaled"}
+            ``"companion"``: blocks ``[[0, 1], [-w^2, -2 z w]]``, states
+            (modal displacement q, velocity dq/dt), B rows ``[0; b_k]``, C
+            columns ``[c_k, 0]``. ``"scaled"``: blocks ``[[0, w], [-w, -2 z w]]``,
+            states (w q, dq/dt), C columns ``[c_k / w, 0]``: the layout of the
+            shared example files (``nominal_model.npz``), better balanced.
+            Rigid blocks are ``[[0, 1], [0, 0]]`` in both; real poles ``[[p]]``.
+        """
+        import control
+
+        if form not in ("companion", "scaled"):
+            raise InputError(f"form: expected 'companion' or 'scaled', got {form!r}")
+        n = self.n_states
+        A = np.zeros((n, n))
+        B = np.zeros((n, self.n_u))
+        C = np.zeros((self.n_y, n))
+        k = 0
+        for m in self.modes:
+            if m.kind == "real":
+                A[k, k] = m.pole.real
+                B[k] = m.b
+                C[:, k] = m.c
+                k += 1
+                continue
+            w, z = m.omega, m.damping
+            if m.kind == "rigid":
+                A[k, k + 1] = 1.0
+                C[:, k] = m.c
+            elif form == "companion":
+                A[k : k + 2, k : k + 2] = [[0.0, 1.0], [-(w**2), -2 * z * w]]
+                C[:, k] = m.c
+            else:
+                A[k : k + 2, k : k + 2] = [[0.0, w], [-w, -2 * z * w]]
+                C[:, k] = m.c / w
+            B[k + 1] = m.b
+            k += 2
+        return control.ss(
+            A, B, C, self.D, 0, inputs=list(self.input_names), outputs=list(self.output_names)
+        )
+
+    def frf(self, freq_hz) -> np.ndarray:
+        """Frequency response (n_f, n_y, n_u) as the sum of the modes plus D."""
+        s = 2j * np.pi * np.atleast_1d(np.asarray(freq_hz, float))
+        G = np.broadcast_to(self.D.astype(complex), (s.size,) + self.D.shape).copy()
+        for m in self.modes:
+            G += m.response(s)
+        return G
+
+    @classmethod
+    def from_statespace(
+        cls,
+        sys,
+        *,
+        rigid_threshold_hz: float = 5.0,
+        rigid_basis: Literal["auto", "outputs", "svd"] = "auto",
+    ) -> ModalModel:
+        """Modal analysis by similarity of a continuous or discrete model.
+
+        Parameters
+        ----------
+        sys : control.StateSpace
+            ``A`` (n, n), ``B`` (n, n_u), ``C`` (n_y, n), ``D`` (n_y, n_u);
+            a discrete model is first converted with :func:`workbench.d2c.d2c`.
+        rigid_threshold_hz : float
+            Poles with ``|s| < 2 pi rigid_threshold_hz`` form the rigid-body
+            cluster, Hz. They come in pairs (one double integrator per DOF);
+            identification returns them as small complex or real pairs, possibly
+            slightly unstable.
+        rigid_basis : {"auto", "outputs", "svd"}
+            How the rigid-body static gain ``P = sum_k c_k b_k^T`` is split
+            into modes: ``"outputs"``, one mode per output DOF (``c_k`` along
+            output k; needs as many rigid modes as outputs); ``"svd"``,
+            orthogonal ``c_k`` and ``b_k`` from the SVD of ``P``; ``"auto"``,
+            outputs when possible.
+
+        Returns
+        -------
+        ModalModel
+
+        Notes
+        -----
+        Rigid cluster: an ordered real Schur form puts the small poles first;
+        a Sylvester equation decouples them from the rest (block
+        diagonalization). Of the cluster's transfer function
+        ``C1 (sI - A1)^-1 B1 = C1 B1 / s + C1 A1 B1 / s^2 + ...`` the double
+        integrator keeps ``P = C1 A1 B1``; its residual is
+        ``|C1 B1| w_r / |P|`` at ``w_r = 2 pi rigid_threshold_hz``.
+
+        Flexible pair ``s, conj(s)`` with right/left eigenvectors ``v, w``: the
+        residue ``R = (C v)(w^H B)`` gives ``M = 2 j Im(s) R = N0 - z w N1 +
+        j Im(s) N1`` for the numerator ``N1 s + N0``. The modal form keeps the
+        rank-one part of ``N0`` (SVD, ``|b| = |c|``) and drops ``N1`` (a
+        velocity-proportional term that a force-to-position mode does not
+        have); ``residual = |N0 - c b^T + j w N1| / |N0|``. The similarity
+        ``T = [a v, conj(a v)] E^-1`` with ``E = [[1, 1], [s, conj(s)]]`` and
+        ``a`` the least-squares scale with ``a C v ~ c`` maps the block to
+        companion form exactly (W. Gawronski, Advanced Structural Dynamics
+        and Active Control of Structures, Springer 2004, ch. 2).
+        """
+        from workbench.d2c import d2c
+
+        A, B, C, D, dt = as_matrices(sys)
+        if dt > 0:
+            A, B, C, D, _ = as_matrices(d2c(sys))
+        if rigid_threshold_hz < 0 or not np.isfinite(rigid_threshold_hz):
+            raise InputError(
+                f"rigid_threshold_hz: expected a finite value >= 0 Hz, got {rigid_threshold_hz}"
+            )
+        if rigid_basis not in ("auto", "outputs", "svd"):
+            raise InputError(
+                f"rigid_basis: expected 'auto', 'outputs' or 'svd', got {rigid_basis!r}"
+            )
+        n = A.shape[0]
+        n_u, n_y = B.shape[1], C.shape[0]
+        w_r = 2 * np.pi * rigid_threshold_hz
+        lam_all = np.linalg.eigvals(A) if n else np.zeros(0)
+        n_cluster = int(np.sum(np.abs(lam_all) < w_r))
+        # order the real Schur form: the small poles first
+        T_s, A_s = np.eye(n), A.copy()
+        if n_cluster:
+            A_s, T_s, sdim = scipy.linalg.schur(
+                A, output="real", sort=lambda x, y: np.hypot(x, y) < w_r
+            )
+            n_cluster = sdim
+        n_rigid = n_cluster // 2
+        blocks_T = []  # (columns of the source realization, Mode)
+        modes: list[Mode] = []
+        k1 = 2 * n_rigid
+        # decouple the leading k1 states (rigid pairs) from the rest
+        X = np.zeros((k1, n - k1))
+        if k1 and n - k1:
+            X = scipy.linalg.solve_sylvester(A_s[:k1, :k1], -A_s[k1:, k1:], -A_s[:k1, k1:])
+        S = np.eye(n)
+        S[:k1, k1:] = X
+        T_bd = T_s @ S  # x = T_bd xi, xi block-diagonal coordinates
+        T_bd_inv = np.linalg.inv(S) @ T_s.T
+        Ab = T_bd_inv @ A @ T_bd
+        Bb = T_bd_inv @ B
+        Cb = C @ T_bd
+        rigid_poles = np.linalg.eigvals(Ab[:k1, :k1]) if k1 else np.zeros(0, complex)
+        if n_rigid:
+            r_modes, T_r = _rigid_modes(Ab[:k1, :k1], Bb[:k1], Cb[:, :k1], w_r, rigid_basis)
+            modes += r_modes
+            blocks_T.append(T_bd[:, :k1] @ T_r)
+        f_modes, T_f = _flexible_modes(Ab[k1:, k1:], Bb[k1:], Cb[:, k1:])
+        modes += f_modes
+        if n - k1:
+            blocks_T.append(T_bd[:, k1:] @ T_f)
+        T = np.hstack(blocks_T) if blocks_T else np.zeros((0, 0))
+        return cls(
+            modes=tuple(modes),
+            D=D,
+            transform=T,
+            rigid_poles=rigid_poles,
+            input_names=tuple(sys.input_labels),
+            output_names=tuple(sys.output_labels),
+        )
+
+    # ---------------------------------------------------------------- report
+    def table(self) -> list[dict]:
+        """One dict per mode: index, kind, freq_hz, damping, |b|, |c|, residual, b, c."""
+        rows = []
+        for k, m in enumerate(self.modes):
+            rows.append(
+                {
+                    "mode": k + 1,
+                    "kind": m.kind,
+                    "freq_hz": m.freq_hz,
+                    "damping": m.damping,
+                    "b_norm": float(np.linalg.norm(m.b)),
+                    "c_norm": float(np.linalg.norm(m.c)),
+                    "residual": m.residual,
+                    "b": [float(v) for v in m.b],
+                    "c": [float(v) for v in m.c],
+                }
+            )
+        return rows
+
+    def table_text(self) -> str:
+        """The mode table as text (seed 000, Table 1, with rigid modes and participations)."""
+        lines = [
+            " mode  kind        freq (Hz)    damping      |b_k|        |c_k|     residual",
+        ]
+        for row in self.table():
+            lines.append(
+                f"{row['mode']:5d}  {row['kind']:<9s} {row['freq_hz']:10.2f} {row['damping']:10.4f} "
+                f"{row['b_norm']:12.4e} {row['c_norm']:12.4e} {row['residual']:10.2e}"
+            )
+        n_r = len(self.modes_of_kind("rigid"))
+        if self.rigid_poles.size:
+            lines.append(
+                f"rigid-body cluster: {n_r} double integrators from poles with |s| up to "
+                f"{np.max(np.abs(self.rigid_poles)) / (2 * np.pi):.3g} Hz"
+            )
+        return "\n".join(lines)
+
+    def to_json(self) -> str:
+        """The mode table and D as JSON text."""
+        return json.dumps(
+            {
+                "modes": self.table(),
+                "D": self.D.tolist(),
+                "input_names": list(self.input_names),
+                "output_names": list(self.output_names),
+            },
+            indent=2,
+        )
+
+
+# ------------------------------------------------------------------ internals
+def _rigid_modes(A1, B1, C1, w_r, basis):
+    """Double-integrator modes from the rigid cluster (A1, B1, C1); and the state map."""
+    n_r = A1.shape[0] // 2
+    n_y = C1.shape[0]
+    P = C1 @ A1 @ B1  # the 1/s^2 coefficient
+    N1 = C1 @ B1  # the 1/s coefficient, 0 for exact double integrators
+    row_norm = np.linalg.norm(P, axis=1)
+    use_outputs = basis == "outputs" or (
+        basis == "auto" and n_r == n_y and np.all(row_norm > 1e-9 * max(row_norm.max(), 1e-300))
+    )
+    if basis == "outputs" and n_r != n_y:
+        raise InputError(
+            f"rigid_basis 'outputs': expected as many rigid modes as outputs ({n_y}), got {n_r}; use 'svd'"
+        )
+    if use_outputs:
+        d = np.sqrt(row_norm)
+        Cr = np.diag(d)  # c_k = d_k e_k
+        Br = P / np.where(d > 0, d, 1.0)[:, None]  # rows b_k^T
+    else:
+        U, s, Vt = np.linalg.svd(P)
+        Cr = U[:, :n_r] * np.sqrt(s[:n_r])
+        Br = np.sqrt(s[:n_r])[:, None] * Vt[:n_r]
+    resid = float(np.linalg.norm(N1) * w_r / max(np.linalg.norm(P), 1e-300))
+    modes = [
+        Mode(kind="rigid", freq_hz=0.0, damping=0.0, b=Br[k], c=Cr[:, k], residual=resid)
+        for k in range(n_r)
+    ]
+    # state map x_cluster = T_r x_modal from the observability matrices (3 block rows)
+    Am = np.zeros((2 * n_r, 2 * n_r))
+    Cm = np.zeros((n_y, 2 * n_r))
+    for k in range(n_r):
+        Am[2 * k, 2 * k + 1] = 1.0
+        Cm[:, 2 * k] = Cr[:, k]
+    O_id = np.vstack([C1, C1 @ A1, C1 @ A1 @ A1])
+    O_m = np.vstack([Cm, Cm @ Am, Cm @ Am @ Am])
+    T_r = np.linalg.lstsq(O_id, O_m, rcond=None)[0]
+    return modes, T_r
+
+
+def _flexible_modes(A2, B2, C2):
+    """Flexible (pair) and real-pole modes of a block without rigid poles; and the state map."""
+    n = A2.shape[0]
+    if n == 0:
+        return [], np.zeros((0, 0))
+    lam, V = np.linalg.eig(A2)
+    W = np.linalg.inv(V)  # rows: left eigenvectors, W V = I
+    cols = []
+    modes = []
+    done = np.zeros(n, bool)
+    order = np.argsort(np.abs(lam))
+    for idx in order:
+        if done[idx]:
+            continue
+        s = lam[idx]
+        v, wl = V[:, idx], W[idx]
+        phi, psi = C2 @ v, wl @ B2
+        if abs(s.imag) <= 1e-9 * max(abs(s), 1e-300):  # real pole
+            done[idx] = True
+            v, phi, psi = v.real, phi.real, psi.real
+            kappa = (
+                np.sqrt(np.linalg.norm(psi) / max(np.linalg.norm(phi), 1e-300))
+                if np.any(phi)
+                else 1.0
+            )
+            c, b = phi * kappa, psi / kappa
+            modes.append(
+                Mode(
+                    kind="real",
+                    freq_hz=abs(s.real) / (2 * np.pi),
+                    damping=1.0 if s.real < 0 else -1.0,
+                    b=b,
+                    c=c,
+                )
+            )
+            cols.append(((0, abs(s.real)), (v * kappa)[:, None]))
+            continue
+        # the conjugate partner
+        dist = np.abs(lam - np.conj(s))
+        dist[done] = np.inf
+        dist[idx] = np.inf
+        partner = int(np.argmin(dist))
+        done[idx] = done[partner] = True
+        if s.imag < 0:
+            s, v, phi, psi = np.conj(s), np.conj(v), np.conj(phi), np.conj(psi)
+        wd = s.imag
+        w0 = abs(s)
+        zeta = -s.real / w0
+        M = 2j * wd * np.outer(phi, psi)
+        N1 = M.imag / wd
+        N0 = M.real - s.real * N1
+        U, sv, Vt = np.linalg.svd(N0)
+        c = U[:, 0] * np.sqrt(sv[0])
+        b = Vt[0] * np.sqrt(sv[0])
+        j = int(np.argmax(np.abs(c)))
+        if c[j] < 0:
+            c, b = -c, -b
+        resid = np.linalg.norm(N0 - np.outer(c, b) + 1j * w0 * N1) / max(np.linalg.norm(N0), 1e-300)
+        modes.append(
+            Mode(kind="flexible", freq_hz=w0 / (2 * np.pi), damping=zeta, b=b, c=c, residual=resid)
+        )
+        a = np.vdot(phi, c) / max(np.vdot(phi, phi).real, 1e-300)
+        E = np.array([[1.0, 1.0], [s, np.conj(s)]])
+        Tk = np.column_stack([a * v, np.conj(a * v)]) @ np.linalg.inv(E)
+        cols.append(((1, w0), Tk.real))
+    # order: flexible by frequency, then real poles by |p|
+    key = sorted(range(len(modes)), key=lambda i: (cols[i][0][0] == 0, cols[i][0][1]))
+    modes = [modes[i] for i in key]
+    T = np.hstack([cols[i][1] for i in key])
+    return modes, T
+
+
+# ---------------------------------------------------------------------- plots
+def _freq_axis(model: ModalModel, freq_hz):
+    if freq_hz is not None:
+        return np.asarray(freq_hz, float)
+    f = [m.freq_hz for m in model.modes if m.freq_hz > 0]
+    hi = 3 * max(f) if f else 1e3
+    return np.logspace(np.log10(hi / 1e4), np.log10(hi), 800)
+
+
+def plot_model_bode(model: ModalModel, path, *, freq_hz=None, title: str = "") -> None:
+    """Save the magnitude of every input-output pair of the modal model (PNG grid)."""
+    from matplotlib.figure import Figure
+
+    from workbench.atomic import atomic_path
+
+    f = _freq_axis(model, freq_hz)
+    G = model.frf(f)
+    fig = Figure(figsize=(2.2 * model.n_u + 1, 1.8 * model.n_y + 1))
+    axes = fig.subplots(model.n_y, model.n_u, squeeze=False, sharex=True)
+    for i in range(model.n_y):
+        for j in range(model.n_u):
+            ax = axes[i, j]
+            ax.loglog(f, np.abs(G[:, i, j]), lw=0.8)
+            ax.grid(True, which="both", alpha=0.2)
+            if i == 0:
+                ax.set_title(model.input_names[j], fontsize=8)
+            if j == 0:
+                ax.set_ylabel(model.output_names[i], fontsize=8)
+            ax.tick_params(labelsize=6)
+    fig.suptitle(title or "Modal model: |G| per input-output pair")
+    fig.supxlabel("frequency (Hz)")
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=100)
+
+
+def plot_mode_superposition(
+    model: ModalModel, path, *, output: int = 0, input: int = 0, freq_hz=None, title: str = ""
+) -> None:
+    """Save the Bode plot of one input-output pair as the superposition of its modes (PNG).
+
+    Each mode's contribution ``c_k[output] b_k[input] / den_k(s)`` is drawn with
+    the sum (seed 000, Figure 5: a DOF's response as the sum of one rigid and
+    two flexible modes). Modes that contribute nothing to the pair are left out.
+    """
+    from matplotlib.figure import Figure
+
+    from workbench.atomic import atomic_path
+
+    if not (0 <= output < model.n_y and 0 <= input < model.n_u):
+        raise InputError(
+            f"output/input: expected 0 <= output < {model.n_y} and 0 <= input < {model.n_u}, got {output}, {input}"
+        )
+    f = _freq_axis(model, freq_hz)
+    s = 2j * np.pi * f
+    total = model.frf(f)[:, output, input]
+    fig = Figure(figsize=(7, 5))
+    ax_m, ax_p = fig.subplots(2, 1, sharex=True)
+    ref = np.max(np.abs(total))
+    for k, m in enumerate(model.modes):
+        g = m.response(s)[:, output, input]
+        if np.max(np.abs(g)) < 1e-6 * ref:
+            continue
+        label = f"mode {k + 1}: {m.kind}" + (f" {m.freq_hz:.1f} Hz" if m.kind != "rigid" else "")
+        ax_m.loglog(f, np.abs(g), lw=0.8, ls="--", label=label)
+        ax_p.semilogx(f, np.degrees(np.angle(g)), lw=0.8, ls="--")
+    ax_m.loglog(f, np.abs(total), "k", lw=1.4, label="sum")
+    ax_p.semilogx(f, np.degrees(np.unwrap(np.angle(total))), "k", lw=1.4)
+    ax_m.set_ylabel("magnitude")
+    ax_p.set_ylabel("phase (deg)")
+    ax_p.set_xlabel("frequency (Hz)")
+    ax_m.legend(fontsize=7)
+    for ax in (ax_m, ax_p):
+        ax.grid(True, which="both", alpha=0.2)
+    ax_m.set_title(
+        title or f"{model.output_names[output]} / {model.input_names[input]}: mode superposition"
+    )
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=100)
