@@ -79,7 +79,8 @@ _EXCITED_REL_POWER = (
     1e-4  # a bin is excited when its reference power exceeds this share of the peak
 )
 _BLOCK_REL_CHANGE = 0.1  # a period starts a new block when it differs by this relative norm
-_COND_LIMIT = 1e8  # refuse an input matrix (U R^H) more ill-conditioned than this
+_COND_LIMIT = 1e12  # refuse an input matrix (U R^H) more ill-conditioned than this (rank lost)
+_COND_WARN = 1e6  # warn above this: random-phase designs now and then give such lines
 
 
 @dataclass(frozen=True)
@@ -174,7 +175,19 @@ def _zoh_divisor(freq: np.ndarray, fs: float, zoh: str) -> np.ndarray:
 
 def _inverse(B: np.ndarray, what: str) -> np.ndarray:
     """Inverse of a stack (n_f, n_u, n_u) of input matrices U R^H; refuses singular ones."""
-    cond = np.linalg.cond(B)
+    # condition of the equilibrated matrix: channels in N and N m differ in scale, not in rank
+    rows = np.linalg.norm(B, axis=2, keepdims=True)
+    Bs = B / np.where(rows > 0, rows, 1.0)
+    cols = np.linalg.norm(Bs, axis=1, keepdims=True)
+    Bs = Bs / np.where(cols > 0, cols, 1.0)
+    # Frobenius-norm condition ||Bs|| ||Bs^-1||: within a factor n_u of the 2-norm one, and
+    # free once the inverse is formed
+    with np.errstate(all="ignore"):
+        try:
+            Binv_s = np.linalg.inv(Bs)
+            cond = np.linalg.norm(Bs, axis=(1, 2)) * np.linalg.norm(Binv_s, axis=(1, 2))
+        except np.linalg.LinAlgError:
+            cond = np.linalg.cond(Bs)
     bad = ~np.isfinite(cond) | (cond > _COND_LIMIT)
     if np.any(bad):
         raise InputError(
@@ -183,6 +196,15 @@ def _inverse(B: np.ndarray, what: str) -> np.ndarray:
             f"(condition number up to {np.nanmax(cond):.3g}); "
             f"expected at least {B.shape[1]} independent experiments (multisine blocks) or "
             "a random excitation on every input"
+        )
+    poor = cond > _COND_WARN
+    if np.any(poor):
+        warnings.warn(
+            f"{what}: the input matrix is poorly conditioned (condition number > {_COND_WARN:g}) "
+            f"at {int(poor.sum())} of {B.shape[0]} lines; their variance is large. An orthogonal "
+            "multisine design avoids this",
+            DataWarning,
+            stacklevel=3,
         )
     return np.linalg.inv(B)
 
@@ -313,16 +335,20 @@ def frf_multisine(
 
     # ---- DFT per period, averaged per block
     scale = 2.0 / period  # DFT -> sine amplitude
-    Ym, Um, Rm, dY, dU = [], [], [], [], []
+    # The DFT is linear: the block mean is the DFT of the mean period, and the spread over
+    # periods the DFT of the deviations from it (no cancellation, and no DFT at all of an
+    # input that repeats exactly, as an open-loop generator's does).
+    Ym, Um, Rm, dYs, dUs = [], [], [], [], []
     for i in range(len(blocks_y)):
-        yb = blocks_y[i][:, n_transient:]
+        yb = blocks_y[i][:, n_transient:]  # (b, P', period, n_y)
         ub = blocks_u[i][:, n_transient:]
-        Yf = scipy.fft.rfft(yb, axis=2, workers=workers) * scale  # (b, P', n_bins, n_y)
-        Uf = scipy.fft.rfft(ub, axis=2, workers=workers) * scale
-        Ym.append(Yf.mean(axis=1))
-        Um.append(Uf.mean(axis=1))
-        dY.append(Yf - Ym[-1][:, None])
-        dU.append(Uf - Um[-1][:, None])
+        ym, um = yb.mean(axis=1), ub.mean(axis=1)
+        Ym.append(scipy.fft.rfft(ym, axis=1, workers=workers) * scale)
+        Um.append(scipy.fft.rfft(um, axis=1, workers=workers) * scale)
+        if yb.shape[1] >= 2:
+            dYs.append(scipy.fft.rfft(yb - ym[:, None], axis=2, workers=workers))
+            du = ub - um[:, None]
+            dUs.append(scipy.fft.rfft(du, axis=2, workers=workers) if np.any(du) else None)
         if use_r:
             Rm.append(scipy.fft.rfft(blocks_r[i][:, n_transient:].mean(axis=1), axis=1) * scale)
     Ym = np.concatenate(Ym)  # (n_b, n_bins, n_y)
@@ -330,7 +356,7 @@ def frf_multisine(
     Rm = np.concatenate(Rm) if use_r else Um
     n_b = Ym.shape[0]
     n_bins = Ym.shape[1]
-    n_per = [d.shape[1] for d in dY]
+    n_per = [b.shape[1] - n_transient for b in blocks_y]
 
     # ---- excited lines
     if lines is None:
@@ -363,15 +389,26 @@ def frf_multisine(
     k = 0
     if have_periods:
         noise_acc = np.zeros((n_bins, n_y))
-        for i in range(len(dY)):
-            P = n_per[i]
-            # residual of each period around its block mean: dY - G dU, (b, P, n_l, n_y)
-            e = dY[i][:, :, lines] - np.einsum("lyu,bplu->bply", G, dU[i][:, :, lines])
-            nb_i = e.shape[0]
-            var_e[:, :, k : k + nb_i] = np.moveaxis(
-                np.sum(np.abs(e) ** 2, axis=1) / (P * (P - 1)), 0, -1
+        n_l = lines.size
+        contiguous = lines[-1] - lines[0] + 1 == n_l
+        at_lines = slice(lines[0], lines[-1] + 1) if contiguous else lines
+        GT = np.swapaxes(G, 1, 2) / scale  # residual in unscaled DFT units
+        for i in range(len(dYs)):
+            nb_i, P = dYs[i].shape[:2]
+            norm = scale**2 / (P * (P - 1))  # variance of the mean of P periods
+            # output noise at every bin
+            v = dYs[i].view(np.float64)  # re/im interleaved: (b, P, n_bins, 2 n_y)
+            sq = np.einsum("bpfc,bpfc->fc", v, v).reshape(n_bins, n_y, 2).sum(axis=2)
+            noise_acc += sq * norm
+            # residual of each period around its block mean, e_p = dY_p - G dU_p, at the lines
+            e = np.moveaxis(dYs[i][:, :, at_lines], 2, 0).reshape(n_l, nb_i * P, n_y)
+            if dUs[i] is not None:
+                dU = np.moveaxis(dUs[i][:, :, at_lines], 2, 0).reshape(n_l, nb_i * P, n_u)
+                e = e - (dU * scale) @ GT
+            ev = e.view(np.float64).reshape(n_l, nb_i, P, n_y, 2)
+            var_e[:, :, k : k + nb_i] = np.swapaxes(
+                np.einsum("lbpyc,lbpyc->lby", ev, ev) * norm, 1, 2
             )
-            noise_acc += np.sum(np.abs(dY[i]) ** 2, axis=1).sum(axis=0) / (P * (P - 1))
             k += nb_i
         noise_bins = noise_acc / n_b
         G_var_noise = np.einsum("lyb,lbu->lyu", var_e, np.abs(W) ** 2)
