@@ -1,0 +1,384 @@
+"""Which physical effect does the model miss? Screen, fit, rank, explain, repeat.
+
+Each round: every applicable structure is screened on its grid with the
+projected cost, the most promising are fitted (fit.py), and the candidates
+are ranked by the Bayesian information criterion with the noise scale
+estimated from the data, BIC = n ln(cost / n) + k ln n (k = all parameters,
+linear ones included, so a flexible effect does not win by fitting noise).
+The best is accepted when its BIC is lower, it lowers the spec error by at
+least 15 %, and (when G_var gives the noise floor) the error was not already
+at the noise floor. An accepted effect is added to the model and the next
+round looks for a second one on top of it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from workbench.diagnosis import detect
+from workbench.diagnosis.effects import candidate_structures
+from workbench.diagnosis.explain import explain
+from workbench.diagnosis.fit import FitResult, fit, screen
+from workbench.diagnosis.modal import ExtendedModel, decompose
+from workbench.diagnosis.problem import make_problem
+from workbench.errors import InputError
+from workbench.formats import FrfData, TimeData, check_model_matches
+from workbench.lti import as_matrices, frf, relative_error_frf, relative_error_time, simulate_zoh
+
+__all__ = ["Finding", "Diagnosis", "diagnose"]
+
+#: a finding must lower the spec error by at least this factor
+ERROR_RATIO = 0.85
+#: the error counts as at the noise floor below this multiple of it
+FLOOR_RATIO = 1.25
+#: periodic time data: the period-synchronous residual within this multiple of its noise is noise
+PERIODIC_F = 2.0
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One effect found: where it shows, its fitted parameters, the error after adding it."""
+
+    effect: str
+    inputs: tuple[int, ...]
+    outputs: tuple[int, ...]
+    band_hz: tuple[float, float]
+    parameters: dict[str, Any]
+    parameters_std: dict[str, Any]
+    error_after: float
+    explanation: str
+    model: ExtendedModel | None = field(default=None, repr=False, compare=False)
+
+    def to_json(self) -> dict:
+        return {
+            "effect": self.effect,
+            "inputs": [int(i) for i in self.inputs],
+            "outputs": [int(i) for i in self.outputs],
+            "band_hz": [float(self.band_hz[0]), float(self.band_hz[1])],
+            "parameters": _jsonable(self.parameters),
+            "parameters_std": _jsonable(self.parameters_std),
+            "error_after": float(self.error_after),
+            "explanation": self.explanation,
+        }
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """Result of :func:`diagnose`.
+
+    Attributes
+    ----------
+    error_before : float
+        Spec error of the model as given.
+    findings : tuple of Finding
+        Ranked, most likely first; one ``none`` finding when nothing is missing.
+    alternatives : tuple of dict
+        Runner-up explanations of the first round (effect, error_after, delta_bic).
+    noise_floor : float or None
+        Error expected from the noise alone (FRF data with G_var).
+    model : ExtendedModel
+        The model with every finding added.
+    """
+
+    error_before: float
+    findings: tuple[Finding, ...]
+    alternatives: tuple[dict, ...] = ()
+    noise_floor: float | None = None
+    data_kind: str = "frf"
+    notes: tuple[str, ...] = ()
+    model: ExtendedModel | None = field(default=None, repr=False, compare=False)
+
+    def to_json(self) -> dict:
+        out: dict[str, Any] = {
+            "error_before": float(self.error_before),
+            "findings": [f.to_json() for f in self.findings],
+        }
+        if self.noise_floor is not None:
+            out["noise_floor"] = float(self.noise_floor)
+        out["data_kind"] = self.data_kind
+        out["alternatives"] = _jsonable(list(self.alternatives))
+        if self.notes:
+            out["notes"] = list(self.notes)
+        return out
+
+
+def _jsonable(x):
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
+    if isinstance(x, np.generic):
+        x = x.item()
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    return x
+
+
+def _bic(cost: float, n: int, k: int) -> float:
+    return n * math.log(max(cost, 1e-300) / n) + k * math.log(n)
+
+
+def _spec_error(model, data) -> float:
+    """The spec error of a model as given (python-control StateSpace, continuous or discrete)."""
+    if isinstance(data, FrfData):
+        return relative_error_frf(data.G, frf(model, data.freq))
+    return relative_error_time(data.y, simulate_zoh(model, data.u, data.fs))
+
+
+def diagnose(
+    model,
+    data: FrfData | TimeData,
+    *,
+    max_effects: int = 3,
+    n_full_fits: int = 5,
+    effects: tuple[str, ...] | None = None,
+) -> Diagnosis:
+    """Tell which physical effect ``model`` misses to explain ``data``, fit it, rank the findings.
+
+    Parameters
+    ----------
+    model : control.StateSpace
+        The engineer's model, continuous (dt = 0) or discrete (dt = 1/fs for time data).
+    data : FrfData or TimeData
+    max_effects : int
+        Rounds of "find the best effect, add it, look again".
+    n_full_fits : int
+        Candidates refined by least squares each round, after screening all on their grids.
+    effects : tuple of str, optional
+        Restrict the candidates to these effects.
+
+    Returns
+    -------
+    Diagnosis
+    """
+    from threadpoolctl import threadpool_limits
+
+    # many tiny matrix operations: BLAS threads only add overhead (100x on a loaded machine)
+    with threadpool_limits(limits=1):
+        return _diagnose(
+            model, data, max_effects=max_effects, n_full_fits=n_full_fits, effects=effects
+        )
+
+
+def _diagnose(model, data, *, max_effects, n_full_fits, effects) -> Diagnosis:
+    check_model_matches(model, data)
+    _, _, _, _, dt = as_matrices(model)
+    if isinstance(data, TimeData) and dt > 0 and abs(dt * data.fs - 1) > 1e-9:
+        raise InputError(
+            f"model: expected a discrete model with dt = 1/fs = {1 / data.fs:g} s, got dt = {dt:g} s"
+        )
+    try:
+        base = decompose(model)
+    except ValueError as exc:
+        raise InputError(f"model: {exc}") from None
+    problem = make_problem(data)
+    error_before = _spec_error(model, data)
+    notes = list(base.notes)
+    floor = problem.noise_floor
+    n = problem.n_obs
+    current = base
+    cur_cost = problem.cost(base)
+    cur_err = problem.error(base)
+    found: list[Finding] = []
+    alternatives: list[dict] = []
+    nl = detect.nonlinearity(data) if isinstance(data, TimeData) else None
+    if nl is not None and nl.f_stat > 4.0 and nl.level > 0.02 * cur_err**2 and nl.level > 1e-4:
+        ev = dict(
+            parameters={"level": nl.level},
+            band_hz=nl.band_hz,
+            n_lines=nl.n_lines,
+            f_stat=nl.f_stat,
+            error_before=cur_err,
+            error_after=cur_err,
+            inputs=(),
+            outputs=(),
+            n_u=data.n_u,
+            n_y=data.n_y,
+            kind="time",
+        )
+        found.append(
+            Finding(
+                effect="nonlinearity",
+                inputs=tuple(range(data.n_u)),
+                outputs=tuple(range(data.n_y)),
+                band_hz=nl.band_hz,
+                parameters={"level": nl.level, "f_stat": nl.f_stat},
+                parameters_std={},
+                error_after=cur_err,
+                explanation=explain("nonlinearity", ev),
+                model=base,
+            )
+        )
+    exclude: set[str] = set()
+    for round_ in range(max_effects):
+        if floor is not None and cur_err <= FLOOR_RATIO * floor:
+            break
+        if isinstance(data, TimeData):
+            F = detect.periodic_misfit(data, problem.predict(current))
+            if F is not None and F < PERIODIC_F:
+                break
+        structures = candidate_structures(current, problem, exclude=exclude)
+        if effects is not None:
+            structures = [s for s in structures if s.effect in effects]
+        if not structures:
+            break
+        screened = []
+        for s in structures:
+            c, starts = screen(s, problem, current)
+            screened.append((c, s, starts))
+        screened.sort(key=lambda t: t[0])
+        results: list[FitResult] = []
+        for c, s, starts in screened[:n_full_fits]:
+            results.append(fit(s, problem, current, starts=starts))
+        bic0 = _bic(cur_cost, n, 0)
+        ranked = sorted(results, key=lambda r: _bic(r.cost, n, r.n_params))
+        best = ranked[0]
+        d_bic = bic0 - _bic(best.cost, n, best.n_params)
+        if round_ == 0:
+            alternatives = [
+                {
+                    "effect": r.effect,
+                    "error_after": r.error,
+                    "delta_bic": bic0 - _bic(r.cost, n, r.n_params),
+                    "parameters": _jsonable(
+                        {
+                            k: v
+                            for k, v in r.structure.report(r, problem, current)[0].items()
+                            if k != "residue_matrix"
+                        }
+                    ),
+                }
+                for r in ranked
+            ]
+        if d_bic <= 0 or best.error > ERROR_RATIO * cur_err:
+            break
+        runner = next((r for r in ranked[1:] if r.effect != best.effect), None)
+        found.append(_finding(best, runner, problem, current, data, cur_err, floor))
+        current = best.model
+        cur_cost, cur_err = best.cost, best.error
+        if best.effect != "missing_mode":
+            exclude.add(best.effect)
+    if not any(f.effect != "nonlinearity" for f in found):
+        found.append(
+            _none_finding(problem, current, data, cur_err, error_before, floor, alternatives)
+        )
+        if found[0].effect == "nonlinearity":
+            found = found[:1]
+    return Diagnosis(
+        error_before=error_before,
+        findings=tuple(found),
+        alternatives=tuple(alternatives),
+        noise_floor=floor,
+        data_kind=problem.kind,
+        notes=tuple(notes),
+        model=current,
+    )
+
+
+def _sigma(problem, model_after, fr: FitResult | None, freq, G_after) -> np.ndarray:
+    if problem.kind == "frf":
+        if problem.has_var:
+            return np.sqrt(np.maximum(problem.data.G_var, 1e-300))
+        s2 = fr.sigma2 if fr is not None else 1.0
+        return np.sqrt(2 * s2) / problem.w
+    # time data: a relative noise level per line from the residual error
+    err = problem.error(model_after)
+    norm = np.linalg.norm(G_after, axis=(1, 2))[:, None, None]
+    return np.maximum(0.3 * err * norm / math.sqrt(G_after.shape[1] * G_after.shape[2]), 1e-300)
+
+
+def _finding(fr: FitResult, runner, problem, base, data, err_before, floor) -> Finding:
+    params, params_std = fr.structure.report(fr, problem, base)
+    if problem.kind == "frf":
+        freq = problem.freq
+    else:
+        freq = np.geomspace(*problem.band_hz, 400)
+    G_before = base.frf(freq)
+    G_after = fr.model.frf(freq)
+    where = detect.where_it_shows(
+        freq, G_after - G_before, _sigma(problem, fr.model, fr, freq, G_after)
+    )
+    ins, outs = where.inputs, where.outputs
+    if fr.effect == "actuator_dynamics":
+        ins = tuple(
+            j
+            for j, c in enumerate(params["cutoff_hz"])
+            if c is not None and c < 10 * problem.band_hz[1]
+        )
+    if fr.effect == "sensor_dynamics":
+        outs = tuple(
+            i
+            for i, c in enumerate(params["cutoff_hz"])
+            if c is not None and c < 10 * problem.band_hz[1]
+        )
+    ev: dict[str, Any] = dict(
+        parameters=params,
+        band_hz=where.band_hz,
+        inputs=ins,
+        outputs=outs,
+        n_u=base.n_u,
+        n_y=base.n_y,
+        error_before=err_before,
+        error_after=fr.error,
+        noise_floor=floor,
+        kind=problem.kind,
+        alternative=(runner.effect, runner.error) if runner is not None else None,
+        fs=getattr(data, "fs", None),
+    )
+    if fr.effect == "time_delay" and problem.kind == "frf":
+        lo, hi = where.band_hz
+        sel = (freq >= lo) & (freq <= hi)
+        w = np.abs(G_before) / _sigma(problem, fr.model, fr, freq, G_after)
+        slope, mag_db, n_ch = detect.phase_slope(
+            freq[sel], problem.data.G[sel], G_before[sel], weight=w[sel]
+        )
+        ev.update(phase_slope_deg_per_hz=slope, magnitude_db=mag_db, n_channels_used=n_ch)
+    if fr.effect == "missing_mode":
+        S = np.linalg.svd(np.asarray(params["residue_matrix"]), compute_uv=False)
+        ev["rank_one_ratio"] = float(S[1] / S[0]) if S.size > 1 and S[0] > 0 else 0.0
+    return Finding(
+        effect=fr.effect,
+        inputs=tuple(ins),
+        outputs=tuple(outs),
+        band_hz=where.band_hz,
+        parameters=params,
+        parameters_std=params_std,
+        error_after=fr.error,
+        explanation=explain(fr.effect, ev),
+        model=fr.model,
+    )
+
+
+def _none_finding(problem, model, data, cur_err, error_before, floor, alternatives) -> Finding:
+    if problem.kind == "frf" and problem.has_var:
+        chi = problem.cost(model) / problem.n_obs * 2
+        reason = (
+            f"the error {cur_err:.4g} is at the noise floor {floor:.4g} computed from G_var; the noise-normalized "
+            f"misfit is {chi:.3g} per element (about 1 when the model is right)"
+        )
+    else:
+        reason = (
+            f"the error {cur_err:.4g} is not lowered significantly by any effect of the vocabulary"
+        )
+    if alternatives:
+        a = alternatives[0]
+        reason += f"; the best candidate, {a['effect']}, would only reach {a['error_after']:.4g}"
+    reason += ": nothing is missing."
+    band = problem.band_hz
+    return Finding(
+        effect="none",
+        inputs=(),
+        outputs=(),
+        band_hz=band,
+        parameters={},
+        parameters_std={},
+        error_after=cur_err,
+        explanation=reason,
+        model=model,
+    )

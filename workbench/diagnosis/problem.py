@@ -1,0 +1,332 @@
+"""The data side of a fit: weighted residuals and the linear sub-problems.
+
+A *problem* holds one measurement and knows, in its own domain, how to
+
+- predict the data from an :class:`~workbench.diagnosis.modal.ExtendedModel`
+  (the FRF at the measured lines, or a ZOH simulation from rest driven by the
+  recorded input), with a cache of per-term contributions so that a fit that
+  changes one term does not recompute the others;
+- turn the misfit into a weighted real residual vector (FRF with ``G_var``:
+  (G - G_model)/sqrt(G_var), a chi-square statistic per line that averages
+  about 1 when the model is right; FRF without: per-line relative weighting
+  1/||G_f||_F; time: 1/rms(y));
+- solve the parts of an effect that enter linearly (variable projection): the
+  numerator of an added mode, an added feedthrough, a static coupling matrix.
+
+``FrfProblem`` and ``TimeProblem`` offer the same methods, so every effect
+structure works on both kinds of data.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from workbench.diagnosis.modal import ExtendedModel
+from workbench.formats import FrfData, TimeData
+from workbench.lti import relative_error_frf, relative_error_time
+
+__all__ = ["FrfProblem", "TimeProblem", "make_problem"]
+
+
+def _key(*arrays) -> tuple:
+    return tuple(np.asarray(a, float).tobytes() if a is not None else b"" for a in arrays)
+
+
+def _solve_channels(M: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Solve M[..., p, p] x = r[..., p] for every channel, with a tiny ridge."""
+    p = M.shape[-1]
+    ridge = 1e-12 * np.trace(M, axis1=-2, axis2=-1)[..., None, None] / p * np.eye(p)
+    return np.linalg.solve(M + ridge + 1e-300 * np.eye(p), r[..., None])[..., 0]
+
+
+class FrfProblem:
+    """Fit to a measured FRF (spec 1b)."""
+
+    kind = "frf"
+
+    def __init__(self, data: FrfData):
+        self.data = data
+        self.freq = data.freq
+        self.s = 2j * np.pi * data.freq
+        G = data.G
+        if data.G_var is not None and np.any(data.G_var > 0):
+            var = np.array(data.G_var, float)
+            floor = 1e-6 * np.median(var[var > 0])
+            self.w = 1.0 / np.sqrt(np.maximum(var, floor))
+            self.has_var = True
+            norm = np.linalg.norm(G, axis=(1, 2))
+            self.noise_floor = float(
+                np.mean(np.sqrt(var.sum(axis=(1, 2))) / np.where(norm > 0, norm, np.inf))
+            )
+        else:
+            norm = np.linalg.norm(G, axis=(1, 2))
+            norm = np.where(norm > 0, norm, np.max(norm) + 1e-300)
+            self.w = np.broadcast_to((1.0 / norm)[:, None, None], G.shape).copy()
+            self.has_var = False
+            self.noise_floor = None
+        self.w2 = self.w**2
+        self.n_obs = 2 * G.size
+        self.band_hz = (float(data.freq[0]), float(data.freq[-1]))
+        self._cache: dict = {}
+
+    # ------------------------------------------------------------ prediction
+    def _term(self, t) -> np.ndarray:
+        k = _key(t.den, t.N0, t.N1)
+        out = self._cache.get(k)
+        if out is None:
+            out = t.response(self.s)
+            if len(self._cache) > 400:
+                self._cache.clear()
+            self._cache[k] = out
+        return out
+
+    def core(self, model: ExtendedModel) -> np.ndarray:
+        G = np.broadcast_to(model.D, (self.freq.size,) + model.D.shape).astype(complex)
+        for t in model.terms:
+            G = G + self._term(t)
+        return G
+
+    def predict(self, model: ExtendedModel) -> np.ndarray:
+        """Model FRF at the measured lines, (n_f, n_y, n_u)."""
+        return model.outer(self.freq, self.core(model))
+
+    def residual(self, model: ExtendedModel) -> np.ndarray:
+        e = (self.data.G - self.predict(model)) * self.w
+        return e.view(float).ravel()
+
+    def cost(self, model: ExtendedModel) -> float:
+        e = (self.data.G - self.predict(model)) * self.w
+        return float(np.sum(e.real**2 + e.imag**2))
+
+    def error(self, model: ExtendedModel) -> float:
+        return relative_error_frf(self.data.G, self.predict(model))
+
+    def line_chi2(self, model: ExtendedModel) -> np.ndarray:
+        """Weighted squared misfit per line, summed over channels, (n_f,)."""
+        e = (self.data.G - self.predict(model)) * self.w
+        return np.sum(e.real**2 + e.imag**2, axis=(1, 2))
+
+    # --------------------------------------------------------- linear parts
+    def fit_new_term(self, model: ExtendedModel, den: np.ndarray):
+        """Real numerators N0, N1 of an added term (N1 s + N0)/den(s), per channel.
+
+        Returns N0, N1 (n_y, n_u) and their standard deviations (unit noise scale).
+        """
+        e = self.data.G - self.predict(model)
+        h = model.channel_factor(self.freq)
+        d = self.s**2 + den[0] * self.s + den[1]
+        wr = np.sqrt(max(den[1], 1e-300))
+        p0 = h / d[:, None, None]
+        p1 = p0 * (self.s / wr)[:, None, None]
+        W = self.w2
+        M = np.empty(e.shape[1:] + (2, 2))
+        M[..., 0, 0] = np.sum(W * np.abs(p0) ** 2, axis=0)
+        M[..., 1, 1] = np.sum(W * np.abs(p1) ** 2, axis=0)
+        M[..., 0, 1] = M[..., 1, 0] = np.sum(W * (np.conj(p0) * p1).real, axis=0)
+        r = np.stack(
+            [np.sum(W * (np.conj(p0) * e).real, 0), np.sum(W * (np.conj(p1) * e).real, 0)], -1
+        )
+        x = _solve_channels(M, r)
+        cov = np.linalg.inv(M + 1e-300 * np.eye(2))
+        std = np.sqrt(np.abs(np.stack([cov[..., 0, 0], cov[..., 1, 1]], -1)))
+        return x[..., 0], x[..., 1] / wr, std[..., 0], std[..., 1] / wr
+
+    def fit_feedthrough(self, model: ExtendedModel):
+        """Real matrix added to D, per channel; returns dD and its std (unit noise scale)."""
+        e = self.data.G - self.predict(model)
+        h = model.channel_factor(self.freq)
+        m = np.sum(self.w2 * np.abs(h) ** 2, axis=0)
+        r = np.sum(self.w2 * (np.conj(h) * e).real, axis=0)
+        return r / m, 1.0 / np.sqrt(m)
+
+    def fit_crosstalk(self, model: ExtendedModel, side: str):
+        """Off-diagonal static coupling E with G = (I + E) G_model (side "out") or G_model (I + E)."""
+        Gm = self.predict(model)
+        e = self.data.G - Gm
+        n_y, n_u = Gm.shape[1:]
+        if side == "out":
+            E = np.zeros((n_y, n_y))
+            S = np.zeros((n_y, n_y))
+            for i in range(n_y):
+                others = [k for k in range(n_y) if k != i]
+                X = Gm[:, others, :] * self.w[:, i, None, :]  # (n_f, n_y-1, n_u)
+                X = np.moveaxis(X, 1, -1).reshape(-1, len(others))
+                b = (e[:, i, :] * self.w[:, i, :]).ravel()
+                Xr, br = np.vstack([X.real, X.imag]), np.concatenate([b.real, b.imag])
+                E[i, others], S[i, others] = _lstsq_std(Xr, br)
+        else:
+            E = np.zeros((n_u, n_u))
+            S = np.zeros((n_u, n_u))
+            for j in range(n_u):
+                others = [k for k in range(n_u) if k != j]
+                X = Gm[:, :, others] * self.w[:, :, j, None]
+                X = X.reshape(-1, len(others))
+                b = (e[:, :, j] * self.w[:, :, j]).ravel()
+                Xr, br = np.vstack([X.real, X.imag]), np.concatenate([b.real, b.imag])
+                E[others, j], S[others, j] = _lstsq_std(Xr, br)
+        return E, S
+
+    # ------------------------------------------------------------ evidence
+    def model_frf(self, model: ExtendedModel, freq=None) -> np.ndarray:
+        return model.frf(self.freq if freq is None else freq)
+
+
+def _lstsq_std(X: np.ndarray, b: np.ndarray):
+    """Least squares by the normal equations of the column-scaled X; returns x and unit-noise std."""
+    if X.shape[1] == 0:
+        return np.zeros(0), np.zeros(0)
+    scale = np.linalg.norm(X, axis=0)
+    scale = np.where(scale > 0, scale, 1.0)
+    Xs = X / scale
+    M = Xs.T @ Xs
+    M += 1e-12 * np.eye(M.shape[0])
+    cov = np.linalg.pinv(M, hermitian=True)
+    x = cov @ (Xs.T @ b)
+    return x / scale, np.sqrt(np.abs(np.diag(cov))) / scale
+
+
+class TimeProblem:
+    """Fit to a time record (spec 1a): ZOH simulation from rest driven by the recorded u."""
+
+    kind = "time"
+
+    def __init__(self, data: TimeData):
+        self.data = data
+        self.u = data.u
+        self.y = data.y
+        self.fs = data.fs
+        self.scale = float(np.sqrt(np.mean(data.y**2))) or 1.0
+        self.n_obs = data.y.size
+        self.has_var = False
+        self.noise_floor = None
+        self.band_hz = _time_band(data)
+        self._cache: dict = {}
+
+    def _part(self, model: ExtendedModel, den, N0, N1, u_in) -> np.ndarray:
+        k = _key(den, N0, N1, [model.delay_s], model.tau_in, model.tau_out, model.T_in)
+        out = self._cache.get(k)
+        if out is None:
+            X, groups = model.filtered_inputs(den, u_in, self.fs)
+            out = np.zeros(self.y.shape)
+            for g, rows in enumerate(groups):
+                out[:, rows] = X[g, :, :, 0] @ N0[rows].T
+                if N1 is not None and np.any(N1):
+                    out[:, rows] += X[g, :, :, 1] @ N1[rows].T
+            if len(self._cache) > 200:
+                self._cache.clear()
+            self._cache[k] = out
+        return out
+
+    def _u_in(self, model: ExtendedModel) -> np.ndarray:
+        return self.u if model.T_in is None else self.u @ model.T_in.T
+
+    def predict(self, model: ExtendedModel) -> np.ndarray:
+        """Simulated output (N, n_y)."""
+        u_in = self._u_in(model)
+        y = np.zeros(self.y.shape)
+        if np.any(model.D):
+            y += self._part(model, None, model.D, None, u_in)
+        for t in model.terms:
+            y += self._part(model, t.den, t.N0, t.N1, u_in)
+        if model.T_out is not None:
+            y = y @ model.T_out.T
+        return y
+
+    def residual(self, model: ExtendedModel) -> np.ndarray:
+        return ((self.y - self.predict(model)) / self.scale).ravel()
+
+    def cost(self, model: ExtendedModel) -> float:
+        return float(np.sum(((self.y - self.predict(model)) / self.scale) ** 2))
+
+    def error(self, model: ExtendedModel) -> float:
+        return relative_error_time(self.y, self.predict(model))
+
+    # --------------------------------------------------------- linear parts
+    def _regress(self, model, X, groups):
+        """Per output: LS of the residual on the columns of X[g] (N, n_reg); returns coef, std."""
+        e = (self.y - self.predict(model)) / self.scale
+        n_reg = X.shape[-1]
+        coef = np.zeros((self.y.shape[1], n_reg))
+        std = np.zeros_like(coef)
+        for g, rows in enumerate(groups):
+            Xg = X[g] / self.scale
+            for i in rows:
+                coef[i], std[i] = _lstsq_std(Xg, e[:, i])
+        return coef, std
+
+    def fit_new_term(self, model: ExtendedModel, den: np.ndarray):
+        X, groups = model.filtered_inputs(den, self._u_in(model), self.fs)
+        n_u = model.n_u
+        Xc = np.concatenate([X[..., 0], X[..., 1]], axis=-1)  # [u_0..u_{n-1} | s u_0..]
+        coef, std = self._regress(model, Xc, groups)
+        return coef[:, :n_u], coef[:, n_u:], std[:, :n_u], std[:, n_u:]
+
+    def fit_feedthrough(self, model: ExtendedModel):
+        X, groups = model.filtered_inputs(None, self._u_in(model), self.fs)
+        coef, std = self._regress(model, X[..., 0], groups)
+        return coef, std
+
+    def fit_crosstalk(self, model: ExtendedModel, side: str):
+        ym = self.predict(model)
+        e = (self.y - ym) / self.scale
+        n_y, n_u = model.n_y, model.n_u
+        if side == "out":
+            E = np.zeros((n_y, n_y))
+            S = np.zeros((n_y, n_y))
+            for i in range(n_y):
+                others = [k for k in range(n_y) if k != i]
+                E[i, others], S[i, others] = _lstsq_std(ym[:, others] / self.scale, e[:, i])
+            return E, S
+        # input side: regressor of E[j, k] = column j of the model driven by u_k
+        u_in = self._u_in(model)
+        parts = [(None, model.D, None)] if np.any(model.D) else []
+        parts += [(t.den, t.N0, t.N1) for t in model.terms]
+        R = np.zeros((self.y.shape[0], n_y, n_u, n_u))  # (N, n_y, j, k)
+        for den, N0, N1 in parts:
+            X, groups = model.filtered_inputs(den, u_in, self.fs)
+            for g, rows in enumerate(groups):
+                R[:, rows] += np.einsum("nk,ij->nijk", X[g, :, :, 0], N0[rows])
+                if N1 is not None and np.any(N1):
+                    R[:, rows] += np.einsum("nk,ij->nijk", X[g, :, :, 1], N1[rows])
+        if model.T_out is not None:
+            R = np.einsum("ab,nbjk->najk", model.T_out, R)
+        pairs = [(j, k) for j in range(n_u) for k in range(n_u) if j != k]
+        Xr = np.stack([R[:, :, j, k].ravel() for j, k in pairs], -1) / self.scale
+        x, s = _lstsq_std(Xr, e.ravel())
+        E = np.zeros((n_u, n_u))
+        S = np.zeros((n_u, n_u))
+        for (j, k), xv, sv in zip(pairs, x, s):
+            E[j, k], S[j, k] = xv, sv
+        return E, S
+
+    def model_frf(self, model: ExtendedModel, freq=None) -> np.ndarray:
+        f = np.geomspace(*self.band_hz, 400) if freq is None else freq
+        return model.frf(f)
+
+
+def _time_band(data: TimeData) -> tuple[float, float]:
+    """Excited band of a time record, Hz (from the periodic excitation if there is one)."""
+    N = data.n_samples
+    x = data.r if data.r is not None else data.u
+    P = data.period or N
+    if data.period and N // P >= 2:
+        seg = x[N - P :]
+    else:
+        seg = x
+    X = np.fft.rfft(seg - seg.mean(0), axis=0)
+    pw = np.sum(np.abs(X) ** 2, axis=1)
+    f = np.fft.rfftfreq(seg.shape[0], 1 / data.fs)
+    lines = np.flatnonzero(pw > 1e-6 * pw.max())
+    lines = lines[lines > 0]
+    if lines.size == 0:
+        return float(data.fs / N), float(data.fs / 2)
+    return float(f[lines[0]]), float(min(f[lines[-1]], 0.5 * data.fs))
+
+
+def make_problem(data):
+    """The problem for a measurement: FrfProblem or TimeProblem."""
+    if isinstance(data, FrfData):
+        return FrfProblem(data)
+    if isinstance(data, TimeData):
+        return TimeProblem(data)
+    raise TypeError(f"data: expected FrfData or TimeData, got {type(data).__name__}")
