@@ -163,10 +163,11 @@ def stage_identify(st: RunState, table: dict) -> None:
     st.ident = res
     formats.save_model(st.path("model_identified.npz"), res.model, delay_s=np.array(res.delay_s))
     plot_singular_values(
-        st.path("singular_values.png"),
         res.singular_values,
+        st.path("singular_values.png"),
         order=res.order,
         suggested=res.suggested_order,
+        title=f"{res.method}: singular values",
     )
     st.summary["identify"] = {
         "method": res.method,
@@ -182,23 +183,34 @@ def stage_identify(st: RunState, table: dict) -> None:
 
 def stage_modes(st: RunState, table: dict) -> None:
     from workbench import formats
-    from workbench.modal import modal_model_from_statespace
+    from workbench.modal import ModalModel, plot_mode_superposition, plot_model_bode
+    from workbench.plotting import save_bode_overlay
 
     if st.ident is None:
         raise InputError("[modes] needs an identified model: an [identify] table")
-    threshold = take(table, "rigid_threshold_hz", None, where="modes", kind=(int, float))
+    threshold = take(table, "rigid_threshold_hz", 5.0, where="modes", kind=(int, float))
+    superpose = take(table, "superposition", [[2, 2]], where="modes", kind=list)
     refuse_leftovers(table, where="modes")
-    kwargs = {} if threshold is None else {"rigid_threshold_hz": float(threshold)}
-    st.modal = modal_model_from_statespace(st.ident.model, **kwargs)
-    formats.save_model(
-        st.path("model_modal.npz"), st.modal.to_statespace(), delay_s=np.array(st.ident.delay_s)
-    )
-    st.write_json("modes.json", st.modal.table_dict())
-    st.summary["modes"] = st.modal.table_dict()
+    st.modal = ModalModel.from_statespace(st.ident.model, rigid_threshold_hz=float(threshold))
+    sys_c = st.modal.to_statespace()
+    formats.save_model(st.path("model_modal.npz"), sys_c, delay_s=np.array(st.ident.delay_s))
+    st.write_json("modes.json", json.loads(st.modal.to_json()))
+    plot_model_bode(st.modal, st.path("modal_model_bode.png"), title="identified modal model")
+    for out_idx, in_idx in superpose:
+        plot_mode_superposition(
+            st.modal,
+            st.path(f"mode_superposition_y{out_idx}_u{in_idx}.png"),
+            output=int(out_idx),
+            input=int(in_idx),
+        )
+    flexible = st.modal.modes_of_kind("flexible")
+    st.summary["modes"] = {
+        "text": st.modal.table_text(),
+        "n_rigid": len(st.modal.modes_of_kind("rigid")),
+        "flexible": [{"freq_hz": m.freq_hz, "damping": m.damping} for m in flexible],
+    }
     if st.frf is not None:
-        G_model = lti.frf(st.modal.to_statespace(), st.frf.freq, delay_s=st.ident.delay_s)
-        from workbench.plotting import save_bode_overlay
-
+        G_model = lti.frf(sys_c, st.frf.freq, delay_s=st.ident.delay_s)
         save_bode_overlay(
             st.path("frf_identified_vs_measured.png"),
             st.frf.freq,
@@ -207,6 +219,13 @@ def stage_modes(st: RunState, table: dict) -> None:
             st.frf.G_var,
             input_names=st.frf.input_names,
             output_names=st.frf.output_names,
+        )
+        _plot_frf_grid(
+            st.path("frf_identified_vs_measured_magnitude.png"),
+            st.frf,
+            G_model=G_model,
+            mark_hz=[m.freq_hz for m in flexible],
+            title="measured (black) vs identified (red)",
         )
         st.summary["modes"]["frf_relative_error"] = lti.relative_error_frf(st.frf.G, G_model)
 
@@ -218,8 +237,14 @@ def stage_minimality(st: RunState, table: dict) -> None:
         raise InputError("[minimality] needs a modal model: a [modes] table")
     refuse_leftovers(table, where="minimality")
     report = check_minimality(st.modal)
-    st.write_json("minimality.json", report.to_dict())
-    st.summary["minimality"] = {"minimal": report.minimal, "failures": len(report.failures)}
+    st.write_json("minimality.json", json.loads(report.to_json()))
+    atomic.write_text(st.path("minimality.txt"), report.text() + "\n")
+    st.summary["minimality"] = {
+        "minimal": report.minimal,
+        "controllable": report.controllable,
+        "observable": report.observable,
+        "failures": [str(f) for f in report.failures],
+    }
 
 
 def stage_model(st: RunState, table: dict) -> None:

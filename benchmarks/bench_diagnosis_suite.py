@@ -1,0 +1,70 @@
+"""The whole diagnosis suite: every effect of the vocabulary on both plants, FRF
+and time data, clear and subtle sizes, two-effect and clean cases.
+
+Prints one line per case (visibility, top finding, parameter errors,
+error_after / noise floor, seconds) and the confusion table.
+
+    python benchmarks/bench_diagnosis_suite.py [--quick] [--seeds 1 2 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+
+import casegen  # noqa: E402
+
+from workbench.diagnosis import diagnose  # noqa: E402
+
+
+def run(specs, seeds, *, verbose=True):
+    rows, scores = [], []
+    for seed in seeds:
+        for spec in specs:
+            case = casegen.make_case(*spec, seed=seed)
+            t0 = time.perf_counter()
+            result = diagnose(case.model, case.data).to_json()
+            dt = time.perf_counter() - t0
+            s = casegen.score(case, result)
+            scores.append((case, s, dt))
+            rows.append(("+".join(case.effects), s["top"]))
+            if verbose:
+                perr = " ".join(f"{k}={v:.3f}" for k, v in s["param_errors"].items())
+                print(
+                    f"{case.case_id:58s} vis={case.visibility:7.1f} top={s['top']!s:22s} "
+                    f"named={s['named']!s:5} params={s['params_ok']!s:5} "
+                    f"after/floor={s['error_after_ratio']:.2f} {dt:5.1f}s {perr}",
+                    flush=True,
+                )
+    return rows, scores
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--quick", action="store_true", help="the CI subset only")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[1])
+    args = ap.parse_args()
+    specs = casegen.suite(full=not args.quick)
+    rows, scores = run(specs, args.seeds)
+    n = len(scores)
+    named = sum(s["named"] for _, s, _ in scores)
+    params = sum(s["params_ok"] for _, s, _ in scores)
+    floor_ok = sum(
+        s["error_after_ratio"] <= 2.0 for c, s, _ in scores if c.effects != ("nonlinearity",)
+    )
+    n_lin = sum(1 for c, _, _ in scores if c.effects != ("nonlinearity",))
+    print()
+    print(casegen.confusion_table(rows))
+    print()
+    print(f"right effect named: {named}/{n} = {named / n:.0%}")
+    print(f"key parameters within tolerance: {params}/{n} = {params / n:.0%}")
+    print(f"error_after within 2x noise floor (linear cases): {floor_ok}/{n_lin}")
+    print(f"diagnose time: median {sorted(d for *_, d in scores)[n // 2]:.2f} s, max {max(d for *_, d in scores):.2f} s")
+
+
+if __name__ == "__main__":
+    main()

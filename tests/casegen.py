@@ -1,0 +1,301 @@
+"""Diagnosis cases made with plants/: a true plant with hidden effects, the nominal
+model an engineer has, and a measurement (FRF or time) of the true plant.
+
+Used by tests/test_diagnosis_suite.py (a CI subset) and
+benchmarks/bench_diagnosis_suite.py (the whole suite with its confusion table).
+The nominal model is the same plant with every effect off; the truth differs
+from it only by the effects named in the case, so the right answer is known.
+Sizes: "clear" (the effect's error is many times the noise-induced error) and
+"subtle" (2-5x); the visibility actually reached is measured and reported.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+import plants
+from plants.effects import ExtraMode
+from workbench import lti
+from workbench.formats import FrfData, TimeData
+
+# (plant, effect) -> size -> Effects fields. Values are physical: a one-sample
+# computation delay, an amplifier lag at a few kHz, a 3 % too stiff mode ...
+STAGE_EFFECTS: dict[str, dict[str, dict[str, Any]]] = {
+    "time_delay": {"clear": {"delay_s": 2e-4}, "subtle": {"delay_s": 4e-5}},
+    "missing_mode": {
+        "clear": {
+            "extra_modes": (
+                ExtraMode(1320.0, 0.012, (0, 0, 0.5, -0.3, 0.2, 0), (0, 0, 0.45, -0.35, 0.25, 0)),
+            )
+        },
+        "subtle": {
+            "extra_modes": (
+                ExtraMode(640.0, 0.02, (0.05, 0, 0.1, 0.3, 0, 0), (0.04, 0, 0.08, 0.25, 0, 0)),
+            )
+        },
+    },
+    "modal_mismatch": {
+        "clear": {"mode_freq_error": (0.04, 0.0)},
+        "subtle": {"mode_freq_error": (0.0, 0.015)},
+    },
+    "residual_compliance": {"clear": {"residual_max_hz": 8000.0}},
+    "actuator_dynamics": {
+        "clear": {"actuator_cutoff_hz": 1200.0},
+        "subtle": {"actuator_cutoff_hz": (np.inf, np.inf, 4000.0, 4000.0, 4000.0, np.inf)},
+    },
+    "sensor_dynamics": {
+        "clear": {"sensor_cutoff_hz": 1500.0},
+        "subtle": {"sensor_cutoff_hz": (np.inf, 2500.0, np.inf, np.inf, np.inf, np.inf)},
+    },
+    "suspension_stiffness": {
+        "clear": {"suspension_freq_hz": 15.0, "suspension_damping": 0.05},
+        "subtle": {"suspension_freq_hz": 6.0, "suspension_damping": 0.05},
+    },
+    "crosstalk": {"clear": {"_crosstalk": 0.02}, "subtle": {"_crosstalk": 0.008}},
+    "none": {"-": {}},
+}
+
+BEAM_EFFECTS: dict[str, dict[str, dict[str, Any]]] = {
+    "time_delay": {"clear": {"delay_s": 4.9e-4}, "subtle": {"delay_s": 1e-4}},
+    "missing_mode": {
+        "clear": {
+            "extra_modes": (
+                ExtraMode(610.0, 0.01, (2.4, -1.2, 1.8), (1.8, 0.6, -1.2, 1.5, -1.8)),
+            )
+        }
+    },
+    "modal_mismatch": {"clear": {"mode_freq_error": (0, 0.03, 0, 0, 0, 0, 0)}},
+    "residual_compliance": {"clear": {"residual_max_hz": 6000.0}},
+    "actuator_dynamics": {"clear": {"actuator_cutoff_hz": 500.0}},
+    "sensor_dynamics": {"clear": {"sensor_cutoff_hz": (np.inf, np.inf, 400.0, np.inf, np.inf)}},
+    "crosstalk": {"clear": {"_crosstalk": 0.03}},
+    "none": {"-": {}},
+}
+
+
+# Effects a time record of that plant cannot show (measured visibility ~1):
+# the stage's truncated modes are static compliance far below its rigid-body
+# motion; the open-loop beam record is dominated by its suspension modes.
+TIME_INVISIBLE = {
+    ("wafer_stage", "residual_compliance"),
+    ("beam", "residual_compliance"),
+    ("beam", "missing_mode"),
+}
+
+
+@dataclass(frozen=True)
+class Case:
+    """One diagnosis case and its answer."""
+
+    case_id: str
+    plant: str
+    data_kind: str  # "frf" or "time"
+    effects: tuple[str, ...]
+    size: str
+    model: Any  # control.StateSpace, continuous, the nominal model
+    data: FrfData | TimeData
+    truth: dict[str, Any] = field(default_factory=dict)  # effect -> key parameters
+    noise_floor: float = 0.0  # spec error of the true linear model
+    nominal_error: float = 0.0  # spec error of the nominal model
+
+    @property
+    def visibility(self) -> float:
+        return self.nominal_error / max(self.noise_floor, 1e-300)
+
+
+def _crosstalk(n: int, level: float, rng: np.random.Generator) -> np.ndarray:
+    X = level * rng.standard_normal((n, n))
+    np.fill_diagonal(X, 0.0)
+    return X
+
+
+def _fields(plant: str, effect: str, size: str, rng) -> dict[str, Any]:
+    table = STAGE_EFFECTS if plant == "wafer_stage" else BEAM_EFFECTS
+    spec = dict(table[effect][size])
+    if "_crosstalk" in spec:
+        n_y = 6 if plant == "wafer_stage" else 5
+        spec = {"crosstalk_output": _crosstalk(n_y, spec.pop("_crosstalk"), rng)}
+    return spec
+
+
+def _truth(fields: dict[str, Any]) -> dict[str, Any]:
+    t: dict[str, Any] = {}
+    if "delay_s" in fields:
+        t["delay_s"] = fields["delay_s"]
+    if "extra_modes" in fields:
+        m = fields["extra_modes"][0]
+        t.update(freq_hz=m.freq_hz, damping=m.damping)
+    if "actuator_cutoff_hz" in fields or "sensor_cutoff_hz" in fields:
+        c = np.atleast_1d(fields.get("actuator_cutoff_hz", fields.get("sensor_cutoff_hz")))
+        t["cutoff_hz"] = float(np.min(c))
+    if "suspension_freq_hz" in fields:
+        t["freq_hz"] = float(np.atleast_1d(fields["suspension_freq_hz"])[0])
+    return t
+
+
+def _frf_data(true_plant, nominal, freq, rel_noise, rng):
+    """Analytic FRF of the truth plus complex Gaussian noise with a known G_var."""
+    G = true_plant.frf(freq)
+    scale = np.linalg.norm(G, axis=(1, 2), keepdims=True) / np.sqrt(G.shape[1] * G.shape[2])
+    sigma = rel_noise * (np.abs(G) + 0.05 * scale)
+    noise = sigma * (rng.standard_normal(G.shape) + 1j * rng.standard_normal(G.shape)) / np.sqrt(2)
+    data = FrfData(
+        freq=freq,
+        G=G + noise,
+        G_var=sigma**2,
+        fs=true_plant.fs,
+        input_names=true_plant.input_names,
+        output_names=true_plant.output_names,
+    )
+    floor = lti.relative_error_frf(data.G, G)
+    return data, floor
+
+
+def _time_data(true_plant, rng):
+    from workbench.experiments import ExperimentConfig, run_experiment
+
+    if true_plant.n_u == true_plant.n_y:
+        cfg = ExperimentConfig(kind="closed_loop_multisine", period=2000, periods=5)
+    else:
+        cfg = ExperimentConfig(kind="open_loop_multisine", n_exp=1, period=2048, periods=5)
+    data = run_experiment(true_plant, cfg, rng=rng)
+    y_true = lti.simulate_zoh(
+        true_plant.linear_model(), data.u, data.fs, delay_s=true_plant.delay_s
+    )
+    return data, lti.relative_error_time(data.y, y_true)
+
+
+def make_case(
+    plant: str,
+    data_kind: str,
+    effects: tuple[tuple[str, str], ...],
+    *,
+    seed: int,
+    rel_noise: float = 0.005,
+) -> Case:
+    """Build one case: ``effects`` is ((effect, size), ...); () or (("none", "-"),) is clean."""
+    rng = np.random.default_rng(seed)
+    fields: dict[str, Any] = {"delay_s": 0.0}
+    truth: dict[str, Any] = {}
+    names = []
+    for effect, size in effects:
+        if effect == "nonlinearity":
+            level = {"clear": 0.2, "subtle": 0.05}[size]  # N of Coulomb friction
+            f = {
+                "friction_force": level if plant == "wafer_stage" else 2e-3 * level,
+                "friction_velocity": 1e-3,
+            }
+        else:
+            f = _fields(plant, effect, size, rng)
+        fields.update(f)
+        truth[effect] = _truth(f)
+        names.append(effect)
+    make = plants.get_plant
+    true_plant = make(plant, **fields)
+    nominal = make(plant, delay_s=0.0).linear_model()
+    if data_kind == "frf":
+        fs = true_plant.fs
+        df = 1.0 if plant == "wafer_stage" else 0.5
+        freq = np.arange(1, int(0.5 * fs / df)) * df
+        freq = freq[freq >= (2.0 if plant == "wafer_stage" else 1.0)]
+        data, floor = _frf_data(true_plant, nominal, freq, rel_noise, rng)
+        nominal_error = lti.relative_error_frf(data.G, lti.frf(nominal, data.freq))
+    else:
+        data, floor = _time_data(true_plant, rng)
+        nominal_error = lti.relative_error_time(data.y, lti.simulate_zoh(nominal, data.u, data.fs))
+    size = "+".join(s for _, s in effects) or "-"
+    return Case(
+        case_id=f"{plant}_{data_kind}_{'+'.join(names) or 'none'}_{size}_{seed}",
+        plant=plant,
+        data_kind=data_kind,
+        effects=tuple(names) or ("none",),
+        size=size,
+        model=nominal,
+        data=data,
+        truth=truth,
+        noise_floor=floor,
+        nominal_error=nominal_error,
+    )
+
+
+def suite(*, full: bool = True, seed: int = 1000) -> list[tuple[str, str, tuple]]:
+    """The list of (plant, data_kind, effects) of the suite; ``full=False`` is the CI subset."""
+    out: list[tuple[str, str, tuple]] = []
+    for plant, table in (("wafer_stage", STAGE_EFFECTS), ("beam", BEAM_EFFECTS)):
+        kinds = ("frf", "time") if full else (("frf", "time") if plant == "wafer_stage" else ("frf",))
+        for kind in kinds:
+            for effect, sizes in table.items():
+                if kind == "time" and (plant, effect) in TIME_INVISIBLE:
+                    continue
+                for size in sizes if full else list(sizes)[:1]:
+                    out.append((plant, kind, ((effect, size),)))
+            if kind == "time":
+                out.append((plant, kind, (("nonlinearity", "clear"),)))
+                if full:
+                    out.append((plant, kind, (("nonlinearity", "subtle"),)))
+    two = [
+        ("wafer_stage", "frf", (("time_delay", "clear"), ("missing_mode", "clear"))),
+        ("wafer_stage", "time", (("time_delay", "clear"), ("sensor_dynamics", "clear"))),
+        ("beam", "frf", (("actuator_dynamics", "clear"), ("missing_mode", "clear"))),
+    ]
+    out += two if full else two[:1]
+    return out
+
+
+# Tolerances of the issue: delay 10 %, frequencies 1 %, damping 30 %, cutoffs
+# 20 %, suspension frequency 10 %.
+TOLERANCES = {"delay_s": 0.10, "freq_hz": 0.01, "damping": 0.30, "cutoff_hz": 0.20}
+
+
+def _first_finite(value) -> float | None:
+    v = np.atleast_1d(np.asarray(value, float)).ravel()
+    v = v[np.isfinite(v)]
+    return float(v.min()) if v.size else None
+
+
+def score(case: Case, result: dict) -> dict[str, Any]:
+    """Score a findings JSON (spec section 3) against the case's answer."""
+    ranked = [f["effect"] for f in result.get("findings", [])]
+    expected = list(case.effects)
+    top = ranked[: len(expected)]
+    named = set(expected) <= set(top) if expected != ["none"] else (ranked[:1] == ["none"])
+    param_ok = True
+    param_err: dict[str, float] = {}
+    for f in result.get("findings", []):
+        truth = case.truth.get(f["effect"])
+        if not truth:
+            continue
+        for key, true_value in truth.items():
+            tol = TOLERANCES[key]
+            if f["effect"] == "suspension_stiffness" and key == "freq_hz":
+                tol = 0.10
+            got = _first_finite(f.get("parameters", {}).get(key, np.nan))
+            err = np.inf if got is None else abs(got - true_value) / abs(true_value)
+            param_err[f"{f['effect']}.{key}"] = err
+            param_ok &= bool(err <= tol)
+    after = [f.get("error_after") for f in result.get("findings", []) if f["effect"] != "none"]
+    final = min([a for a in after if a is not None], default=result.get("error_before", np.inf))
+    return {
+        "top": ranked[0] if ranked else None,
+        "named": bool(named),
+        "params_ok": bool(param_ok),
+        "param_errors": param_err,
+        "error_after_ratio": float(final / case.noise_floor) if case.noise_floor else np.inf,
+    }
+
+
+def confusion_table(rows: list[tuple[str, str]]) -> str:
+    """Rows of (expected, top finding) as a text table."""
+    labels = sorted({e for e, _ in rows} | {t or "-" for _, t in rows})
+    width = max(len(s) for s in labels) + 1
+    head = " " * width + " ".join(f"{s[:6]:>6}" for s in labels)
+    lines = ["expected \\ top finding", head]
+    for e in labels:
+        if not any(r[0] == e for r in rows):
+            continue
+        counts = [sum(1 for r in rows if r[0] == e and (r[1] or "-") == t) for t in labels]
+        lines.append(f"{e:<{width}}" + " ".join(f"{c:>6}" for c in counts))
+    return "\n".join(lines)
