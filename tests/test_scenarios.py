@@ -1,0 +1,55 @@
+"""Every scenario in scenarios/ runs through the CLI, and its figures make sense."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from workbench.cli import main
+
+SCENARIOS = sorted((Path(__file__).resolve().parents[1] / "scenarios").glob("*.toml"))
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """Run each scenario once through the CLI; {stem: results folder}."""
+    out = {}
+    for path in SCENARIOS:
+        folder = tmp_path_factory.mktemp(path.stem)
+        status = main(["run", str(path), "--results", str(folder), "--quiet"])
+        out[path.stem] = (status, folder)
+    return out
+
+
+@pytest.mark.parametrize("path", SCENARIOS, ids=[p.stem for p in SCENARIOS])
+def test_scenario_runs(path, runs):
+    status, folder = runs[path.stem]
+    assert status == 0
+    summary = json.loads((folder / "summary.json").read_text())
+    assert summary["scenario"]["name"] == path.stem
+    # no temporary files left behind by the atomic writers
+    assert not list(folder.glob(".*.tmp*"))
+
+
+def test_wafer_stage_demo_finds_the_two_flexible_modes(runs):
+    status, tmp_path = runs["wafer_stage_demo"]
+    assert status == 0
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    modes = summary["modes"]
+    assert modes["n_rigid"] == 6
+    freqs = sorted(m["freq_hz"] for m in modes["flexible"])
+    # the plant's modes (seed 000, Table 1 measured values): 913.8 Hz and 1032 Hz
+    assert freqs == pytest.approx([913.8, 1032.0], abs=1.0)
+    assert summary["minimality"]["minimal"]
+    for name in ("frf_measured.png", "frf_identified_vs_measured.png", "modes.json"):
+        assert (tmp_path / name).stat().st_size > 0
+
+
+def test_unknown_table_is_refused(tmp_path, capsys):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[scenario]\nname = "x"\n[experimnt]\nkind = "noise"\n')
+    assert main(["run", str(bad), "--results", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "unknown table [experimnt]" in err and len(err.strip().splitlines()) == 1
