@@ -17,7 +17,6 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 import casegen  # noqa: E402
-
 from workbench.diagnosis import diagnose  # noqa: E402
 
 
@@ -63,7 +62,8 @@ def main() -> None:
     print(f"right effect named: {named}/{n} = {named / n:.0%}")
     print(f"key parameters within tolerance: {params}/{n} = {params / n:.0%}")
     print(f"error_after within 2x noise floor (linear cases): {floor_ok}/{n_lin}")
-    print(f"diagnose time: median {sorted(d for *_, d in scores)[n // 2]:.2f} s, max {max(d for *_, d in scores):.2f} s")
+    times = sorted(d for *_, d in scores)
+    print(f"diagnose time: median {times[n // 2]:.2f} s, max {times[-1]:.2f} s")
 
 
 if __name__ == "__main__":

@@ -62,9 +62,7 @@ BEAM_EFFECTS: dict[str, dict[str, dict[str, Any]]] = {
     "time_delay": {"clear": {"delay_s": 4.9e-4}, "subtle": {"delay_s": 1e-4}},
     "missing_mode": {
         "clear": {
-            "extra_modes": (
-                ExtraMode(610.0, 0.01, (2.4, -1.2, 1.8), (1.8, 0.6, -1.2, 1.5, -1.8)),
-            )
+            "extra_modes": (ExtraMode(610.0, 0.01, (2.4, -1.2, 1.8), (1.8, 0.6, -1.2, 1.5, -1.8)),)
         }
     },
     "modal_mismatch": {"clear": {"mode_freq_error": (0, 0.03, 0, 0, 0, 0, 0)}},
@@ -225,7 +223,7 @@ def suite(*, full: bool = True, seed: int = 1000) -> list[tuple[str, str, tuple]
     """The list of (plant, data_kind, effects) of the suite; ``full=False`` is the CI subset."""
     out: list[tuple[str, str, tuple]] = []
     for plant, table in (("wafer_stage", STAGE_EFFECTS), ("beam", BEAM_EFFECTS)):
-        kinds = ("frf", "time") if full else (("frf", "time") if plant == "wafer_stage" else ("frf",))
+        kinds = ("frf", "time") if full or plant == "wafer_stage" else ("frf",)
         for kind in kinds:
             for effect, sizes in table.items():
                 if kind == "time" and (plant, effect) in TIME_INVISIBLE:
