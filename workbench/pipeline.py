@@ -49,6 +49,7 @@ class RunState:
     modal: Any = None  # ModalModel
     model: Any = None  # the user's model (StateSpace) for compare/diagnose
     model_delay_s: float = 0.0
+    diagnosis: Any = None  # workbench.diagnosis.Diagnosis
     summary: dict[str, Any] = field(default_factory=dict)
     files: list[str] = field(default_factory=list)
 

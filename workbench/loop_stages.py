@@ -1,0 +1,101 @@
+"""Scenario stages of the model-versus-measurement loop: compare, diagnose, augment.
+
+``[compare]`` -> where the model fails; ``[diagnose]`` -> which effect is
+missing; ``[augment]`` -> add it, fit it, and compare again, so the results
+folder holds the error map and Bode overlays before and after side by side.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from workbench import formats
+from workbench.errors import InputError
+from workbench.pipeline import RunState, register_stage
+from workbench.scenario import refuse_leftovers, take
+
+
+def _loop_data(st: RunState, table: dict, where: str):
+    kind = take(table, "data", "frf" if st.frf is not None else "time", where=where, kind=str)
+    if kind not in ("frf", "time"):
+        raise InputError(f"[{where}] key 'data': expected 'frf' or 'time', got {kind!r}")
+    data = st.frf if kind == "frf" else st.data
+    if data is None:
+        raise InputError(f"[{where}] needs {kind} data: an [experiment] (and [frf]) table")
+    if st.model is None:
+        raise InputError(f"[{where}] needs a model: a [model] table")
+    return data
+
+
+def _compare_into(st: RunState, model, delay_s: float, data, name: str) -> dict:
+    from workbench.commands.compare import write_plots
+    from workbench.compare import compare
+
+    res = compare(model, data, delay_s=delay_s)
+    st.write_json(f"{name}.json", res.as_dict())
+    for p in write_plots(res, st.out / name, []):
+        st.files.append(str(p.relative_to(st.out)))
+    return {
+        "error": res.error,
+        "within_noise": res.within_noise,
+        "failing_bands": len(res.failing_bands),
+    }
+
+
+def stage_compare(st: RunState, table: dict) -> None:
+    data = _loop_data(st, table, "compare")
+    refuse_leftovers(table, where="compare")
+    st.summary["compare"] = _compare_into(st, st.model, st.model_delay_s, data, "compare_before")
+
+
+def stage_diagnose(st: RunState, table: dict) -> None:
+    from workbench.diagnosis import diagnose
+
+    data = _loop_data(st, table, "diagnose")
+    max_effects = take(table, "max_effects", 3, where="diagnose", kind=int)
+    refuse_leftovers(table, where="diagnose")
+    result = diagnose(st.model, data, max_effects=max_effects)
+    payload = result.to_json()
+    st.write_json("findings.json", payload)
+    st.summary["diagnose"] = {
+        "error_before": payload["error_before"],
+        "findings": [
+            {k: f[k] for k in ("effect", "parameters", "error_after")} for f in payload["findings"]
+        ],
+    }
+    st.diagnosis = result
+
+
+def stage_augment(st: RunState, table: dict) -> None:
+    from workbench.augment import augment
+
+    data = _loop_data(st, table, "augment")
+    effects = take(table, "effects", None, where="augment", kind=list)
+    refuse_leftovers(table, where="augment")
+    if effects is None:  # the diagnosis's findings, in rank order
+        diagnosis = st.diagnosis
+        if diagnosis is None:
+            raise InputError("[augment]: give 'effects' or run a [diagnose] table first")
+        effects = [f.effect for f in diagnosis.findings if f.effect != "none"]
+    model, delay_s, steps = st.model, st.model_delay_s, []
+    for effect in effects:
+        out = augment(model, data, effect)
+        steps.append(
+            {
+                "effect": effect,
+                "parameters": out.parameters,
+                "error_before": out.error_before,
+                "error_after": out.error_after,
+            }
+        )
+        model, delay_s = out.model, out.delay_s
+    formats.save_model(st.path("model_augmented.npz"), model, delay_s=np.array(delay_s))
+    after = _compare_into(st, model, delay_s, data, "compare_after")
+    st.write_json("augment.json", {"steps": steps, "compare_after": after})
+    st.summary["augment"] = {"steps": steps, "compare_after": after}
+
+
+register_stage("compare", stage_compare)
+register_stage("diagnose", stage_diagnose)
+register_stage("augment", stage_augment)
+__all__ = ["stage_compare", "stage_diagnose", "stage_augment"]
