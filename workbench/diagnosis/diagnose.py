@@ -22,7 +22,7 @@ import numpy as np
 from workbench.diagnosis import detect
 from workbench.diagnosis.effects import candidate_structures
 from workbench.diagnosis.explain import explain
-from workbench.diagnosis.fit import FitResult, fit, screen
+from workbench.diagnosis.fit import FitResult, fit, fit_joint, screen
 from workbench.diagnosis.modal import ExtendedModel, decompose
 from workbench.diagnosis.problem import make_problem
 from workbench.errors import InputError
@@ -34,9 +34,11 @@ __all__ = ["Finding", "Diagnosis", "diagnose"]
 #: a finding must lower the spec error by at least this factor
 ERROR_RATIO = 0.85
 #: the error counts as at the noise floor below this multiple of it
-FLOOR_RATIO = 1.25
+FLOOR_RATIO = 1.1
 #: periodic time data: the period-synchronous residual within this multiple of its noise is noise
 PERIODIC_F = 2.0
+#: candidates refitted jointly with the earlier findings each round
+JOINT_CANDIDATES = 3
 
 
 @dataclass(frozen=True)
@@ -136,7 +138,7 @@ def diagnose(
     data: FrfData | TimeData,
     *,
     max_effects: int = 3,
-    n_full_fits: int = 5,
+    n_full_fits: int | None = None,
     effects: tuple[str, ...] | None = None,
 ) -> Diagnosis:
     """Tell which physical effect ``model`` misses to explain ``data``, fit it, rank the findings.
@@ -148,8 +150,9 @@ def diagnose(
     data : FrfData or TimeData
     max_effects : int
         Rounds of "find the best effect, add it, look again".
-    n_full_fits : int
-        Candidates refined by least squares each round, after screening all on their grids.
+    n_full_fits : int, optional
+        Candidates refined by least squares each round, after screening all on their grids
+        (default: all for FRF data, the best 5 for time data).
     effects : tuple of str, optional
         Restrict the candidates to these effects.
 
@@ -216,6 +219,11 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects) -> Diagnosis:
             )
         )
     exclude: set[str] = set()
+    accepted: list[FitResult] = []
+    accepted_bases: list[ExtendedModel] = []
+    runners: list = []
+    found_nl = list(found)
+    cur_err0 = cur_err
     for round_ in range(max_effects):
         if floor is not None and cur_err <= FLOOR_RATIO * floor:
             break
@@ -233,13 +241,15 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects) -> Diagnosis:
             c, starts = screen(s, problem, current)
             screened.append((c, s, starts))
         screened.sort(key=lambda t: t[0])
+        n_fits = n_full_fits if n_full_fits is not None else (len(screened) if problem.kind == "frf" else 5)
         results: list[FitResult] = []
-        for c, s, starts in screened[:n_full_fits]:
-            results.append(fit(s, problem, current, starts=starts))
-        bic0 = _bic(cur_cost, n, 0)
+        for i, (_, s, starts) in enumerate(screened):
+            # one-parameter structures are cheap and their coarse grid understates them: always refine
+            if i < n_fits or len(s.bounds(problem, current)[0]) <= 1:
+                results.append(fit(s, problem, current, starts=starts))
+        bic0 = _bic(cur_cost, n, sum(a.n_params for a in accepted))
         ranked = sorted(results, key=lambda r: _bic(r.cost, n, r.n_params))
         best = ranked[0]
-        d_bic = bic0 - _bic(best.cost, n, best.n_params)
         if round_ == 0:
             alternatives = [
                 {
@@ -256,14 +266,43 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects) -> Diagnosis:
                 }
                 for r in ranked
             ]
-        if d_bic <= 0 or best.error > ERROR_RATIO * cur_err:
+        if accepted:
+            # refit the earlier findings jointly with each of the best few new candidates:
+            # an effect fitted alone is biased by the one not yet found
+            joint = []
+            n_joint = len(ranked) if problem.kind == "frf" else JOINT_CANDIDATES
+            for i, r in enumerate(ranked):
+                if i >= n_joint and r.theta.size > 1:
+                    continue
+                parts = [a.structure for a in accepted] + [r.structure]
+                thetas = [a.theta for a in accepted] + [r.theta]
+                fits, bases = fit_joint(parts, thetas, problem, base)
+                joint.append((fits, bases))
+            fits, bases = min(joint, key=lambda t: _bic(t[0][-1].cost, n, t[0][-1].n_params))
+            cand = fits[-1]
+            if _bic(cand.cost, n, cand.n_params) < _bic(best.cost, n, sum(a.n_params for a in accepted) + best.n_params):
+                best_chain, best_bases = fits, bases
+            else:
+                best_chain, best_bases = accepted + [best], accepted_bases + [current]
+        else:
+            best_chain, best_bases = [best], [current]
+        last = best_chain[-1]
+        k_total = last.n_params if accepted and last is not best else sum(a.n_params for a in best_chain)
+        d_bic = bic0 - _bic(last.cost, n, k_total)
+        if d_bic <= 0 or last.error > ERROR_RATIO * cur_err:
             break
-        runner = next((r for r in ranked[1:] if r.effect != best.effect), None)
-        found.append(_finding(best, runner, problem, current, data, cur_err, floor))
-        current = best.model
-        cur_cost, cur_err = best.cost, best.error
-        if best.effect != "missing_mode":
-            exclude.add(best.effect)
+        runner = next((r for r in ranked if r.effect != last.effect), None)
+        runners.append(runner)
+        accepted, accepted_bases = list(best_chain), list(best_bases)
+        errs = [cur_err0] + [a.error for a in accepted[:-1]]
+        found = found_nl + [
+            _finding(a, rn, problem, b, data, e, floor)
+            for a, rn, b, e in zip(accepted, runners, accepted_bases, errs)
+        ]
+        current = last.model
+        cur_cost, cur_err = last.cost, last.error
+        if last.effect != "missing_mode":
+            exclude.add(last.effect)
     if not any(f.effect != "nonlinearity" for f in found):
         found.append(
             _none_finding(problem, current, data, cur_err, error_before, floor, alternatives)

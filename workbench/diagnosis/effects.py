@@ -101,11 +101,8 @@ class MissingMode:
 
     def grid(self, problem, base):
         f_lo, f_hi = problem.band_hz
-        freqs = list(np.geomspace(f_lo * 1.05, f_hi * 0.98, 70 if problem.kind == "frf" else 45))
-        if problem.kind == "frf":
-            chi = problem.line_chi2(base)
-            for k in np.argsort(chi)[::-1][:40:8]:
-                freqs.append(problem.freq[k])
+        freqs = list(np.geomspace(f_lo * 1.05, f_hi * 0.98, 70 if problem.kind == "frf" else 40))
+        freqs += list(problem.residual_peaks(base))
         zs = (0.004, 0.015, 0.05)
         return [np.log([f, z]) for f in freqs for z in zs]
 
@@ -143,11 +140,13 @@ class ModalMismatch:
     def grid(self, problem, base):
         t = base.terms[self.index]
         z0 = max(t.damping, 1e-3)
-        return [
-            np.log([t.freq_hz * a, z0 * b])
-            for a in np.geomspace(0.7, 1.43, 25)
-            for b in (0.5, 1.0, 2.0)
-        ]
+        # a shifted light peak is a narrow valley of the cost: steps of z0/2 near the model mode
+        fine = 1 + np.arange(-0.08, 0.0801, max(z0 / 2, 1e-3))
+        factors = np.concatenate([np.geomspace(0.7, 1.43, 25), fine])
+        freqs = [t.freq_hz * a for a in factors]
+        lo, hi = 0.5 * t.freq_hz, 2.0 * t.freq_hz
+        freqs += [f for f in problem.residual_peaks(base) if lo < f < hi]
+        return [np.log([f, z0 * b]) for f in freqs for b in (0.5, 1.0, 2.0)]
 
     def bounds(self, problem, base):
         t = base.terms[self.index]
@@ -335,7 +334,7 @@ def candidate_structures(base: ExtendedModel, problem, *, exclude=()) -> list:
     out: list = [TimeDelay(), MissingMode(), ResidualCompliance()]
     out += [ActuatorDynamics(), SensorDynamics()]
     for k, t in enumerate(base.terms):
-        if t.kind in ("flex", "added") and f_lo / 1.4 <= t.freq_hz <= f_hi * 1.4:
+        if t.kind == "flex" and f_lo / 1.4 <= t.freq_hz <= f_hi * 1.4:
             out.append(ModalMismatch(index=k))
     if any(t.kind == "rigid" for t in base.terms):
         out.append(SuspensionStiffness())

@@ -212,3 +212,125 @@ def _distinct(points: list[np.ndarray], n: int, span: np.ndarray) -> list[np.nda
         if len(out) == n:
             break
     return out
+
+
+@dataclass(frozen=True)
+class Composite:
+    """Several structures applied in order, fitted jointly (earlier findings refitted with a new one).
+
+    Parameters
+    ----------
+    parts : tuple of Structure
+    bases : tuple of ExtendedModel
+        The model before each part at the start values (for each part's bounds).
+    """
+
+    parts: tuple
+    bases: tuple
+    effect: str = "composite"
+    theta_names: tuple[str, ...] = ()
+
+    def _sizes(self, problem) -> list[int]:
+        return [len(p.bounds(problem, b)[0]) for p, b in zip(self.parts, self.bases)]
+
+    def grid(self, problem, base):
+        return []
+
+    def bounds(self, problem, base):
+        lo = [np.asarray(p.bounds(problem, b)[0], float) for p, b in zip(self.parts, self.bases)]
+        hi = [np.asarray(p.bounds(problem, b)[1], float) for p, b in zip(self.parts, self.bases)]
+        return np.concatenate(lo), np.concatenate(hi)
+
+    def split(self, theta, problem) -> list[np.ndarray]:
+        out, i = [], 0
+        for n in self._sizes(problem):
+            out.append(np.asarray(theta[i : i + n], float))
+            i += n
+        return out
+
+    def chain(self, theta, problem, base) -> list[Realized]:
+        """Realized model after each part."""
+        out = []
+        model = base
+        for part, th in zip(self.parts, self.split(theta, problem)):
+            r = part.build(th, problem, model)
+            out.append(r)
+            model = r.model
+        return out
+
+    def build(self, theta, problem, base):
+        return self.chain(theta, problem, base)[-1]
+
+    def n_linear(self, base):
+        return sum(p.n_linear(b) for p, b in zip(self.parts, self.bases))
+
+
+#: order in which effects are stacked in a joint fit: the outer factors first, so that the
+#: linear parts (mode residues, compliance, coupling) are solved seeing all of them
+_STACK_ORDER = {
+    "time_delay": 0,
+    "actuator_dynamics": 1,
+    "sensor_dynamics": 2,
+    "modal_mismatch": 3,
+    "suspension_stiffness": 4,
+    "missing_mode": 5,
+    "residual_compliance": 6,
+    "crosstalk": 7,
+}
+
+
+def stack(parts: list, thetas: list[np.ndarray], problem, base: ExtendedModel):
+    """Build parts on base in stacking order; returns (model, realized per part in the given order)."""
+    order = sorted(range(len(parts)), key=lambda i: _STACK_ORDER.get(parts[i].effect, 9))
+    realized: dict[int, Realized] = {}
+    model = base
+    for i in order:
+        r = parts[i].build(np.asarray(thetas[i], float), problem, model)
+        realized[i] = r
+        model = r.model
+    return model, [realized[i] for i in range(len(parts))]
+
+
+def fit_joint(parts: list, thetas: list[np.ndarray], problem, base: ExtendedModel, *, max_nfev: int = 60):
+    """Refit ``parts`` jointly from ``thetas``; returns one FitResult per part and their bases.
+
+    The parts are stacked in :data:`_STACK_ORDER` (outer factors first). The
+    FitResult of part k holds the model with parts 0..k (in the given order,
+    stacked) and its error; its cost and parameter count are the joint ones.
+    """
+    order = sorted(range(len(parts)), key=lambda i: _STACK_ORDER.get(parts[i].effect, 9))
+    bases = []
+    model = base
+    for i in order:
+        bases.append(model)
+        model = parts[i].build(np.asarray(thetas[i], float), problem, model).model
+    comp = Composite(parts=tuple(parts[i] for i in order), bases=tuple(bases))
+    lo, hi = comp.bounds(problem, base)
+    start = np.clip(np.concatenate([np.asarray(thetas[i], float) for i in order]), lo, hi)
+    joint = fit(comp, problem, base, starts=[start], n_starts=1, max_nfev=max_nfev)
+    th_sorted = comp.split(joint.theta, problem)
+    std_sorted = comp.split(joint.theta_std, problem)
+    theta = [None] * len(parts)
+    std = [None] * len(parts)
+    base_of = [None] * len(parts)
+    for k, i in enumerate(order):
+        theta[i], std[i], base_of[i] = th_sorted[k], std_sorted[k], comp.bases[k]
+    out = []
+    for k in range(len(parts)):
+        model_k, realized = stack(parts[: k + 1], theta[: k + 1], problem, base)
+        r = realized[k]
+        lin_std = {key: np.asarray(v) * np.sqrt(joint.sigma2) for key, v in r.linear_std.items()}
+        out.append(
+            FitResult(
+                structure=parts[k],
+                theta=theta[k],
+                theta_std=std[k],
+                realized=Realized(model_k, r.linear, lin_std),
+                cost=joint.cost if k == len(parts) - 1 else problem.cost(model_k),
+                sigma2=joint.sigma2,
+                n_params=joint.n_params,
+                error=problem.error(model_k),
+                status=joint.status,
+            )
+        )
+    return out, base_of

@@ -166,9 +166,26 @@ class FrfProblem:
                 E[others, j], S[others, j] = _lstsq_std(Xr, br)
         return E, S
 
-    # ------------------------------------------------------------ evidence
+    def residual_peaks(self, model: ExtendedModel, n: int = 6) -> list[float]:
+        """Frequencies (Hz) of the n largest separated peaks of the misfit per line."""
+        return _peaks(self.freq, self.line_chi2(model), n)
+
     def model_frf(self, model: ExtendedModel, freq=None) -> np.ndarray:
         return model.frf(self.freq if freq is None else freq)
+
+
+def _peaks(freq: np.ndarray, power: np.ndarray, n: int) -> list[float]:
+    """Up to n local maxima of ``power``, largest first, at least 3 % apart in frequency."""
+    out: list[float] = []
+    for k in np.argsort(power)[::-1]:
+        if power[k] <= 0:
+            break
+        f = float(freq[k])
+        if all(abs(f / g - 1) > 0.03 for g in out):
+            out.append(f)
+        if len(out) == n:
+            break
+    return out
 
 
 def _lstsq_std(X: np.ndarray, b: np.ndarray):
@@ -298,6 +315,24 @@ class TimeProblem:
         for (j, k), xv, sv in zip(pairs, x, s):
             E[j, k], S[j, k] = xv, sv
         return E, S
+
+    def residual_peaks(self, model: ExtendedModel, n: int = 6) -> list[float]:
+        """Peaks (Hz) of the residual spectrum over the input spectrum, a crude |dG|^2."""
+        e = self.y - self.predict(model)
+        P = self.data.period
+        N = self.y.shape[0]
+        if P and N // P >= 2:
+            seg_e, seg_u, L = e[N - P :], self.u[N - P :], P
+        else:
+            win = np.hanning(N)[:, None]
+            seg_e, seg_u, L = e * win, self.u * win, N
+        E = np.sum(np.abs(np.fft.rfft(seg_e, axis=0)) ** 2, axis=1)
+        U = np.sum(np.abs(np.fft.rfft(seg_u, axis=0)) ** 2, axis=1)
+        f = np.fft.rfftfreq(L, 1 / self.fs)
+        ok = (U > 1e-6 * U.max()) & (f >= self.band_hz[0]) & (f <= self.band_hz[1])
+        if not ok.any():
+            return []
+        return _peaks(f[ok], E[ok] / U[ok], n)
 
     def model_frf(self, model: ExtendedModel, freq=None) -> np.ndarray:
         f = np.geomspace(*self.band_hz, 400) if freq is None else freq
