@@ -100,6 +100,7 @@ def identify_subspace(
     feedthrough: bool = True,
     max_order: int | None = None,
     factorization: Literal["gram", "qr"] = "gram",
+    projection: Literal["auto", "lags", "periodic"] = "auto",
     chunk: int = 1024,
 ) -> SubspaceResult:
     """Identify a discrete state-space model from a time record.
@@ -129,6 +130,14 @@ def identify_subspace(
         ``"gram"``: the structured Gram of the block-Hankel matrix from
         correlation sums, ``O(N * rows)`` work, memory independent of N.
         ``"qr"``: QR of the explicit Hankel matrix (reference; memory ``O(N)``).
+    projection : {"auto", "lags", "periodic"}
+        Closed-loop methods only. ``"lags"``: onto the row space of the
+        block-Hankel ``[R_p; R_f]`` (2 i lags of r; any excitation).
+        ``"periodic"``: the data are periodic (``data.period``): the
+        steady-state periods (all but the first) are averaged and u, y
+        projected onto the span of all circular lags of r, i.e. onto r's
+        excited DFT lines. ``"auto"``: periodic when ``data.period`` is set and
+        the record holds at least two periods.
     chunk : int
         Samples per chunk of the correlation sums.
 
@@ -210,25 +219,48 @@ def identify_subspace(
         signals = [r, u, y]
         scales = [su, su, sy]
 
-    L, S_cva = _data_factor(
-        signals,
-        scales,
-        i=i,
-        n_r=n_u if closed else 0,
-        n_u=n_u,
-        n_y=n_y,
-        N=N,
-        factorization=factorization,
-        chunk=chunk,
-        cva=method.endswith("cva"),
+    if projection not in ("auto", "lags", "periodic"):
+        raise InputError(f"projection: expected 'auto', 'lags' or 'periodic', got {projection!r}")
+    periodic = closed and (
+        projection == "periodic"
+        or (projection == "auto" and data.period is not None and data.n_samples >= 2 * data.period)
     )
-    Gamma_full, sv, W1inv = _weighted_svd(L, S_cva, i=i, n_u=n_u, n_y=n_y, method=method)
+    if periodic and (data.period is None or data.period <= 2 * i + 1):
+        raise InputError(
+            f"projection 'periodic': expected periodic data with a period > 2 * block_rows + 1 = "
+            f"{2 * i + 1} samples, got period {data.period}"
+        )
+    if periodic:
+        L, S_cva = _periodic_factor(
+            data,
+            input_delay=input_delay,
+            su=su,
+            sy=sy,
+            i=i,
+            cva=method.endswith("cva"),
+            chunk=chunk,
+        )
+    else:
+        L, S_cva = _data_factor(
+            signals,
+            scales,
+            i=i,
+            n_r=n_u if closed else 0,
+            n_u=n_u,
+            n_y=n_y,
+            N=N,
+            factorization=factorization,
+            chunk=chunk,
+            cva=method.endswith("cva"),
+        )
+    L, r1 = _rank_revealing(L, i * n_u)
+    Gamma_full, sv, W1inv = _weighted_svd(L, S_cva, r1=r1, i=i, n_u=n_u, n_y=n_y, method=method)
     suggested, gap = suggest_order(sv, max_order=max_order)
     n = suggested if order is None else int(order)
     Gamma = W1inv @ Gamma_full[:, :n] * np.sqrt(sv[:n])
     C = Gamma[:n_y]
     A = np.linalg.lstsq(Gamma[:-n_y], Gamma[n_y:], rcond=None)[0]
-    B, D = _b_d(L, A, C, i=i, n_u=n_u, n_y=n_y, feedthrough=feedthrough)
+    B, D = _b_d(L, A, C, r1=r1, i=i, n_u=n_u, n_y=n_y, feedthrough=feedthrough)
 
     # undo the channel scaling: y = sy * y_s, u = su * u_s
     B = B / su[None, :]
@@ -304,16 +336,72 @@ def _data_factor(signals, scales, *, i, n_r, n_u, n_y, N, factorization, chunk, 
         ir = rows(0, n_r, range(k))
         M = _project_onto(G[np.ix_(ir, ir)], G[np.ix_(ir, order_z)])
         return np.linalg.qr(M.T, mode="r").T, S
-    Gz = G[np.ix_(order_z, order_z)]
+    return _factor(G[np.ix_(order_z, order_z)]), S
+
+
+def _factor(Gz: np.ndarray) -> np.ndarray:
+    """Lower LQ factor L (rows x c) with L L^T = Gz (Cholesky; eigen square root if singular)."""
     try:
-        return np.linalg.cholesky(Gz), S
+        return np.linalg.cholesky(Gz)
     except np.linalg.LinAlgError:
         # rank-deficient (noise-free) data: a symmetric square root, then LQ
         lam, V = np.linalg.eigh(Gz)
         lam = np.clip(lam, 0.0, None)
         keep = lam > lam[-1] * 1e-15 * Gz.shape[0]
         F = V[:, keep] * np.sqrt(lam[keep])
-        return np.linalg.qr(F.T, mode="r").T, S
+        return np.linalg.qr(F.T, mode="r").T
+
+
+def _periodic_factor(data, *, input_delay, su, sy, i, cva, chunk, n_transient=1):
+    """L for closed-loop periodic data: projection onto r as a selection of r's DFT lines.
+
+    The steady-state periods are averaged; for a periodic ``r`` the row space
+    of all its (circular) lags is the set of periodic signals on r's excited
+    lines, so the orthogonal projection of u and y onto it keeps exactly those
+    lines. The projected signals are periodic and noise-reduced; their
+    circular block-Hankel Gram is block-Toeplitz, ``G[a, b] = F_{b-a}``.
+    """
+    P = int(data.period)
+    n_per = data.n_samples // P
+    skip = min(n_transient, n_per - 1)
+
+    def mean_period(x):
+        return x[skip * P : n_per * P].reshape(n_per - skip, P, x.shape[1]).mean(axis=0)
+
+    ub, yb, rb = mean_period(data.u), mean_period(data.y), mean_period(data.r)
+    if input_delay:
+        yb = np.roll(yb, -input_delay, axis=0)  # y[k + d] with u[k], periodic steady state
+    power = np.sum(np.abs(np.fft.rfft(rb, axis=0)) ** 2, axis=1)
+    mask = (power > 1e-10 * power.max())[:, None]
+    uh = np.fft.irfft(np.fft.rfft(ub, axis=0) * mask, n=P, axis=0) / su
+    yh = np.fft.irfft(np.fft.rfft(yb, axis=0) * mask, n=P, axis=0) / sy
+    z = np.hstack([uh, yh])
+    n_u, n_y = uh.shape[1], yh.shape[1]
+    m, k = n_u + n_y, 2 * i
+    F = [z.T @ np.roll(z, -d, axis=0) for d in range(k)]  # sum_t z_t z_{t+d}^T, circular
+    G = np.empty((k * m, k * m))
+    G4 = G.reshape(k, m, k, m)
+    for d in range(k):
+        a = np.arange(k - d)
+        G4[a, :, a + d, :] = F[d]
+        G4[a + d, :, a, :] = F[d].T
+
+    def rows(offset, width, blocks):
+        return np.concatenate([np.arange(b * m + offset, b * m + offset + width) for b in blocks])
+
+    past, future = range(0, i), range(i, k)
+    order_z = np.concatenate(
+        [rows(0, n_u, future), rows(0, n_u, past), rows(n_u, n_y, past), rows(n_u, n_y, future)]
+    )
+    S = None
+    if cva:  # the raw data's Y_f / U_f^perp, noise included (see _data_factor)
+        N = data.n_samples - input_delay
+        Graw = hankel_gram(
+            [data.u[:N], data.y[input_delay:]], [su, sy], n_blocks=k, n_samples=N, chunk=chunk
+        )
+        iuf, iyf = rows(0, n_u, future), rows(n_u, n_y, future)
+        S = _perp_gram(Graw[np.ix_(iyf, iyf)], Graw[np.ix_(iyf, iuf)], Graw[np.ix_(iuf, iuf)])
+    return _factor(G[np.ix_(order_z, order_z)]), S
 
 
 def _perp_gram(G_yy, G_yu, G_uu) -> np.ndarray:
@@ -340,18 +428,37 @@ def _project_onto(G_RR: np.ndarray, G_RZ: np.ndarray) -> np.ndarray:
     return (G_RZ.T @ V[:, keep]) / np.sqrt(lam[keep])
 
 
-def _weighted_svd(L, S_cva, *, i, n_u, n_y, method):
+def _rank_revealing(L: np.ndarray, a: int, *, rtol: float = 1e-8) -> tuple[np.ndarray, int]:
+    """Rotate the columns of L so that U_f (the first ``a`` rows) spans the first r1 columns.
+
+    Needed when U_f is numerically rank-deficient (a band-limited excitation,
+    or data projected onto one): the LQ factor's block-1 columns beyond the
+    rank are arbitrary directions, and the state information that Y_f has
+    there would be taken for U_f's. Returns the rotated L and the rank r1.
+    """
+    c = L.shape[1]
+    d = np.abs(np.diag(L[: min(a, c), : min(a, c)]))
+    if a <= c and d.size and d.min() > 1e-7 * d.max():
+        return L, a
+    _, s1, Vt = np.linalg.svd(L[:a], full_matrices=True)
+    r1 = int(np.sum(s1 > rtol * s1[0]))
+    L = L @ Vt.T
+    L[:a, r1:] = 0.0
+    return L, r1
+
+
+def _weighted_svd(L, S_cva, *, r1, i, n_u, n_y, method):
     """Left singular vectors, singular values, and W1^-1 of the weighted projection."""
     a = i * n_u
     b = i * (n_u + n_y)
     c = L.shape[1]
-    c1 = slice(0, min(a, c))
-    c2 = slice(min(a, c), min(a + b, c))
+    c1 = slice(0, r1)
+    c2 = slice(r1, c)  # everything orthogonal to U_f (block-3 columns are 0 in W_p's rows)
     L21, L22 = L[a : a + b, c1], L[a : a + b, c2]
     L32 = L[a + b :, c2]
     # orthonormal basis of the row space of L22 (rank-revealing)
     U22, s22, Vt22 = np.linalg.svd(L22, full_matrices=False)
-    tol = s22[0] * 1e-10 if s22.size else 0.0
+    tol = s22[0] * 1e-8 if s22.size else 0.0
     r22 = int(np.sum(s22 > tol))
     V = Vt22[:r22].T  # (cols of c2, r22)
     if method.endswith("n4sid"):
@@ -381,7 +488,7 @@ def _weighted_svd(L, S_cva, *, i, n_u, n_y, method):
     return Us, sv, W1inv
 
 
-def _b_d(L, A, C, *, i, n_u, n_y, feedthrough):
+def _b_d(L, A, C, *, r1, i, n_u, n_y, feedthrough):
     """[D; B] by least squares from Gamma^perp Y_f U_f^+ = Gamma^perp H_i."""
     n = A.shape[0]
     a = i * n_u
@@ -392,9 +499,12 @@ def _b_d(L, A, C, *, i, n_u, n_y, feedthrough):
         Gam[p * n_y : (p + 1) * n_y] = Gam[(p - 1) * n_y : p * n_y] @ A
     Ug = np.linalg.svd(Gam, full_matrices=True)[0]
     P = Ug[:, n:].T  # (i n_y - n, i n_y), P Gamma = 0
-    L11 = L[:a, :a]
-    L31 = L[a + b :, :a]
-    K = P @ scipy.linalg.solve_triangular(L11, L31.T, lower=True, trans="T").T  # P L31 L11^-1
+    L11 = L[:a, :r1]
+    L31 = L[a + b :, :r1]
+    if r1 == a and np.allclose(np.triu(L11, 1), 0.0):
+        K = P @ scipy.linalg.solve_triangular(L11, L31.T, lower=True, trans="T").T  # P L31 L11^-1
+    else:
+        K = P @ L31 @ np.linalg.pinv(L11)
     rows = []
     rhs = []
     for q in range(i):
@@ -406,7 +516,18 @@ def _b_d(L, A, C, *, i, n_u, n_y, feedthrough):
         )
         rows.append(np.hstack([Pq, tail]) if feedthrough else tail)
         rhs.append(K[:, q * n_u : (q + 1) * n_u])
-    sol = np.linalg.lstsq(np.vstack(rows), np.vstack(rhs), rcond=None)[0]
+    if r1 == a:
+        sol = np.linalg.lstsq(np.vstack(rows), np.vstack(rhs), rcond=None)[0]
+    else:
+        # U_f rank-deficient: only P H_i Pi is known, Pi the projector onto U_f's range;
+        # sum_q N_q X (E_q^T Pi) = K, solved for vec(X) (Kronecker form).
+        Pi = L11 @ np.linalg.pinv(L11)
+        n_x = rows[0].shape[1]
+        M = np.zeros((P.shape[0] * a, n_x * n_u))
+        for q in range(i):
+            M += np.kron(Pi[q * n_u : (q + 1) * n_u].T, rows[q])
+        x = np.linalg.lstsq(M, K.reshape(-1, order="F"), rcond=None)[0]
+        sol = x.reshape(n_x, n_u, order="F")
     if feedthrough:
         return sol[n_y:], sol[:n_y]
     return sol, np.zeros((n_y, n_u))
