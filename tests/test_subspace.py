@@ -249,3 +249,25 @@ def test_peak_memory_does_not_grow_with_the_record_length():
         del data, u, y
     assert peaks[1] < 1.2 * peaks[0] + 64_000, peaks
     assert peaks[1] < 8 * 1_000_000  # far below one copy of the 10^6-sample record (16 MB)
+
+
+# ------------------------------------------------------- wafer stage (quick)
+def test_wafer_stage_closed_loop_record_gives_the_modes():
+    """One closed-loop wafer-stage record (10,000 samples, 5 kHz, nm noise, 1-sample delay).
+
+    Named tolerances: the 913.8 / 1032 Hz modes within 0.5 Hz and damping
+    within 10 % on a single record (the 20-realization study with the 0.1 Hz
+    / 5 % targets is benchmarks/bench_subspace.py); 6 rigid-body modes.
+    """
+    pytest.importorskip("plants.wafer_stage")
+    from plants.wafer_stage import wafer_stage
+    from workbench.experiments import wafer_stage_closed_loop_record
+    from workbench.modal import ModalModel
+
+    data = wafer_stage_closed_loop_record(wafer_stage(), rng=3)
+    res = identify_subspace(data, method="cl-moesp", block_rows=20, input_delay=1)
+    assert res.suggested_order == 16 and res.order == 16
+    mm = ModalModel.from_statespace(res.model)
+    assert mm.kinds == ("rigid",) * 6 + ("flexible",) * 2
+    assert mm.freq_hz[6:] == pytest.approx([913.8, 1032.0], abs=0.5)
+    assert mm.damping[6:] == pytest.approx([0.0091, 0.0095], rel=0.10)

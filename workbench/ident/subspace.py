@@ -271,9 +271,23 @@ def identify_subspace(
     model = control.ss(
         A, B, C, D, 1.0 / data.fs, inputs=list(data.input_names), outputs=list(data.output_names)
     )
-    notes = ()
+    notes = []
     if np.max(np.abs(np.linalg.eigvals(A))) >= 1.0:
-        notes = ("the identified model has poles on or outside the unit circle",)
+        notes.append("the identified model has poles on or outside the unit circle")
+    if r1 < i * n_u:
+        notes.append(
+            f"U_f is numerically rank-deficient ({r1} of {i * n_u}: a band-limited excitation)"
+            + (
+                "; the N4SID oblique projection is ill-posed here, prefer MOESP or CVA"
+                if method.endswith("n4sid")
+                else ""
+            )
+        )
+    if periodic:
+        notes.append(
+            f"periodic projection: {data.n_samples // data.period} periods, the first dropped"
+        )
+    notes = tuple(notes)
     return SubspaceResult(
         model=model,
         singular_values=sv,
