@@ -95,26 +95,31 @@ def peer_slicot(u, y, order, i):
         return ctrlsys.ib01bd("M", "A", "N", i, order, n_u, n_y, us.shape[0], r, 0.0)
 
     def to_model(out, dt):
-        import control
-
         A, C, B, D = out[:4]
-        return control.ss(A, B / su[None, :], sy[:, None] * C, sy[:, None] * D / su[None, :], dt)
+        return _unscale(A, B, C, D, su, sy, dt)
 
     return ac_only, full, to_model
+
+
+def _unscale(A, B, C, D, su, sy, dt):
+    import control
+
+    return control.ss(A, B / su[None, :], sy[:, None] * C, sy[:, None] * D / su[None, :], dt)
 
 
 def peer_sippy(u, y, order, i, method):
     from sippy_unipi import system_identification
 
+    su, sy = u.std(0), y.std(0)  # every tool gets the same channel scaling as ours
+    us, ys = u / su, y / sy
+
     def run():
         return system_identification(
-            y.T, u.T, method, SS_fixed_order=order, SS_f=i, SS_p=i, SS_D_required=True
+            ys.T, us.T, method, SS_fixed_order=order, SS_f=i, SS_p=i, SS_D_required=True
         )
 
     def to_model(out, dt):
-        import control
-
-        return control.ss(out.A, out.B, out.C, out.D, dt)
+        return _unscale(out.A, out.B, out.C, out.D, su, sy, dt)
 
     return run, to_model
 
@@ -123,9 +128,10 @@ def peer_nfoursid(u, y, order, i):
     import pandas as pd
     from nfoursid.nfoursid import NFourSID
 
+    su, sy = u.std(0), y.std(0)
     cols_u = [f"u{k}" for k in range(u.shape[1])]
     cols_y = [f"y{k}" for k in range(y.shape[1])]
-    df = pd.DataFrame(np.hstack([u, y]), columns=cols_u + cols_y)
+    df = pd.DataFrame(np.hstack([u / su, y / sy]), columns=cols_u + cols_y)
 
     def run():
         nf = NFourSID(df, output_columns=cols_y, input_columns=cols_u, num_block_rows=i)
@@ -134,9 +140,7 @@ def peer_nfoursid(u, y, order, i):
         return ss
 
     def to_model(out, dt):
-        import control
-
-        return control.ss(out.a, out.b, out.c, out.d, dt)
+        return _unscale(out.a, out.b, out.c, out.d, su, sy, dt)
 
     return run, to_model
 
@@ -160,7 +164,13 @@ def part_speed(args) -> None:
                 t, res = best_time(
                     lambda m=method: identify_subspace(shifted, method=m, order=order, block_rows=i)
                 )
-                rows.append((f"ours {method} (A,B,C,D)", threads, t, res.model))
+                rows.append((f"ours {method} lags (A,B,C,D)", threads, t, res.model))
+            t, res = best_time(
+                lambda: identify_subspace(
+                    data, method="cl-moesp", order=order, block_rows=i, input_delay=1
+                )
+            )
+            rows.append(("ours cl-moesp periodic (A,B,C,D)", threads, t, res.model))
             if importlib.util.find_spec("ctrlsys"):
                 ac_only, full, to_model = peer_slicot(u, y, order, i)
                 t, out = best_time(ac_only, repeats=3)

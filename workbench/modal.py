@@ -322,7 +322,6 @@ class ModalModel:
                 f"rigid_basis: expected 'auto', 'outputs' or 'svd', got {rigid_basis!r}"
             )
         n = A.shape[0]
-        n_u, n_y = B.shape[1], C.shape[0]
         w_r = 2 * np.pi * rigid_threshold_hz
         lam_all = np.linalg.eigvals(A) if n else np.zeros(0)
         n_cluster = int(np.sum(np.abs(lam_all) < w_r))
@@ -394,8 +393,9 @@ class ModalModel:
         ]
         for row in self.table():
             lines.append(
-                f"{row['mode']:5d}  {row['kind']:<9s} {row['freq_hz']:10.2f} {row['damping']:10.4f} "
-                f"{row['b_norm']:12.4e} {row['c_norm']:12.4e} {row['residual']:10.2e}"
+                f"{row['mode']:5d}  {row['kind']:<9s} {row['freq_hz']:10.2f} "
+                f"{row['damping']:10.4f} {row['b_norm']:12.4e} {row['c_norm']:12.4e} "
+                f"{row['residual']:10.2e}"
             )
         n_r = len(self.modes_of_kind("rigid"))
         if self.rigid_poles.size:
@@ -431,7 +431,8 @@ def _rigid_modes(A1, B1, C1, w_r, basis):
     )
     if basis == "outputs" and n_r != n_y:
         raise InputError(
-            f"rigid_basis 'outputs': expected as many rigid modes as outputs ({n_y}), got {n_r}; use 'svd'"
+            f"rigid_basis 'outputs': expected as many rigid modes as outputs ({n_y}), "
+            f"got {n_r}; use 'svd'"
         )
     if use_outputs:
         d = np.sqrt(row_norm)
@@ -581,7 +582,8 @@ def plot_mode_superposition(
 
     if not (0 <= output < model.n_y and 0 <= input < model.n_u):
         raise InputError(
-            f"output/input: expected 0 <= output < {model.n_y} and 0 <= input < {model.n_u}, got {output}, {input}"
+            f"output/input: expected 0 <= output < {model.n_y} and 0 <= input < {model.n_u}, "
+            f"got {output}, {input}"
         )
     f = _freq_axis(model, freq_hz)
     s = 2j * np.pi * f
