@@ -206,16 +206,45 @@ def time_case(
     period: int = 2000,
     n_periods: int = 4,
 ) -> Case:
-    """Open-loop periodic record from rest with white output noise (rel x output rms)."""
+    """Periodic record from rest with white output noise (rel x output rms).
+
+    Plants with rigid-body modes are measured in closed loop (a PD controller per
+    axis with a 10 Hz bandwidth, as a stage is), others in open loop.
+    """
     nominal, true, delay = true_plant(plant, effect, p)
-    u = np.tile(multisine(plant.n_u, period, fs, 0.3 * fs, rng), (n_periods, 1))
-    if plant.name == "stage":
-        # stabilizing low-frequency content is absent: remove the mean so rigid bodies do not run off
-        u = u - u.mean(0)
-    y0 = lti.simulate_zoh(true, u, fs, delay_s=delay)
-    sd = rel * y0.std(axis=0)
-    y = y0 + sd * rng.standard_normal(y0.shape)
-    data = TimeData(fs=fs, u=u, y=y, loop="open", period=period)
+    r = np.tile(multisine(plant.n_u, period, fs, 0.3 * fs, rng), (n_periods, 1))
+    N = r.shape[0]
+    Ad, B0, B1, m = lti.c2d_zoh(true.A, true.B, 1 / fs, delay_s=delay)
+    C, D = np.asarray(true.C), np.asarray(true.D)
+    closed = len(plant.rigid_inv_mass) > 0
+    noise = rng.standard_normal((N, plant.n_y))
+    w = 2 * np.pi * 10.0
+    inv_m = np.asarray(plant.rigid_inv_mass)
+    kp, kd = (w**2 / inv_m, 2 * 0.7 * w / inv_m) if closed else (0.0, 0.0)
+
+    def run(sd):
+        y0 = np.zeros((N, plant.n_y))
+        y = np.zeros((N, plant.n_y))
+        u = np.zeros((N, plant.n_u))
+        x = np.zeros(true.A.shape[0])
+        zero = np.zeros(plant.n_u)
+        y_prev = np.zeros(plant.n_y)
+        for k in range(N):
+            um1 = u[k - m - 1] if k - m - 1 >= 0 else zero
+            # with m = 0 the feedthrough sees u[k], computed below; D = 0 in closed loop here
+            y0[k] = C @ x + (D @ u[k - m] if (k - m >= 0 and m > 0) else 0.0)
+            y[k] = y0[k] + sd * noise[k]
+            u[k] = r[k] - kp * y[k] - kd * (y[k] - y_prev) * fs if closed else r[k]
+            if m == 0:
+                y0[k] += D @ u[k]
+                y[k] += D @ u[k]
+            y_prev = y[k]
+            x = Ad @ x + B0 @ (u[k - m] if k - m >= 0 else zero) + B1 @ um1
+        return y0, y, u
+
+    y0, _, _ = run(np.zeros(plant.n_y))
+    y0, y, u = run(rel * y0.std(axis=0))
+    data = TimeData(fs=fs, u=u, y=y, r=r if closed else None, loop="closed" if closed else "open", period=period)
     floor = lti.relative_error_time(y, y0)
     nom_err = lti.relative_error_time(y, lti.simulate_zoh(nominal, u, fs))
     return Case(nominal, data, effect, p, floor, nom_err / floor)

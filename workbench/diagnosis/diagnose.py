@@ -37,6 +37,8 @@ ERROR_RATIO = 0.85
 FLOOR_RATIO = 1.1
 #: periodic time data: the period-synchronous residual within this multiple of its noise is noise
 PERIODIC_F = 2.0
+#: periodic power on unexcited lines above this multiple of the noise is distortion
+NL_F = 4.0
 #: candidates refitted jointly with the earlier findings each round
 JOINT_CANDIDATES = 3
 
@@ -190,39 +192,10 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects) -> Diagnosis:
     cur_err = problem.error(base)
     found: list[Finding] = []
     alternatives: list[dict] = []
-    nl = detect.nonlinearity(data) if isinstance(data, TimeData) else None
-    if nl is not None and nl.f_stat > 4.0 and nl.level > 0.02 * cur_err**2 and nl.level > 1e-4:
-        ev = dict(
-            parameters={"level": nl.level},
-            band_hz=nl.band_hz,
-            n_lines=nl.n_lines,
-            f_stat=nl.f_stat,
-            error_before=cur_err,
-            error_after=cur_err,
-            inputs=(),
-            outputs=(),
-            n_u=data.n_u,
-            n_y=data.n_y,
-            kind="time",
-        )
-        found.append(
-            Finding(
-                effect="nonlinearity",
-                inputs=tuple(range(data.n_u)),
-                outputs=tuple(range(data.n_y)),
-                band_hz=nl.band_hz,
-                parameters={"level": nl.level, "f_stat": nl.f_stat},
-                parameters_std={},
-                error_after=cur_err,
-                explanation=explain("nonlinearity", ev),
-                model=base,
-            )
-        )
     exclude: set[str] = set()
     accepted: list[FitResult] = []
     accepted_bases: list[ExtendedModel] = []
     runners: list = []
-    found_nl = list(found)
     cur_err0 = cur_err
     for round_ in range(max_effects):
         if floor is not None and cur_err <= FLOOR_RATIO * floor:
@@ -295,7 +268,7 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects) -> Diagnosis:
         runners.append(runner)
         accepted, accepted_bases = list(best_chain), list(best_bases)
         errs = [cur_err0] + [a.error for a in accepted[:-1]]
-        found = found_nl + [
+        found = [
             _finding(a, rn, problem, b, data, e, floor)
             for a, rn, b, e in zip(accepted, runners, accepted_bases, errs)
         ]
@@ -303,12 +276,20 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects) -> Diagnosis:
         cur_cost, cur_err = last.cost, last.error
         if last.effect != "missing_mode":
             exclude.add(last.effect)
+    nl = detect.nonlinearity(data, problem.predict(current)) if isinstance(data, TimeData) else None
+    if nl is not None and nl.f_stat > NL_F and nl.level > 1e-4:
+        # periodic power where a linear system has none: distortion. It ranks first when it
+        # carries a share of the output power comparable with the linear misfit.
+        finding = _nonlinearity_finding(nl, data, error_before)
+        if nl.level >= 0.5 * error_before**2:
+            found.insert(0, finding)
+        else:
+            found.append(finding)
     if not any(f.effect != "nonlinearity" for f in found):
         found.append(
             _none_finding(problem, current, data, cur_err, error_before, floor, alternatives)
         )
-        if found[0].effect == "nonlinearity":
-            found = found[:1]
+        found = [f for f in found if f.effect != "none"] or found
     return Diagnosis(
         error_before=error_before,
         findings=tuple(found),
@@ -391,6 +372,32 @@ def _finding(fr: FitResult, runner, problem, base, data, err_before, floor) -> F
         error_after=fr.error,
         explanation=explain(fr.effect, ev),
         model=fr.model,
+    )
+
+
+def _nonlinearity_finding(nl, data, err) -> Finding:
+    ev = dict(
+        parameters={"level": nl.level},
+        band_hz=nl.band_hz,
+        n_lines=nl.n_lines,
+        f_stat=nl.f_stat,
+        error_before=err,
+        error_after=err,
+        inputs=(),
+        outputs=(),
+        n_u=data.n_u,
+        n_y=data.n_y,
+        kind="time",
+    )
+    return Finding(
+        effect="nonlinearity",
+        inputs=tuple(range(data.n_u)),
+        outputs=tuple(range(data.n_y)),
+        band_hz=nl.band_hz,
+        parameters={"level": nl.level, "f_stat": nl.f_stat},
+        parameters_std={},
+        error_after=err,
+        explanation=explain("nonlinearity", ev),
     )
 
 

@@ -1,0 +1,59 @@
+"""Diagnosis of time records: ZOH simulation from rest driven by the recorded u.
+
+Cases from test_diagnose_gen: the stage in closed loop (PD per axis), the beam
+in open loop, periodic multisines, white output noise at 1 % of the output rms.
+Tolerances as in test_diagnose_frf.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_diagnose_frf import check_parameters
+from test_diagnose_gen import beam, beam_params, stage, stage_params, time_case
+
+from workbench.diagnosis import diagnose
+from workbench.formats import TimeData
+
+CASES = [
+    ("beam", "time_delay"),
+    ("stage", "suspension_stiffness"),
+    ("stage", "crosstalk"),
+    pytest.param("beam", "modal_mismatch", marks=pytest.mark.slow),
+    pytest.param("beam", "actuator_dynamics", marks=pytest.mark.slow),
+    pytest.param("stage", "sensor_dynamics", marks=pytest.mark.slow),
+]
+
+
+@pytest.mark.parametrize("plant,effect", CASES)
+def test_time_single_effect(plant, effect):
+    p, params = (stage(), stage_params) if plant == "stage" else (beam(), beam_params)
+    truth = params(effect, "clear")
+    if effect == "modal_mismatch":
+        truth = dict(truth, true_freq_hz=p.modes[truth["index"]][0])
+    case = time_case(p, effect, truth, rel=0.01, rng=np.random.default_rng(3))
+    assert case.visibility > 1.5
+    result = diagnose(case.nominal, case.data)
+    top = result.findings[0]
+    assert top.effect == effect, [f.effect for f in result.findings]
+    check_parameters(effect, top.parameters, truth)
+    assert top.error_after < 2 * case.noise_floor
+
+
+def test_time_none_on_clean_model():
+    case = time_case(beam(), "none", {}, rel=0.01, rng=np.random.default_rng(4))
+    result = diagnose(case.nominal, case.data)
+    assert [f.effect for f in result.findings] == ["none"]
+
+
+def test_nonlinearity_on_unexcited_lines():
+    # a cubic stiffening output distortion: periodic power on the lines the multisine leaves empty
+    case = time_case(stage(), "none", {}, rel=0.002, rng=np.random.default_rng(8))
+    y = case.data.y
+    y_nl = y + 0.3 * y**3 / np.max(np.abs(y), axis=0) ** 2
+    data = TimeData(fs=case.data.fs, u=case.data.u, y=y_nl, r=case.data.r, loop="closed", period=case.data.period)
+    result = diagnose(case.nominal, data, max_effects=1)
+    effects = [f.effect for f in result.findings]
+    assert "nonlinearity" in effects
+    nl = next(f for f in result.findings if f.effect == "nonlinearity")
+    assert 0 < nl.parameters["level"] < 1
