@@ -20,7 +20,9 @@ def test_example_top_finding(name):
     if not folder.is_dir():
         pytest.skip("shared examples not available")
     answer = json.loads((folder / "answer.json").read_text())
-    result = diagnose(load_model(folder / "nominal_model.npz"), load_measurement(folder / "measurement.npz"))
+    result = diagnose(
+        load_model(folder / "nominal_model.npz"), load_measurement(folder / "measurement.npz")
+    )
     assert result.error_before == pytest.approx(answer["nominal_error"], abs=1e-6)
     top = result.findings[0]
     truth = answer["effects"][0]

@@ -84,7 +84,13 @@ def test_frf_single_effect(plant, effect, size):
     assert result.error_before == pytest.approx(case.visibility * case.noise_floor, rel=1e-9)
     js = result.to_json()
     assert set(js["findings"][0]) >= {
-        "effect", "inputs", "outputs", "band_hz", "parameters", "error_after", "explanation",
+        "effect",
+        "inputs",
+        "outputs",
+        "band_hz",
+        "parameters",
+        "error_after",
+        "explanation",
     }
 
 
@@ -110,7 +116,9 @@ def test_frf_none_without_g_var():
 def test_frf_delay_without_g_var():
     from workbench.formats import FrfData
 
-    case = frf_case(stage(), "time_delay", {"delay_s": 1e-4}, rel=0.005, rng=np.random.default_rng(6))
+    case = frf_case(
+        stage(), "time_delay", {"delay_s": 1e-4}, rel=0.005, rng=np.random.default_rng(6)
+    )
     data = FrfData(freq=case.data.freq, G=case.data.G)
     result = diagnose(case.nominal, data)
     assert result.findings[0].effect == "time_delay"

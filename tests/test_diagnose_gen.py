@@ -29,7 +29,9 @@ from workbench import lti
 from workbench.formats import FrfData, TimeData
 
 # ------------------------------------------------------------------ templates
-_STAGE_B = np.array([[0.012, -0.018, 0.085, 0.62, -0.48, 0.09], [0.06, 0.045, -0.03, 0.2, 0.28, 0.55]])
+_STAGE_B = np.array(
+    [[0.012, -0.018, 0.085, 0.62, -0.48, 0.09], [0.06, 0.045, -0.03, 0.2, 0.28, 0.55]]
+)
 _STAGE_C = np.array([[0.1, -0.05, 0.3, 0.6, -0.4, 0.05], [0.08, 0.1, -0.05, 0.25, 0.3, 0.5]])
 
 
@@ -127,7 +129,9 @@ class Case:
 
 def _lag_ss(tau):
     n = len(tau)
-    return control.ss(-np.diag(1 / np.asarray(tau)), np.diag(1 / np.asarray(tau)), np.eye(n), np.zeros((n, n)))
+    return control.ss(
+        -np.diag(1 / np.asarray(tau)), np.diag(1 / np.asarray(tau)), np.eye(n), np.zeros((n, n))
+    )
 
 
 def true_plant(plant: Plant, effect: str, p: dict):
@@ -139,7 +143,9 @@ def true_plant(plant: Plant, effect: str, p: dict):
     if effect == "time_delay":
         return nominal, nominal, p["delay_s"]
     if effect == "missing_mode":
-        true = plant.copy(modes=plant.modes + [(p["freq_hz"], p["damping"], p["b"], p["c"])]).build()
+        true = plant.copy(
+            modes=plant.modes + [(p["freq_hz"], p["damping"], p["b"], p["c"])]
+        ).build()
         return nominal, true, delay
     if effect == "modal_mismatch":
         k = p["index"]
@@ -182,7 +188,9 @@ def frf_case(plant: Plant, effect: str, p: dict, *, rel: float, rng: np.random.G
     return Case(nominal, data, effect, p, floor, nom_err / floor)
 
 
-def multisine(n_u: int, period: int, fs: float, f_max: float, rng: np.random.Generator) -> np.ndarray:
+def multisine(
+    n_u: int, period: int, fs: float, f_max: float, rng: np.random.Generator
+) -> np.ndarray:
     """Odd random-phase multisines, one per input, random phases per input, (period, n_u)."""
     k = np.arange(1, int(f_max * period / fs), 2)
     k = k[rng.random(k.size) > 0.2]  # random odd lines left empty (nonlinearity detection)
@@ -244,7 +252,9 @@ def time_case(
 
     y0, _, _ = run(np.zeros(plant.n_y))
     y0, y, u = run(rel * y0.std(axis=0))
-    data = TimeData(fs=fs, u=u, y=y, r=r if closed else None, loop="closed" if closed else "open", period=period)
+    data = TimeData(
+        fs=fs, u=u, y=y, r=r if closed else None, loop="closed" if closed else "open", period=period
+    )
     floor = lti.relative_error_time(y, y0)
     nom_err = lti.relative_error_time(y, lti.simulate_zoh(nominal, u, fs))
     return Case(nominal, data, effect, p, floor, nom_err / floor)
@@ -269,9 +279,20 @@ def stage_params(effect: str, size: str) -> dict:
         "actuator_dynamics": {"cutoff_hz": [5000.0 if s else 800.0] * 3 + [None] * 3},
         "sensor_dynamics": {"cutoff_hz": [None] * 3 + [20000.0 if s else 800.0] * 3},
         "suspension_stiffness": {"freq_hz": 4.0 if s else 8.0, "damping": 0.05},
-        "crosstalk": {"matrix": np.eye(6) + (0.01 if s else 0.04) * np.array(
-            [[0, 1, 0, 0, 0, 0], [-1, 0, 0, 0, 0, 0], [0, 0, 0, 0, 0, 0],
-             [0, 0, 0, 0, 1, 0], [0, 0, 0, -1, 0, 0], [0, 0, 0, 0, 0, 0]])},
+        "crosstalk": {
+            "matrix": np.eye(6)
+            + (0.01 if s else 0.04)
+            * np.array(
+                [
+                    [0, 1, 0, 0, 0, 0],
+                    [-1, 0, 0, 0, 0, 0],
+                    [0, 0, 0, 0, 0, 0],
+                    [0, 0, 0, 0, 1, 0],
+                    [0, 0, 0, -1, 0, 0],
+                    [0, 0, 0, 0, 0, 0],
+                ]
+            )
+        },
     }[effect]
 
 

@@ -51,7 +51,14 @@ def test_nonlinearity_on_unexcited_lines():
     case = time_case(stage(), "none", {}, rel=0.002, rng=np.random.default_rng(8))
     y = case.data.y
     y_nl = y + 0.3 * y**3 / np.max(np.abs(y), axis=0) ** 2
-    data = TimeData(fs=case.data.fs, u=case.data.u, y=y_nl, r=case.data.r, loop="closed", period=case.data.period)
+    data = TimeData(
+        fs=case.data.fs,
+        u=case.data.u,
+        y=y_nl,
+        r=case.data.r,
+        loop="closed",
+        period=case.data.period,
+    )
     result = diagnose(case.nominal, data, max_effects=1)
     effects = [f.effect for f in result.findings]
     assert "nonlinearity" in effects

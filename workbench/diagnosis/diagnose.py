@@ -128,11 +128,17 @@ def _bic(cost: float, n: int, k: int) -> float:
     return n * math.log(max(cost, 1e-300) / n) + k * math.log(n)
 
 
-def _spec_error(model, data) -> float:
+def _spec_error(model, data, delay_s: float = 0.0) -> float:
     """The spec error of a model as given (python-control StateSpace, continuous or discrete)."""
     if isinstance(data, FrfData):
-        return relative_error_frf(data.G, frf(model, data.freq))
-    return relative_error_time(data.y, simulate_zoh(model, data.u, data.fs))
+        return relative_error_frf(data.G, frf(model, data.freq, delay_s=delay_s))
+    if delay_s and as_matrices(model)[4] > 0:
+        # a discrete model with a delay: shift by whole samples, the rest is not representable
+        y = simulate_zoh(model, data.u, data.fs)
+        m = int(round(delay_s * data.fs))
+        y = np.concatenate([np.zeros((m, y.shape[1])), y[: y.shape[0] - m]]) if m else y
+        return relative_error_time(data.y, y)
+    return relative_error_time(data.y, simulate_zoh(model, data.u, data.fs, delay_s=delay_s))
 
 
 def diagnose(
@@ -142,6 +148,7 @@ def diagnose(
     max_effects: int = 3,
     n_full_fits: int | None = None,
     effects: tuple[str, ...] | None = None,
+    delay_s: float = 0.0,
 ) -> Diagnosis:
     """Tell which physical effect ``model`` misses to explain ``data``, fit it, rank the findings.
 
@@ -157,6 +164,8 @@ def diagnose(
         (default: all for FRF data, the best 5 for time data).
     effects : tuple of str, optional
         Restrict the candidates to these effects.
+    delay_s : float
+        Input delay the model already has, s (a model file's ``delay_s`` key).
 
     Returns
     -------
@@ -167,23 +176,31 @@ def diagnose(
     # many tiny matrix operations: BLAS threads only add overhead (100x on a loaded machine)
     with threadpool_limits(limits=1):
         return _diagnose(
-            model, data, max_effects=max_effects, n_full_fits=n_full_fits, effects=effects
+            model,
+            data,
+            max_effects=max_effects,
+            n_full_fits=n_full_fits,
+            effects=effects,
+            delay_s=delay_s,
         )
 
 
-def _diagnose(model, data, *, max_effects, n_full_fits, effects) -> Diagnosis:
+def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Diagnosis:
     check_model_matches(model, data)
     _, _, _, _, dt = as_matrices(model)
     if isinstance(data, TimeData) and dt > 0 and abs(dt * data.fs - 1) > 1e-9:
         raise InputError(
-            f"model: expected a discrete model with dt = 1/fs = {1 / data.fs:g} s, got dt = {dt:g} s"
+            f"model: expected a discrete model with dt = 1/fs = {1 / data.fs:g} s, got dt = {dt:g} "
+            "s"
         )
     try:
         base = decompose(model)
     except ValueError as exc:
         raise InputError(f"model: {exc}") from None
+    if delay_s:
+        base = base.replace(delay_s=float(delay_s))
     problem = make_problem(data)
-    error_before = _spec_error(model, data)
+    error_before = _spec_error(model, data, delay_s)
     notes = list(base.notes)
     floor = problem.noise_floor
     n = problem.n_obs
@@ -214,10 +231,14 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects) -> Diagnosis:
             c, starts = screen(s, problem, current)
             screened.append((c, s, starts))
         screened.sort(key=lambda t: t[0])
-        n_fits = n_full_fits if n_full_fits is not None else (len(screened) if problem.kind == "frf" else 5)
+        n_fits = (
+            n_full_fits
+            if n_full_fits is not None
+            else (len(screened) if problem.kind == "frf" else 5)
+        )
         results: list[FitResult] = []
         for i, (_, s, starts) in enumerate(screened):
-            # one-parameter structures are cheap and their coarse grid understates them: always refine
+            # one-parameter structures are cheap and a coarse grid understates them: refine
             if i < n_fits or len(s.bounds(problem, current)[0]) <= 1:
                 results.append(fit(s, problem, current, starts=starts))
         bic0 = _bic(cur_cost, n, sum(a.n_params for a in accepted))
@@ -253,14 +274,18 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects) -> Diagnosis:
                 joint.append((fits, bases))
             fits, bases = min(joint, key=lambda t: _bic(t[0][-1].cost, n, t[0][-1].n_params))
             cand = fits[-1]
-            if _bic(cand.cost, n, cand.n_params) < _bic(best.cost, n, sum(a.n_params for a in accepted) + best.n_params):
+            if _bic(cand.cost, n, cand.n_params) < _bic(
+                best.cost, n, sum(a.n_params for a in accepted) + best.n_params
+            ):
                 best_chain, best_bases = fits, bases
             else:
                 best_chain, best_bases = accepted + [best], accepted_bases + [current]
         else:
             best_chain, best_bases = [best], [current]
         last = best_chain[-1]
-        k_total = last.n_params if accepted and last is not best else sum(a.n_params for a in best_chain)
+        k_total = (
+            last.n_params if accepted and last is not best else sum(a.n_params for a in best_chain)
+        )
         d_bic = bic0 - _bic(last.cost, n, k_total)
         if d_bic <= 0 or last.error > ERROR_RATIO * cur_err:
             break
@@ -405,7 +430,8 @@ def _none_finding(problem, model, data, cur_err, error_before, floor, alternativ
     if problem.kind == "frf" and problem.has_var:
         chi = problem.cost(model) / problem.n_obs * 2
         reason = (
-            f"the error {cur_err:.4g} is at the noise floor {floor:.4g} computed from G_var; the noise-normalized "
+            f"the error {cur_err:.4g} is at the noise floor {floor:.4g} computed from G_var; the "
+            "noise-normalized "
             f"misfit is {chi:.3g} per element (about 1 when the model is right)"
         )
     else:

@@ -38,8 +38,10 @@ def explain(effect: str, ev: dict) -> str:
         samples = f", {tau * fs:.2f} samples at {fs:g} Hz" if fs else ""
         if "phase_slope_deg_per_hz" in ev:
             sig = (
-                f"phase error grows linearly with frequency, {ev['phase_slope_deg_per_hz']:.4g} deg/Hz over "
-                f"{lo:.4g}-{hi:.4g} Hz on {ev.get('n_channels_used', 'all')} channels, median magnitude error "
+                f"phase error grows linearly with frequency, {ev['phase_slope_deg_per_hz']:.4g} "
+                "deg/Hz over "
+                f"{lo:.4g}-{hi:.4g} Hz on {ev.get('n_channels_used', 'all')} channels, median "
+                "magnitude error "
                 f"{ev['magnitude_db']:.2g} dB"
             )
         else:
@@ -47,21 +49,27 @@ def explain(effect: str, ev: dict) -> str:
         return f"{sig}: a delay of {tau * 1e6:.4g} us{samples}; {fall}{tail}"
     if effect == "missing_mode":
         return (
-            f"local resonance/anti-resonance pattern at {_hz(p['freq_hz'])} that no mode of the model "
-            f"explains, on {where}; a mode added there with damping {p['damping']:.3g} and a residue of "
-            f"rank one (singular value ratio {ev.get('rank_one_ratio', float('nan')):.2g}) fits it; {fall}{tail}"
+            f"local resonance/anti-resonance pattern at {_hz(p['freq_hz'])} that no mode of the "
+            "model "
+            f"explains, on {where}; a mode added there with damping {p['damping']:.3g} and a "
+            "residue of "
+            f"rank one (singular value ratio {ev.get('rank_one_ratio', float('nan')):.2g}) fits "
+            f"it; {fall}{tail}"
         )
     if effect == "modal_mismatch":
         shift = 100 * (p["freq_hz"] / p["model_freq_hz"] - 1)
         return (
-            f"the model's mode at {_hz(p['model_freq_hz'])} (damping {p.get('model_damping', 0):.3g}) shows in "
-            f"the data at {_hz(p['freq_hz'])} ({shift:+.2f} %) with damping {p['damping']:.3g}: shifted peak "
+            f"the model's mode at {_hz(p['model_freq_hz'])} (damping "
+            f"{p.get('model_damping', 0):.3g}) shows in "
+            f"the data at {_hz(p['freq_hz'])} ({shift:+.2f} %) with damping {p['damping']:.3g}: "
+            "shifted peak "
             f"on {where}, residues unchanged; {fall}{tail}"
         )
     if effect == "residual_compliance":
         M = np.asarray(p["matrix"])
         return (
-            f"frequency-independent offset of the response, largest {np.max(np.abs(M)):.3g} m/N, strongest "
+            f"frequency-independent offset of the response, largest {np.max(np.abs(M)):.3g} m/N, "
+            "strongest "
             f"below the first truncated mode and moving the anti-resonances, on {where} "
             f"({lo:.4g}-{hi:.4g} Hz); a constant compliance matrix added to D fits it; {fall}{tail}"
         )
@@ -70,26 +78,34 @@ def explain(effect: str, ev: dict) -> str:
         cuts = [c for c in p["cutoff_hz"] if c is not None]
         rng = f"{min(cuts):.4g}-{max(cuts):.4g} Hz" if cuts else "n/a"
         return (
-            f"magnitude roll-off with phase lag that acts on whole {side}, not on single channels: first-order "
-            f"lags with cutoffs {rng} on {where}; a pure delay would keep the magnitude flat; {fall}{tail}"
+            f"magnitude roll-off with phase lag that acts on whole {side}, not on single channels: "
+            "first-order "
+            f"lags with cutoffs {rng} on {where}; a pure delay would keep the magnitude flat; "
+            f"{fall}{tail}"
         )
     if effect == "suspension_stiffness":
         return (
-            f"the rigid-body 1/w^2 line flattens at low frequency: the rigid-body modes are suspension modes at "
-            f"{_hz(p['freq_hz'])} with damping {p['damping']:.3g}, visible {lo:.4g}-{hi:.4g} Hz on {where}; {fall}{tail}"
+            f"the rigid-body 1/w^2 line flattens at low frequency: the rigid-body modes are "
+            "suspension modes at "
+            f"{_hz(p['freq_hz'])} with damping {p['damping']:.3g}, visible {lo:.4g}-{hi:.4g} Hz on "
+            f"{where}; {fall}{tail}"
         )
     if effect == "crosstalk":
         M = np.asarray(p["matrix"]) - np.eye(len(p["matrix"]))
         return (
-            f"static coupling into off-diagonal channels, a constant share of the response of the other "
-            f"{p['side']} (largest {np.max(np.abs(M)):.3g}), i.e. misaligned sensors or actuators, on {where}; "
+            f"static coupling into off-diagonal channels, a constant share of the response of the "
+            "other "
+            f"{p['side']} (largest {np.max(np.abs(M)):.3g}), i.e. misaligned sensors or actuators, "
+            f"on {where}; "
             f"{fall}{tail}"
         )
     if effect == "nonlinearity":
         return (
             f"periodic output power on {ev['n_lines']} lines the multisine leaves empty, "
-            f"{ev['f_stat']:.3g} times the noise there ({lo:.4g}-{hi:.4g} Hz): the response is not linear in "
-            f"the input; about {100 * p['level']:.3g} % of the output power is not explained by a linear model."
+            f"{ev['f_stat']:.3g} times the noise there ({lo:.4g}-{hi:.4g} Hz): the response is not "
+            "linear in "
+            f"the input; about {100 * p['level']:.3g} % of the output power is not explained by a "
+            "linear model."
         )
     if effect == "none":
         return ev["reason"]

@@ -13,7 +13,7 @@ evaluated by the same projected cost.
 Data flow::
 
     Structure.grid ──> cost on the grid ──> best starts ──> least_squares
-         │                                        (residual = problem.residual(Structure.build(theta)))
+         │                          (residual = problem.residual(Structure.build(theta)))
          └──────────── FitResult(model, theta ± std, linear parts ± std, cost, error)
 """
 
@@ -216,7 +216,7 @@ def _distinct(points: list[np.ndarray], n: int, span: np.ndarray) -> list[np.nda
 
 @dataclass(frozen=True)
 class Composite:
-    """Several structures applied in order, fitted jointly (earlier findings refitted with a new one).
+    """Several structures applied in order, fitted jointly (earlier findings refitted).
 
     Parameters
     ----------
@@ -280,7 +280,8 @@ _STACK_ORDER = {
 
 
 def stack(parts: list, thetas: list[np.ndarray], problem, base: ExtendedModel):
-    """Build parts on base in stacking order; returns (model, realized per part in the given order)."""
+    """Build parts on base in stacking order; returns (model, realized per part in the given "
+    "order)."""
     order = sorted(range(len(parts)), key=lambda i: _STACK_ORDER.get(parts[i].effect, 9))
     realized: dict[int, Realized] = {}
     model = base
@@ -291,7 +292,9 @@ def stack(parts: list, thetas: list[np.ndarray], problem, base: ExtendedModel):
     return model, [realized[i] for i in range(len(parts))]
 
 
-def fit_joint(parts: list, thetas: list[np.ndarray], problem, base: ExtendedModel, *, max_nfev: int = 60):
+def fit_joint(
+    parts: list, thetas: list[np.ndarray], problem, base: ExtendedModel, *, max_nfev: int = 60
+):
     """Refit ``parts`` jointly from ``thetas``; returns one FitResult per part and their bases.
 
     The parts are stacked in :data:`_STACK_ORDER` (outer factors first). The

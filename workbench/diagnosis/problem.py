@@ -140,7 +140,8 @@ class FrfProblem:
         return r / m, 1.0 / np.sqrt(m)
 
     def fit_crosstalk(self, model: ExtendedModel, side: str):
-        """Off-diagonal static coupling E with G = (I + E) G_model (side "out") or G_model (I + E)."""
+        """Off-diagonal static coupling E with G = (I + E) G_model (side "out") or G_model (I + "
+        "E)."""
         Gm = self.predict(model)
         e = self.data.G - Gm
         n_y, n_u = Gm.shape[1:]
@@ -189,7 +190,8 @@ def _peaks(freq: np.ndarray, power: np.ndarray, n: int) -> list[float]:
 
 
 def _lstsq_std(X: np.ndarray, b: np.ndarray):
-    """Least squares by the normal equations of the column-scaled X; returns x and unit-noise std."""
+    """Least squares by the normal equations of the column-scaled X; returns x and unit-noise "
+    "std."""
     if X.shape[1] == 0:
         return np.zeros(0), np.zeros(0)
     scale = np.linalg.norm(X, axis=0)

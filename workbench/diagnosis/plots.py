@@ -1,0 +1,116 @@
+"""PNG figures for diagnose and augment: error maps and Bode overlays, before and after.
+
+matplotlib is imported here only (Agg backend, no display needed).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from workbench.atomic import atomic_path
+from workbench.diagnosis.modal import ExtendedModel
+from workbench.formats import FrfData, TimeData
+
+__all__ = ["write_plots"]
+
+
+def _freq(data) -> np.ndarray:
+    if isinstance(data, FrfData):
+        return data.freq
+    return np.geomspace(data.fs / data.n_samples * 2, data.fs / 2 * 0.95, 400)
+
+
+def write_plots(
+    folder: str | Path,
+    data: FrfData | TimeData,
+    before: ExtendedModel,
+    after: ExtendedModel,
+    *,
+    title: str,
+) -> list[Path]:
+    """Write error_map.png and bode.png (and time_residual.png for time data) into ``folder``.
+
+    Returns the paths written.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    f = _freq(data)
+    Gb, Ga = before.frf(f), after.frf(f)
+    written = []
+    n_y, n_u = Gb.shape[1:]
+    labels = [f"y{i}/u{j}" for i in range(n_y) for j in range(n_u)]
+    if isinstance(data, FrfData):
+        nrm = np.linalg.norm(data.G, axis=(1, 2))[:, None, None]
+        maps = [np.abs(data.G - G) / nrm for G in (Gb, Ga)]
+        fig, axes = plt.subplots(1, 2, figsize=(12, 5), sharey=True)
+        vmax = np.log10(max(m.max() for m in maps))
+        for ax, m, name in zip(axes, maps, ("before", "after")):
+            im = ax.imshow(
+                np.log10(m.reshape(f.size, -1).T + 1e-12),
+                aspect="auto",
+                origin="lower",
+                extent=(f[0], f[-1], -0.5, n_y * n_u - 0.5),
+                vmin=vmax - 4,
+                vmax=vmax,
+                cmap="viridis",
+            )
+            ax.set_title(f"{name}: log10 |G_meas - G_model| / ||G_meas||")
+            ax.set_xlabel("frequency (Hz)")
+        axes[0].set_yticks(range(n_y * n_u))
+        axes[0].set_yticklabels(labels, fontsize=6)
+        fig.colorbar(im, ax=axes)
+        fig.suptitle(title)
+        written.append(_save(fig, folder / "error_map.png"))
+    # Bode overlay of the diagonal (or first) channels
+    chans = [(i, i) for i in range(min(n_y, n_u))][:4] or [(0, 0)]
+    fig, axes = plt.subplots(2, len(chans), figsize=(4 * len(chans), 6), squeeze=False)
+    for k, (i, j) in enumerate(chans):
+        ax_m, ax_p = axes[0, k], axes[1, k]
+        if isinstance(data, FrfData):
+            ax_m.loglog(f, np.abs(data.G[:, i, j]), "k.", ms=2, label="measured")
+            ax_p.semilogx(f, np.degrees(np.angle(data.G[:, i, j])), "k.", ms=2)
+        ax_m.loglog(f, np.abs(Gb[:, i, j]), "C0", label="model before")
+        ax_m.loglog(f, np.abs(Ga[:, i, j]), "C3--", label="model after")
+        ax_p.semilogx(f, np.degrees(np.angle(Gb[:, i, j])), "C0")
+        ax_p.semilogx(f, np.degrees(np.angle(Ga[:, i, j])), "C3--")
+        ax_m.set_title(f"y{i}/u{j}")
+        ax_p.set_xlabel("frequency (Hz)")
+    axes[0, 0].set_ylabel("magnitude (m/N)")
+    axes[1, 0].set_ylabel("phase (deg)")
+    axes[0, 0].legend(fontsize=7)
+    fig.suptitle(title)
+    written.append(_save(fig, folder / "bode.png"))
+    if isinstance(data, TimeData):
+        from workbench.diagnosis.problem import TimeProblem
+
+        prob = TimeProblem(data)
+        t = data.t
+        fig, axes = plt.subplots(1, 2, figsize=(12, 4), sharey=True)
+        for ax, m, name in zip(axes, (before, after), ("before", "after")):
+            e = data.y - prob.predict(m)
+            ax.plot(t, e, lw=0.5)
+            ax.set_title(
+                f"{name}: residual y - y_model (error "
+                f"{np.linalg.norm(e) / np.linalg.norm(data.y):.3g})"
+            )
+            ax.set_xlabel("time (s)")
+        axes[0].set_ylabel("m")
+        fig.suptitle(title)
+        written.append(_save(fig, folder / "time_residual.png"))
+    return written
+
+
+def _save(fig, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, format="png")
+    plt.close(fig)
+    return path
