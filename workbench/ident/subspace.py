@@ -285,7 +285,8 @@ def identify_subspace(
         )
     if periodic:
         notes.append(
-            f"periodic projection: {data.n_samples // data.period} periods, the first dropped"
+            f"periodic projection: {data.n_samples // data.period} periods, the first of each "
+            "experiment block dropped as a transient"
         )
     notes = tuple(notes)
     return SubspaceResult(
@@ -375,24 +376,34 @@ def _periodic_factor(data, *, input_delay, su, sy, i, cva, chunk, n_transient=1)
     lines. The projected signals are periodic and noise-reduced; their
     circular block-Hankel Gram is block-Toeplitz, ``G[a, b] = F_{b-a}``.
     """
+    from workbench.frf_estimation import split_blocks
+
     P = int(data.period)
-    n_per = data.n_samples // P
-    skip = min(n_transient, n_per - 1)
+    # A record may hold several experiments (blocks of identical periods, each
+    # its own r): each block is projected onto its own r's lines, and the
+    # circular Grams of the blocks add up.
+    blocks = []
+    for first, n_per in split_blocks(data.r, P):
+        skip = min(n_transient, n_per - 1)
+        if n_per - skip < 1:
+            continue
+        sl = slice((first + skip) * P, (first + n_per) * P)
 
-    def mean_period(x):
-        return x[skip * P : n_per * P].reshape(n_per - skip, P, x.shape[1]).mean(axis=0)
+        def mean_period(x, sl=sl, n=n_per - skip):
+            return x[sl].reshape(n, P, x.shape[1]).mean(axis=0)
 
-    ub, yb, rb = mean_period(data.u), mean_period(data.y), mean_period(data.r)
-    if input_delay:
-        yb = np.roll(yb, -input_delay, axis=0)  # y[k + d] with u[k], periodic steady state
-    power = np.sum(np.abs(np.fft.rfft(rb, axis=0)) ** 2, axis=1)
-    mask = (power > 1e-10 * power.max())[:, None]
-    uh = np.fft.irfft(np.fft.rfft(ub, axis=0) * mask, n=P, axis=0) / su
-    yh = np.fft.irfft(np.fft.rfft(yb, axis=0) * mask, n=P, axis=0) / sy
-    z = np.hstack([uh, yh])
-    n_u, n_y = uh.shape[1], yh.shape[1]
+        ub, yb, rb = mean_period(data.u), mean_period(data.y), mean_period(data.r)
+        if input_delay:
+            yb = np.roll(yb, -input_delay, axis=0)  # y[k + d] with u[k], periodic steady state
+        power = np.sum(np.abs(np.fft.rfft(rb, axis=0)) ** 2, axis=1)
+        mask = (power > 1e-10 * power.max())[:, None]
+        uh = np.fft.irfft(np.fft.rfft(ub, axis=0) * mask, n=P, axis=0) / su
+        yh = np.fft.irfft(np.fft.rfft(yb, axis=0) * mask, n=P, axis=0) / sy
+        blocks.append(np.hstack([uh, yh]))
+    n_u, n_y = data.n_u, data.n_y
     m, k = n_u + n_y, 2 * i
-    F = [z.T @ np.roll(z, -d, axis=0) for d in range(k)]  # sum_t z_t z_{t+d}^T, circular
+    # sum over blocks and t of z_t z_{t+d}^T, circular
+    F = [sum(z.T @ np.roll(z, -d, axis=0) for z in blocks) for d in range(k)]
     G = np.empty((k * m, k * m))
     G4 = G.reshape(k, m, k, m)
     for d in range(k):
