@@ -67,28 +67,41 @@ def stage_diagnose(st: RunState, table: dict) -> None:
 
 
 def stage_augment(st: RunState, table: dict) -> None:
-    from workbench.augment import augment
+    """Add effects to the model: the diagnosis's findings (jointly fitted), or the named ones."""
+    from workbench.augment import augment, pade_order, with_pade
 
     data = _loop_data(st, table, "augment")
     effects = take(table, "effects", None, where="augment", kind=list)
     refuse_leftovers(table, where="augment")
-    if effects is None:  # the diagnosis's findings, in rank order
+    steps = []
+    if effects is None:  # the diagnosis's findings: its last model holds them all, fitted jointly
         diagnosis = st.diagnosis
         if diagnosis is None:
             raise InputError("[augment]: give 'effects' or run a [diagnose] table first")
-        effects = [f.effect for f in diagnosis.findings if f.effect != "none"]
-    model, delay_s, steps = st.model, st.model_delay_s, []
-    for effect in effects:
-        out = augment(model, data, effect)
-        steps.append(
-            {
-                "effect": effect,
-                "parameters": out.parameters,
-                "error_before": out.error_before,
-                "error_after": out.error_after,
-            }
-        )
-        model, delay_s = out.model, out.delay_s
+        found = [f for f in diagnosis.findings if f.effect != "none" and f.model is not None]
+        if not found:
+            st.summary["augment"] = {"steps": [], "note": "diagnose found nothing to add"}
+            return
+        model, delay_s = found[-1].model.to_statespace()
+        steps = [
+            {"effect": f.effect, "parameters": f.parameters, "error_after": f.error_after}
+            for f in found
+        ]
+    else:  # one effect after the other; a delay found earlier rides along as Pade states
+        model, delay_s = st.model, st.model_delay_s
+        f_max = float(data.freq[-1]) if hasattr(data, "freq") else 0.5 * data.fs
+        for effect in effects:
+            carried = with_pade(model, delay_s, pade_order(delay_s, f_max)) if delay_s else model
+            out = augment(carried, data, effect)
+            steps.append(
+                {
+                    "effect": effect,
+                    "parameters": out.parameters,
+                    "error_before": out.error_before,
+                    "error_after": out.error_after,
+                }
+            )
+            model, delay_s = out.model, out.delay_s
     formats.save_model(st.path("model_augmented.npz"), model, delay_s=np.array(delay_s))
     after = _compare_into(st, model, delay_s, data, "compare_after")
     st.write_json("augment.json", {"steps": steps, "compare_after": after})
