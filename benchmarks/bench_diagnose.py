@@ -94,14 +94,16 @@ def run_case(plant_name, kind, effect, size, seed):
         if tv is not None and fv is not None and top.effect == effect
         else "-"
     )
-    ok = "ok " if top.effect == effect else "MISS"
+    ok = "ok  " if top.effect == effect else "MISS"
+    if case.visibility < 1.3 and effect != "none":
+        ok = "n/a "  # the generator's effect hides in the noise: no right answer to expect
     print(
         f"{ok} {plant_name:5s} {kind:4s} {effect:21s} {size:6s} vis {case.visibility:7.2f} -> "
         f"{top.effect:21s} param {perr:>9s}  err {res.error_before:.4f} -> {top.error_after:.4f} "
         f"(floor {case.noise_floor:.4f}, {top.error_after / case.noise_floor:.2f}x)  {dt:5.1f} s",
         flush=True,
     )
-    return top.effect == effect, dt
+    return ok.strip(), dt
 
 
 def main(argv=None):
@@ -124,17 +126,18 @@ def main(argv=None):
                 if effect == "none" and size == "subtle":
                     continue
                 runs.append(run_case(plant, kind, effect, size, args.seed))
-    hits = sum(r[0] for r in runs)
+    hits = sum(r[0] == "ok" for r in runs)
+    scored = sum(r[0] != "n/a" for r in runs)
     times = np.array([r[1] for r in runs])
     print(
-        f"\n{hits}/{len(runs)} top findings right; time median {np.median(times):.1f} s, max "
-        f"{times.max():.1f} s"
+        f"\n{hits}/{scored} top findings right ({len(runs) - scored} invisible cases not "
+        f"scored); time median {np.median(times):.1f} s, max {times.max():.1f} s"
     )
     ex = Path("/work/shared/examples")
     if ex.is_dir():
         from workbench.formats import load_measurement, load_model
 
-        for folder in sorted(ex.iterdir()):
+        for folder in sorted(p for p in ex.iterdir() if p.is_dir()):
             t0 = time.perf_counter()
             r = diagnose(
                 load_model(folder / "nominal_model.npz"),

@@ -189,16 +189,28 @@ def frf_case(plant: Plant, effect: str, p: dict, *, rel: float, rng: np.random.G
 
 
 def multisine(
-    n_u: int, period: int, fs: float, f_max: float, rng: np.random.Generator
+    n_u: int,
+    period: int,
+    fs: float,
+    f_max: float,
+    rng: np.random.Generator,
+    *,
+    k_min: int = 1,
+    tilt: float = 0.0,
 ) -> np.ndarray:
-    """Odd random-phase multisines, one per input, random phases per input, (period, n_u)."""
-    k = np.arange(1, int(f_max * period / fs), 2)
+    """Odd random-phase multisines, one per input, random phases per input, (period, n_u).
+
+    Lines from k_min; amplitude proportional to (k / k_min)^tilt (tilt = 2 makes the
+    position of a mass about flat over frequency).
+    """
+    k = np.arange(k_min | 1, int(f_max * period / fs), 2)
     k = k[rng.random(k.size) > 0.2]  # random odd lines left empty (nonlinearity detection)
+    amp = (k / k[0]) ** tilt
     t = np.arange(period)
     u = np.zeros((period, n_u))
     for j in range(n_u):
         ph = rng.uniform(0, 2 * np.pi, k.size)
-        u[:, j] = np.cos(2 * np.pi * np.outer(t, k) / period + ph).sum(axis=1)
+        u[:, j] = (amp * np.cos(2 * np.pi * np.outer(t, k) / period + ph)).sum(axis=1)
         u[:, j] /= u[:, j].std()
     return u
 
@@ -220,11 +232,13 @@ def time_case(
     axis with a 10 Hz bandwidth, as a stage is), others in open loop.
     """
     nominal, true, delay = true_plant(plant, effect, p)
-    r = np.tile(multisine(plant.n_u, period, fs, 0.3 * fs, rng), (n_periods, 1))
+    closed = len(plant.rigid_inv_mass) > 0
+    # stage: force rising with frequency (flatter position); beam: lines above its first mode
+    shape = {"tilt": 1.5} if closed else {"k_min": 5}
+    r = np.tile(multisine(plant.n_u, period, fs, 0.3 * fs, rng, **shape), (n_periods, 1))
     N = r.shape[0]
     Ad, B0, B1, m = lti.c2d_zoh(true.A, true.B, 1 / fs, delay_s=delay)
     C, D = np.asarray(true.C), np.asarray(true.D)
-    closed = len(plant.rigid_inv_mass) > 0
     noise = rng.standard_normal((N, plant.n_y))
     w = 2 * np.pi * 10.0
     inv_m = np.asarray(plant.rigid_inv_mass)

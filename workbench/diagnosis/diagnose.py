@@ -33,6 +33,8 @@ __all__ = ["Finding", "Diagnosis", "diagnose"]
 
 #: a finding must lower the spec error by at least this factor
 ERROR_RATIO = 0.85
+#: ... or the weighted misfit by at least this factor
+COST_RATIO = 0.7
 #: the error counts as at the noise floor below this multiple of it
 FLOOR_RATIO = 1.1
 #: periodic time data: the period-synchronous residual within this multiple of its noise is noise
@@ -287,7 +289,10 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Dia
             last.n_params if accepted and last is not best else sum(a.n_params for a in best_chain)
         )
         d_bic = bic0 - _bic(last.cost, n, k_total)
-        if d_bic <= 0 or last.error > ERROR_RATIO * cur_err:
+        # significant (BIC), and large: the spec error falls by 15 %, or the noise-weighted
+        # misfit by 30 % (with two effects present the first may move the spec error little)
+        large = last.error <= ERROR_RATIO * cur_err or last.cost <= COST_RATIO * cur_cost
+        if d_bic <= 0 or not large:
             break
         runner = next((r for r in ranked if r.effect != last.effect), None)
         runners.append(runner)

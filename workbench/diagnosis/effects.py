@@ -113,6 +113,11 @@ class MissingMode:
     def build(self, theta, problem, base):
         den = _mode_den(theta)
         N0, N1, s0, s1 = problem.fit_new_term(base, den)
+        # one mode: a residue of rank one across channels (the per-channel fit, projected)
+        w = np.sqrt(den[1])
+        U, S, Vt = np.linalg.svd(np.vstack([N0, w * N1]), full_matrices=False)
+        R = S[0] * np.outer(U[:, 0], Vt[0])
+        N0, N1 = R[: base.n_y], R[base.n_y :] / w
         term = Term(den=den, N0=N0, N1=N1, kind="added")
         return Realized(
             base.replace(terms=base.terms + (term,)), {"N0": N0, "N1": N1}, {"N0": s0, "N1": s1}
