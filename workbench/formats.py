@@ -568,7 +568,8 @@ def load_any(path: str | os.PathLike):
         return model_from_arrays(arrays, src=str(path))
     have = ", ".join(sorted(arrays)) or "none"
     raise InputError(
-        f"{path}: expected a measurement (key 'kind') or a model (keys A, B, C, D, dt), got keys: {have}"
+        f"{path}: expected a measurement (key 'kind') or a model (keys A, B, C, D, dt), "
+        f"got keys: {have}"
     )
 
 
