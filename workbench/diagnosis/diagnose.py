@@ -38,7 +38,7 @@ COST_RATIO = 0.7
 #: the error counts as at the noise floor below this multiple of it
 FLOOR_RATIO = 1.1
 #: periodic time data: the period-synchronous residual within this multiple of its noise is noise
-PERIODIC_F = 2.0
+PERIODIC_F = 1.25
 #: periodic power on unexcited lines above this multiple of the noise is distortion
 NL_F = 4.0
 #: candidates refitted jointly with the earlier findings each round

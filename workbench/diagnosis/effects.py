@@ -255,7 +255,22 @@ class _Lag:
 
     def grid(self, problem, base):
         n = self._n(base)
-        return [np.full(n, a) for a in (0.0, 0.03, 0.1, 0.3, 1.0, 3.0)]
+        levels = (0.03, 0.1, 0.3, 1.0, 3.0)
+        points = [np.full(n, a) for a in (0.0,) + levels]
+        # lags on some channels only: the best level per channel alone, then combined
+        best = np.zeros(n)
+        cost0 = problem.cost(base)
+        for j in range(n):
+            costs = []
+            for a in levels[:4]:
+                th = np.zeros(n)
+                th[j] = a
+                costs.append(problem.cost(self.build(th, problem, base).model))
+            k = int(np.argmin(costs))
+            if costs[k] < cost0:
+                best[j] = levels[k]
+        points.append(best)
+        return points
 
     def bounds(self, problem, base):
         n = self._n(base)
