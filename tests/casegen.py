@@ -43,11 +43,13 @@ STAGE_EFFECTS: dict[str, dict[str, dict[str, Any]]] = {
     },
     "residual_compliance": {"clear": {"residual_max_hz": 8000.0}},
     "actuator_dynamics": {
-        "clear": {"actuator_cutoff_hz": 1200.0},
+        # per-channel cutoffs: one equal cutoff on every channel of a square plant
+        # is indistinguishable from the same sensor lag (diag(l) G = G diag(l))
+        "clear": {"actuator_cutoff_hz": (1200.0, 1500.0, 1000.0, 1800.0, 1300.0, 1100.0)},
         "subtle": {"actuator_cutoff_hz": (np.inf, np.inf, 4000.0, 4000.0, 4000.0, np.inf)},
     },
     "sensor_dynamics": {
-        "clear": {"sensor_cutoff_hz": 1500.0},
+        "clear": {"sensor_cutoff_hz": (1500.0, 1200.0, 1800.0, 1000.0, 1400.0, 1600.0)},
         "subtle": {"sensor_cutoff_hz": (np.inf, 2500.0, np.inf, np.inf, np.inf, np.inf)},
     },
     "suspension_stiffness": {
