@@ -7,7 +7,7 @@ present::
     [plant]        which true system, with which physical effects
     [experiment]   what experiment to run on it (workbench.experiments)
     [frf]          FRF estimation from the recorded data
-    [identify]     subspace identification (workbench.subspace)
+    [identify]     subspace identification (workbench.ident)
     [modes]        modal analysis of the identified model
     [minimality]   minimality report
     [model]        a user's (nominal) model to check against the data
