@@ -1,0 +1,688 @@
+"""Independent-style diagnosis cases: randomized plants, every effect, FRF and time data.
+
+Mimics the conventions of the shared examples (/work/shared/examples) without
+using plants/ or the diagnosis code for the truth: numpy/scipy/control only
+(``workbench.lti`` only for the two spec error measures of answer.json).
+
+- Plants, in the scaled modal form of the examples' nominal_model.npz:
+  rigid body ``[[0, 1], [0, 0]]``, B row ``b``, C column ``c``; flexible mode
+  ``[[0, w], [-w, -2 z w]]``, B row ``b``, C column ``c / w``.
+
+  * ``stage``: 6x6, rigid bodies with b = c = e_k / sqrt(m_k) (mass 5-50 kg,
+    inertias 0.1-2 kg m^2), two flexible modes at 300-2000 Hz;
+  * ``beam``: 3 actuators x 5 sensors on a free-free beam on soft suspension
+    (bounce and rock at 1-6 Hz), 7-20 flexible modes in the model, more in the
+    truth, the static part of the truncated ones in D.
+
+- Data: FRF (random grid step and band, complex Gaussian noise 0.2-2 %
+  relative, sometimes with an absolute floor, G_var present or not) or time
+  records (closed-loop stage: PD per axis, one sample computation delay,
+  multisine r on all inputs, u = r + controller output; open-loop beam;
+  periodic multisine or non-periodic filtered noise; white output noise).
+
+- Effects: the spec vocabulary with the spec's parameters; sizes "clear"
+  (visibility >= 8) and "subtle" (visibility ~2-5, found by a search on the
+  effect's strength with the actual noise realization); two-effect cases.
+
+``make_case(rng, plant=, kind=, effects=, size=)`` returns an :class:`IndepCase`
+with an ``answer`` dict in the layout of the examples' answer.json.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import control
+import numpy as np
+import scipy.linalg
+import scipy.signal
+
+from workbench import lti
+from workbench.formats import FrfData, TimeData
+
+EFFECTS = (
+    "none",
+    "time_delay",
+    "missing_mode",
+    "modal_mismatch",
+    "residual_compliance",
+    "actuator_dynamics",
+    "sensor_dynamics",
+    "suspension_stiffness",
+    "crosstalk",
+    "nonlinearity",
+)
+
+
+# ------------------------------------------------------------------ plants
+@dataclass
+class Plant:
+    """Modal plant: modes (f_hz, zeta, b (n_u,), c (n_y,)); f_hz = 0 is a rigid body."""
+
+    name: str
+    modes: list
+    D: np.ndarray
+    n_u: int
+    n_y: int
+    fs: float
+    band_hz: float
+    suspended: tuple = ()  # indices of modes that are suspension modes (beam)
+
+    def copy(self):
+        return Plant(
+            self.name,
+            [(f, z, np.array(b), np.array(c)) for f, z, b, c in self.modes],
+            np.array(self.D),
+            self.n_u,
+            self.n_y,
+            self.fs,
+            self.band_hz,
+            tuple(self.suspended),
+        )
+
+    def matrices(self):
+        As, Bs, Cs = [], [], []
+        for f, z, b, c in self.modes:
+            w = 2 * np.pi * f
+            if f == 0:
+                As.append(np.array([[0.0, 1.0], [0.0, 0.0]]))
+                Cs.append(np.column_stack([c, np.zeros(self.n_y)]))
+            else:
+                As.append(np.array([[0.0, w], [-w, -2 * z * w]]))
+                Cs.append(np.column_stack([c / w, np.zeros(self.n_y)]))
+            Bs.append(np.vstack([np.zeros(self.n_u), b]))
+        return scipy.linalg.block_diag(*As), np.vstack(Bs), np.hstack(Cs), np.array(self.D)
+
+
+def stage_plant(rng: np.random.Generator) -> Plant:
+    m = rng.uniform(5, 50)
+    m_xy = np.array([m, m * rng.uniform(0.9, 1.1), m * rng.uniform(0.9, 1.1)])
+    J = rng.uniform(0.1, 2.0, 3)
+    inv = 1 / np.sqrt(np.concatenate([m_xy, J]))
+    modes = []
+    for k in range(6):
+        e = np.zeros(6)
+        e[k] = inv[k]
+        modes.append((0.0, 0.0, e.copy(), e.copy()))
+    f1 = rng.uniform(300, 1400)
+    for f in (f1, f1 * rng.uniform(1.1, 1.5)):
+        b = rng.normal(0, 0.3, 6) * rng.uniform(0.3, 1.5)
+        c = rng.normal(0, 0.3, 6) * rng.uniform(0.3, 1.5)
+        modes.append((f, rng.uniform(0.005, 0.03), b, c))
+    fs = float(rng.choice([4000.0, 5000.0, 8000.0, 10000.0], p=[0.2, 0.5, 0.15, 0.15]))
+    return Plant("stage", modes, np.zeros((6, 6)), 6, 6, fs, fs / 2)
+
+
+def _free_free_shape(k: int, x: np.ndarray) -> tuple[float, np.ndarray]:
+    """k-th (1-based) flexible free-free Euler-Bernoulli mode on [0, 1]: (beta, shape)."""
+    bl = (k + 0.5) * np.pi if k > 1 else 4.730040745
+    s = (np.cosh(bl) - np.cos(bl)) / (np.sinh(bl) - np.sin(bl))
+    xb = bl * x
+    # stable evaluation of cosh - s sinh for large arguments
+    ch = np.exp(xb - bl) * 0.5 * (np.exp(bl) * (1 - s)) + np.exp(-xb) * 0.5 * (1 + s)
+    phi = np.cos(xb) - s * np.sin(xb) + ch
+    return bl, phi
+
+
+def beam_plant(rng: np.random.Generator, *, n_model: int | None = None) -> Plant:
+    L = rng.uniform(0.4, 1.5)
+    E = rng.choice([70e9, 200e9, 110e9])
+    rho = {70e9: 2700.0, 200e9: 7850.0, 110e9: 4400.0}[E]
+    h, wdt = rng.uniform(0.005, 0.02), rng.uniform(0.02, 0.08)
+    A, I = h * wdt, wdt * h**3 / 12
+    mass = rho * A * L
+    x_act = np.sort(rng.uniform(0.05, 0.95, 3))
+    x_sen = np.sort(rng.uniform(0.0, 1.0, 5))
+    n_model = n_model or int(rng.integers(7, 21))
+    n_true = n_model + int(rng.integers(8, 20))
+    scale = 1 / np.sqrt(mass)
+    modes = []
+    fb, fr = rng.uniform(1.0, 4.0), rng.uniform(1.5, 6.0)
+    modes.append((fb, rng.uniform(0.02, 0.2), scale * np.ones(3), scale * np.ones(5)))
+    rock = lambda x: np.sqrt(3) * (2 * x - 1)  # noqa: E731
+    modes.append((fr, rng.uniform(0.02, 0.2), scale * rock(x_act), scale * rock(x_sen)))
+    for k in range(1, n_true + 1):
+        bl, _ = _free_free_shape(k, np.zeros(1))
+        f = bl**2 / (2 * np.pi * L**2) * np.sqrt(E * I / (rho * A))
+        f *= rng.uniform(0.97, 1.03)
+        z = rng.uniform(0.005, 0.03)
+        modes.append(
+            (
+                f,
+                z,
+                scale * _free_free_shape(k, x_act)[1],
+                scale * _free_free_shape(k, x_sen)[1] * rng.uniform(0.9, 1.1, 5),
+            )
+        )
+    fs = float(rng.choice([2048.0, 2048.0, 4096.0, 1024.0]))
+    # bring the first flexible mode into a band that leaves several modes measured
+    band = fs / 2 * rng.uniform(0.8, 0.98)
+    p = Plant("beam", modes, np.zeros((5, 3)), 3, 5, fs, band, suspended=(0, 1))
+    # model: the n_model lowest flexible modes (at least 3 in the band), the rest static in D
+    flex = modes[2:]
+    n_in = sum(f < band for f, *_ in flex)
+    n_keep = max(min(n_model, len(flex) - 4), min(n_in + 2, len(flex) - 4))
+    p.modes = modes[: 2 + n_keep]
+    p.D = sum(np.outer(c, b) / (2 * np.pi * f) ** 2 for f, z, b, c in flex[n_keep:])
+    p.truncated = flex[n_keep:]  # type: ignore[attr-defined]
+    return p
+
+
+# --------------------------------------------------------------- the truth
+@dataclass
+class Truth:
+    """The true plant: modal plant + lags + crosstalk + delay (+ a nonlinearity, time only)."""
+
+    plant: Plant
+    delay_s: float = 0.0
+    act_cut: np.ndarray | None = None
+    sen_cut: np.ndarray | None = None
+    T_out: np.ndarray | None = None
+    T_in: np.ndarray | None = None
+    nl: dict = field(default_factory=dict)
+
+    def ss(self):
+        A, B, C, D = self.plant.matrices()
+        sys = control.ss(A, B, C, D)
+        if self.T_in is not None:
+            sys = control.ss(A, B @ self.T_in, C, D @ self.T_in)
+        if self.act_cut is not None:
+            sys = control.series(_lags(self.act_cut), sys)
+        if self.T_out is not None:
+            sys = control.ss(sys.A, sys.B, self.T_out @ sys.C, self.T_out @ sys.D)
+        if self.sen_cut is not None:
+            sys = control.series(sys, _lags(self.sen_cut))
+        return sys
+
+    def frf(self, f):
+        A, B, C, D = (np.asarray(M) for M in self.ss_mats())
+        s = 2j * np.pi * f
+        n = A.shape[0]
+        G = np.array([C @ np.linalg.solve(si * np.eye(n) - A, B) + D for si in s])
+        return G * np.exp(-s * self.delay_s)[:, None, None]
+
+    def ss_mats(self):
+        sys = self.ss()
+        return sys.A, sys.B, sys.C, sys.D
+
+
+def _lags(cut):
+    cut = np.asarray(cut, float)
+    n = cut.size
+    w = 2 * np.pi * cut
+    A = np.diag(-np.where(np.isfinite(w), w, 1.0))
+    B = np.diag(np.where(np.isfinite(w), w, 0.0))
+    D = np.diag(np.where(np.isfinite(w), 0.0, 1.0))
+    return control.ss(A, B, np.eye(n), D)
+
+
+def nominal_ss(plant: Plant):
+    A, B, C, D = plant.matrices()
+    return control.ss(A, B, C, D)
+
+
+# ------------------------------------------------------------------ effects
+def _sparse_vec(rng, n, k):
+    v = np.zeros(n)
+    idx = rng.choice(n, size=k, replace=False)
+    v[idx] = rng.uniform(0.3, 1.0, k) * rng.choice([-1, 1], k)
+    return v
+
+
+def effect_params(rng, plant: Plant, effect: str, kind: str) -> dict:
+    """Random base parameters of an effect (strength 1 ~ a clear effect)."""
+    band = plant.band_hz
+    n_u, n_y = plant.n_u, plant.n_y
+    flex = [i for i, m in enumerate(plant.modes) if m[0] > 0 and i not in plant.suspended]
+    if effect == "time_delay":
+        return {"delay_s": float(rng.choice([1.0, 1.0, 0.5, 1.5, 2.0])) / plant.fs}
+    if effect == "missing_mode":
+        # away from the model's modes by 8 % or more
+        fm = np.array([m[0] for m in plant.modes if m[0] > 0])
+        lo = 0.15 * band if plant.name == "stage" else 20.0
+        for _ in range(100):
+            f = float(np.exp(rng.uniform(np.log(lo), np.log(0.85 * band))))
+            if np.all(np.abs(fm / f - 1) > 0.08):
+                break
+        k = int(rng.integers(2, min(n_u, n_y) + 1))
+        scale = np.sqrt(np.mean([np.linalg.norm(m[2]) * np.linalg.norm(m[3]) for m in plant.modes]))
+        b = _sparse_vec(rng, n_u, min(k, n_u)) * scale
+        c = _sparse_vec(rng, n_y, min(k, n_y)) * scale
+        return {"freq_hz": f, "damping": float(rng.uniform(0.005, 0.03)), "b": b, "c": c}
+    if effect == "modal_mismatch":
+        inband = [i for i in flex if plant.modes[i][0] < 0.8 * band]
+        i = int(rng.choice(inband))
+        f, z = plant.modes[i][:2]
+        sgn = rng.choice([-1, 1])
+        return {"index": i, "freq_hz": f, "damping": z, "rel": float(sgn * rng.uniform(0.03, 0.08))}
+    if effect == "residual_compliance":
+        if plant.name == "beam":
+            return {"matrix": np.array(plant.D)}
+        # truncated modes of the stage: a few modes at 3-10x the band, static part
+        R = np.zeros((n_y, n_u))
+        for _ in range(int(rng.integers(1, 4))):
+            b, c = rng.normal(0, 1, n_u), rng.normal(0, 1, n_y)
+            R += np.outer(c, b) / (2 * np.pi * rng.uniform(3, 10) * band) ** 2
+        return {"matrix": R}
+    if effect in ("actuator_dynamics", "sensor_dynamics"):
+        n = n_u if effect == "actuator_dynamics" else n_y
+        mode = rng.choice(["all_equal", "all", "some"], p=[0.2, 0.4, 0.4])
+        cut = np.full(n, np.inf)
+        base = rng.uniform(0.4, 1.5) * band
+        if mode == "all_equal":
+            cut[:] = base
+        elif mode == "all":
+            cut[:] = base * rng.uniform(0.7, 1.4, n)
+        else:
+            k = int(rng.integers(1, n))
+            cut[rng.choice(n, k, replace=False)] = base * rng.uniform(0.7, 1.4, k)
+        return {"cutoff_hz": cut}
+    if effect == "suspension_stiffness":
+        return {"freq_hz": float(rng.uniform(3, 20)), "damping": float(rng.uniform(0.02, 0.1))}
+    if effect == "crosstalk":
+        side = rng.choice(["output", "input"])
+        n = n_y if side == "output" else n_u
+        E = rng.normal(0, 1, (n, n)) * (rng.random((n, n)) < 0.4)
+        np.fill_diagonal(E, 0)
+        if not E.any():
+            E[0, 1] = 1.0
+        return {"side": str(side), "E": 0.03 * E / np.abs(E).max()}
+    if effect == "nonlinearity":
+        kinds = ["friction", "saturation"] if plant.name == "stage" else ["cubic", "saturation"]
+        return {"type": str(rng.choice(kinds))}
+    if effect == "none":
+        return {}
+    raise ValueError(effect)
+
+
+def apply_effect(truth: Truth, nominal: Plant, effect: str, p: dict, s: float) -> dict:
+    """Apply an effect at strength s to truth (and the nominal where the model is wrong).
+
+    Returns the answer's parameters.
+    """
+    P = truth.plant
+    if effect == "time_delay":
+        truth.delay_s = p["delay_s"] * s
+        return {"delay_s": truth.delay_s}
+    if effect == "missing_mode":
+        b, c = p["b"] * np.sqrt(s), p["c"] * np.sqrt(s)
+        P.modes.append((p["freq_hz"], p["damping"], b, c))
+        return {"freq_hz": p["freq_hz"], "damping": p["damping"], "b": b, "c": c}
+    if effect == "modal_mismatch":
+        i = p["index"]
+        f, z, b, c = nominal.modes[i]
+        f_model = p["freq_hz"] * (1 + p["rel"] * s)
+        nominal.modes[i] = (f_model, z, b, c)
+        return {"freq_hz": p["freq_hz"], "damping": p["damping"], "model_freq_hz": f_model}
+    if effect == "residual_compliance":
+        if P.name == "beam":
+            # the nominal lacks (part of) the static contribution of the truncated modes
+            nominal.D = nominal.D - s * p["matrix"]
+            return {"matrix": s * p["matrix"]}
+        P.D = P.D + s * p["matrix"]
+        return {"matrix": s * p["matrix"]}
+    if effect in ("actuator_dynamics", "sensor_dynamics"):
+        cut = p["cutoff_hz"] / s
+        if effect == "actuator_dynamics":
+            truth.act_cut = cut
+        else:
+            truth.sen_cut = cut
+        return {"cutoff_hz": [None if not np.isfinite(c) else float(c) for c in cut]}
+    if effect == "suspension_stiffness":
+        f = p["freq_hz"] * s
+        if P.name == "stage":
+            for i, m in enumerate(P.modes):
+                if m[0] == 0:
+                    P.modes[i] = (f, p["damping"], m[2], m[3])
+        else:
+            # the model has the suspended beam as free-free: rigid bodies where truth has springs
+            for i in P.suspended:
+                nominal.modes[i] = (0.0, 0.0, nominal.modes[i][2], nominal.modes[i][3])
+            f = P.modes[P.suspended[0]][0]
+            return {"freq_hz": f, "damping": P.modes[P.suspended[0]][1]}
+        return {"freq_hz": f, "damping": p["damping"]}
+    if effect == "crosstalk":
+        T = np.eye(p["E"].shape[0]) + s * p["E"]
+        if p["side"] == "output":
+            truth.T_out = T
+        else:
+            truth.T_in = T
+        return {"matrix": T - np.eye(T.shape[0]), "side": p["side"]}
+    if effect == "nonlinearity":
+        truth.nl = {"type": p["type"], "s": s}
+        return {"type": p["type"]}
+    return {}
+
+
+# --------------------------------------------------------------------- data
+def freq_grid(plant: Plant, rng) -> np.ndarray:
+    if plant.name == "stage":
+        step = float(rng.choice([1.0, 1.0, 2.0, 0.5]))
+        f = np.arange(step, plant.fs / 2 - step / 2, step)
+        if rng.random() < 0.3:  # example-like: 1 Hz to 100 Hz, then 2 Hz
+            f = np.concatenate([np.arange(1.0, 100.0), np.arange(100.0, plant.fs / 2, 2.0)])
+        return f
+    step = float(rng.choice([0.5, 0.5, 1.0, 0.25]))
+    return np.arange(step, min(plant.band_hz, 0.49 * plant.fs) + step / 2, step)
+
+
+def frf_measure(truth: Truth, f, rng, *, rel, floor_rel, with_var=True):
+    G = truth.frf(f)
+    nrm = np.linalg.norm(G, axis=(1, 2))[:, None, None]
+    sd = rel * np.abs(G) + floor_rel * nrm / np.sqrt(G.shape[1] * G.shape[2])
+    noise = sd / np.sqrt(2) * (rng.standard_normal(G.shape) + 1j * rng.standard_normal(G.shape))
+    Gm = G + noise
+    return Gm, G, (sd**2 if with_var else None)
+
+
+def _c2d(A, B, dt, delay):
+    """ZOH discretization with an input delay: x+ = Ad x + B0 u[k-m] + B1 u[k-m-1]."""
+    n, nu = B.shape
+    m = int(np.floor(delay / dt + 1e-9))
+    tau = delay - m * dt
+
+    def phi_gamma(h):
+        M = np.zeros((n + nu, n + nu))
+        M[:n, :n], M[:n, n:] = A * h, B * h
+        E = scipy.linalg.expm(M)
+        return E[:n, :n], E[:n, n:]
+
+    Ad, _ = phi_gamma(dt)
+    P1, G1 = phi_gamma(dt - tau)
+    Pt, Gt = phi_gamma(tau)
+    return Ad, G1, P1 @ Gt, m
+
+
+def multisine(n_u, period, fs, f_max, rng, *, tilt=0.0, k_min=1):
+    k = np.arange(max(k_min, 1), int(f_max * period / fs))
+    k = k[rng.random(k.size) > 0.25]
+    amp = (k / k[0]) ** tilt
+    t = np.arange(period)
+    u = np.zeros((period, n_u))
+    for j in range(n_u):
+        ph = rng.uniform(0, 2 * np.pi, k.size)
+        u[:, j] = (amp * np.cos(2 * np.pi * np.outer(t, k) / period + ph)).sum(axis=1)
+        u[:, j] /= u[:, j].std()
+    return u
+
+
+def time_record(truth: Truth, nominal: Plant, rng, *, N, period, closed, r, noise_sd):
+    """Simulate the true plant (linear part exact ZOH, nonlinearity per sample)."""
+    A, B, C, D = (np.asarray(M, float) for M in truth.ss_mats())
+    fs = truth.plant.fs
+    Ad, B0, B1, m = _c2d(A, B, 1 / fs, truth.delay_s)
+    n_u, n_y = B.shape[1], C.shape[0]
+    y0 = np.zeros((N, n_y))
+    u = np.zeros((N, n_u))
+    x = np.zeros(A.shape[0])
+    nl = truth.nl
+    if closed:
+        inv = np.array([np.linalg.norm(md[2]) ** 2 for md in nominal.modes if md[0] == 0])
+        fbw = rng.uniform(15, 60)
+        w = 2 * np.pi * fbw
+        kp, kd = w**2 / 3 / inv, 2 * 0.7 * w / inv
+        ki = kp * 2 * np.pi * fbw / 10
+    applied = np.zeros((N, n_u))
+    # rigid-body velocity states for friction (the plant's rigid / suspension blocks)
+    rig = [i for i, md in enumerate(truth.plant.modes) if md[0] < 30]
+    pos_flex = [i for i, md in enumerate(truth.plant.modes) if md[0] >= 30]
+    noise = noise_sd * rng.standard_normal((N, n_y))
+    y = np.zeros((N, n_y))
+    cmd_prev = np.zeros(n_u)
+    integ = np.zeros(n_y)
+    y_prev = np.zeros(n_y)
+    n_lag = A.shape[0] - 2 * len(truth.plant.modes)
+    off = n_lag if truth.act_cut is not None else 0
+    for k in range(N):
+        ua = applied[k - m] if k - m >= 0 else np.zeros(n_u)
+        y0[k] = C @ x + D @ ua
+        y[k] = y0[k] + noise[k]
+        if closed:
+            # controller output computed from y[k], applied at k+1 (one-sample computation delay)
+            u[k] = r[k] + cmd_prev
+            e = -y[k]
+            integ += e / fs
+            cmd_prev = kp * e + kd * (e + y_prev) * fs + ki * integ
+            y_prev = y[k]
+        else:
+            u[k] = r[k]
+        applied[k] = u[k]
+        if nl.get("type") == "saturation":
+            lim = nl["lim"]
+            applied[k] = np.clip(u[k], -lim, lim)
+        ua = applied[k - m] if k - m >= 0 else np.zeros(n_u)
+        ua1 = applied[k - m - 1] if k - m - 1 >= 0 else np.zeros(n_u)
+        x = Ad @ x + B0 @ ua + B1 @ ua1
+        if nl.get("type") == "friction":
+            # Coulomb friction as a velocity change per sample, no sticking overshoot
+            for i in rig:
+                iv = off + 2 * i + 1
+                v = x[iv]
+                dv = nl["Fc"][i] * np.linalg.norm(truth.plant.modes[i][2]) / fs
+                x[iv] = v - np.sign(v) * min(abs(v), dv)
+        if nl.get("type") == "cubic":
+            i = pos_flex[0]
+            f = truth.plant.modes[i][0]
+            w = 2 * np.pi * f
+            q = x[off + 2 * i]
+            x[off + 2 * i + 1] -= nl["k3"] * w * q**3 / fs
+    return u, y, y0
+
+
+def _visibility(ans_floor, ans_nom):
+    return ans_nom / ans_floor if ans_floor > 0 else np.inf
+
+
+@dataclass
+class IndepCase:
+    case_id: str
+    nominal: object  # control.StateSpace (continuous)
+    data: object  # FrfData | TimeData
+    answer: dict
+    true_ss: object = None
+    delay_s: float = 0.0
+
+
+def _build(base_plant, effects, params, strengths, kind, rng_seed, opts):
+    rng = np.random.default_rng(rng_seed)
+    P = base_plant.copy()
+    nom = base_plant.copy()
+    truth = Truth(P)
+    answers = []
+    for e, p, s in zip(effects, params, strengths):
+        answers.append(apply_effect(truth, nom, e, p, s))
+    nominal = nominal_ss(nom)
+    if kind == "frf":
+        f = opts["freq"]
+        Gm, G, var = frf_measure(
+            truth, f, rng, rel=opts["rel"], floor_rel=opts["floor_rel"], with_var=opts["var"]
+        )
+        data = FrfData(freq=f, G=Gm, G_var=var, fs=P.fs)
+        floor = lti.relative_error_frf(Gm, G)
+        nom_err = lti.relative_error_frf(Gm, lti.frf(nominal, f))
+    else:
+        fs = P.fs
+        N, period, closed = opts["N"], opts["period"], opts["closed"]
+        r = opts["r"]
+        if truth.nl:
+            nlp = dict(truth.nl)
+            s = nlp.pop("s")
+            if nlp["type"] == "saturation":
+                u_lin, _, _ = time_record(
+                    Truth(P, truth.delay_s, truth.act_cut, truth.sen_cut, truth.T_out, truth.T_in),
+                    nom,
+                    np.random.default_rng(rng_seed),
+                    N=N,
+                    period=period,
+                    closed=closed,
+                    r=r,
+                    noise_sd=0.0,
+                )
+                nlp["lim"] = np.quantile(np.abs(u_lin), 1 - 0.1 * s, axis=0)
+            elif nlp["type"] == "friction":
+                nlp["Fc"] = 0.1 * s * np.std(r, axis=0)
+            else:
+                nlp["k3"] = 3e9 * s
+            truth.nl = nlp
+        u, y0, _ = None, None, None
+        u, yclean, y0 = time_record(
+            truth,
+            nom,
+            np.random.default_rng(rng_seed),
+            N=N,
+            period=period,
+            closed=closed,
+            r=r,
+            noise_sd=0.0,
+        )
+        sd = opts["noise_rel"] * np.std(y0)
+        u, y, y0 = time_record(
+            truth,
+            nom,
+            np.random.default_rng(rng_seed),
+            N=N,
+            period=period,
+            closed=closed,
+            r=r,
+            noise_sd=sd,
+        )
+        data = TimeData(
+            fs=fs,
+            u=u,
+            y=y,
+            r=r if closed else None,
+            loop="closed" if closed else "open",
+            period=period,
+        )
+        floor = lti.relative_error_time(y, y0)
+        nom_err = lti.relative_error_time(y, lti.simulate_zoh(nominal, u, fs))
+        if truth.nl:
+            lin = Truth(P, truth.delay_s, truth.act_cut, truth.sen_cut, truth.T_out, truth.T_in)
+            A, B, C, D = lin.ss_mats()
+            y_lin = lti.simulate_zoh(control.ss(A, B, C, D), u, fs, delay_s=truth.delay_s)
+            for a, e in zip(answers, effects):
+                if e == "nonlinearity":
+                    a["level"] = float(np.sum((y0 - y_lin) ** 2) / np.sum(y**2))
+    A, B, C, D = truth.ss_mats()
+    return nominal, data, answers, floor, nom_err, control.ss(A, B, C, D), truth.delay_s
+
+
+def make_case(
+    rng: np.random.Generator,
+    *,
+    plant: str = "stage",
+    kind: str = "frf",
+    effects: tuple[str, ...] = ("none",),
+    size: str = "clear",
+    case_id: str = "",
+    loop: str | None = None,
+    periodic: bool = True,
+) -> IndepCase:
+    """One case: a random plant of ``plant``, the named effects at ``size``, data of ``kind``."""
+    base = stage_plant(rng) if plant == "stage" else beam_plant(rng)
+    params = [effect_params(rng, base, e, kind) for e in effects]
+    opts: dict = {}
+    if kind == "frf":
+        opts = {
+            "freq": freq_grid(base, rng),
+            "rel": float(np.exp(rng.uniform(np.log(0.002), np.log(0.02)))),
+            "floor_rel": float(rng.choice([0.0, 0.0, 0.002, 0.005])),
+            "var": bool(rng.random() < 0.85),
+        }
+    else:
+        closed = (plant == "stage") if loop is None else loop == "closed"
+        fs = base.fs
+        period = int(rng.choice([1000, 2000, 2500])) if periodic else None
+        N = 10000
+        if periodic:
+            N = period * (N // period)
+            tilt = 1.0 if closed else 0.0
+            one = multisine(
+                base.n_u, period, fs, 0.4 * fs, rng, tilt=tilt, k_min=1 if closed else 3
+            )
+            r = np.tile(one, (N // period, 1))
+        else:
+            b, a = scipy.signal.butter(2, 0.8)
+            r = scipy.signal.lfilter(b, a, rng.standard_normal((N, base.n_u)), axis=0)
+            r /= r.std(axis=0)
+        if closed:
+            inv = np.array([np.linalg.norm(md[2]) ** 2 for md in base.modes if md[0] == 0])
+            r = r / inv * rng.uniform(0.05, 0.3) * 1e-6 * (2 * np.pi * 100) ** 2
+        opts = {
+            "N": N,
+            "period": period,
+            "closed": closed,
+            "r": r,
+            "noise_rel": float(np.exp(rng.uniform(np.log(0.002), np.log(0.02)))),
+        }
+    seed = int(rng.integers(2**31))
+
+    def build(strengths):
+        return _build(base, effects, params, strengths, kind, seed, opts)
+
+    # strengths: clear = 1 (raised until visibility >= 8), subtle: visibility ~3.5
+    target = {"clear": None, "subtle": 3.5}.get(size)
+    strengths = [1.0] * len(effects)
+    out = build(strengths)
+    tunable = [i for i, e in enumerate(effects) if e not in ("none", "residual_compliance_beam")]
+    if effects != ("none",) and not (plant == "beam" and "suspension_stiffness" in effects):
+        if target is None:
+            for _ in range(6):
+                vis = _visibility(out[3], out[4])
+                if vis >= 8:
+                    break
+                strengths = [s * (2.0 if i in tunable else 1.0) for i, s in enumerate(strengths)]
+                out = build(strengths)
+        else:
+            lo, hi = None, None
+            s = 1.0
+            for _ in range(14):
+                vis = _visibility(out[3], out[4])
+                if 2.8 <= vis <= 4.5:
+                    break
+                if vis > 4.5:
+                    hi = s
+                    s = s / 2 if lo is None else np.sqrt(lo * s)
+                else:
+                    lo = s
+                    s = s * 2 if hi is None else np.sqrt(hi * s)
+                strengths = [s] * len(effects)
+                out = build(strengths)
+    nominal, data, answers, floor, nom_err, true_ss, delay = out
+    vis = _visibility(floor, nom_err)
+    eff_list = []
+    for e, a in zip(effects, answers):
+        ins, outs = _where(e, a, base)
+        ent = {
+            "effect": e,
+            "inputs": ins,
+            "outputs": outs,
+            "parameters": a,
+            "size": size if e != "none" else "-",
+        }
+        if e != "none":
+            ent["visibility_ratio"] = round(float(vis), 3)
+        eff_list.append(ent)
+    answer = {
+        "case_id": case_id,
+        "plant": plant,
+        "data_kind": kind,
+        "size": size,
+        "effects": eff_list,
+        "noise_floor_error": float(floor),
+        "nominal_error": float(nom_err),
+    }
+    return IndepCase(case_id, nominal, data, answer, true_ss, delay)
+
+
+def _where(effect, a, plant):
+    n_u, n_y = plant.n_u, plant.n_y
+    if effect == "none":
+        return [], []
+    if effect == "missing_mode":
+        return [int(i) for i in np.flatnonzero(a["b"])], [int(i) for i in np.flatnonzero(a["c"])]
+    if effect == "actuator_dynamics":
+        return [i for i, c in enumerate(a["cutoff_hz"]) if c is not None], list(range(n_y))
+    if effect == "sensor_dynamics":
+        return list(range(n_u)), [i for i, c in enumerate(a["cutoff_hz"]) if c is not None]
+    return list(range(n_u)), list(range(n_y))
