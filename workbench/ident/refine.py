@@ -1,0 +1,987 @@
+"""Maximum-likelihood refinement of a modal model on periodic data, and its Cramer-Rao bound.
+
+Data flow::
+
+    TimeData (periodic; open loop, or closed loop with r)
+        -> periodic_spectra   per excited DFT line of r (u in open loop): the mean
+                              over the steady-state periods of U and Y, and the
+                              period-to-period deviations (the noise)
+    ModalModel (e.g. subspace -> d2c -> modal)
+        -> theta: rigid gain P, per mode (f_hz, zeta, c, b), D
+        -> model on the lines: z^-d ZOH{ sum_k c_k b_k^T / (s^2 + 2 zeta_k w_k s + w_k^2)
+                                          + P / s^2 + D }   (exact ZOH, d samples of delay)
+        -> scipy.optimize.least_squares on the whitened output error
+           sqrt(n_avg) L^-1 (Y_l - G(theta, z_l) U_l),  L L^H the noise covariance
+        -> RefineResult(model, freq_std_hz, damping_std, misfit)
+    modal_crb(model, spectra, noise_cov) -> CramerRao(freq_std_hz, damping_std)
+
+Why the output error is the likelihood here, open loop and closed loop
+alike: the plant satisfies ``y = G u + v`` whatever the controller does, so at
+the true parameters the residual ``Y_l - G U_l`` *is* the (averaged) output
+noise ``V_l``, with the covariance of the sensor noise. That covariance is
+estimated from the spread of the residual over the periods, pooled over
+neighbouring lines (it rises at the lowest lines, where the noise-driven,
+non-periodic motion of the rigid body leaks into the DFT). In closed loop the
+averaged ``U_l`` carries the controller's share of the same noise; the
+estimator keeps a bias of relative order ``1 / (n_avg SNR^2)`` from it (the
+direct method restricted to the excited lines), far below its standard
+deviation at the signal-to-noise ratio of a precision stage. The Fisher
+information of ``y`` given the known excitation ``r`` in closed loop equals
+the open-loop expression with the noise-free input ``U0 = S_i R`` (derivation
+in :func:`modal_crb`), which is what the bound is evaluated with.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg
+import scipy.optimize
+
+from workbench.errors import InputError
+from workbench.formats import TimeData
+from workbench.modal import ModalModel, Mode
+
+__all__ = [
+    "PeriodicSpectra",
+    "periodic_spectra",
+    "RefineResult",
+    "refine_modal_model",
+    "CramerRao",
+    "modal_crb",
+    "zoh_mode_response",
+]
+
+
+def _frozen(a, dtype=float) -> np.ndarray:
+    a = np.array(a, dtype=dtype, copy=True)
+    a.setflags(write=False)
+    return a
+
+
+# ----------------------------------------------------------------- the data
+@dataclass(frozen=True)
+class PeriodicSpectra:
+    """Period-averaged spectra of a periodic record on its excited lines.
+
+    Attributes
+    ----------
+    fs : float
+        Sampling frequency, Hz.
+    period : int
+        Samples per period; the DFT is numpy's unnormalized ``rfft`` of one period.
+    freq_hz : (n_l,) array
+        Frequency of each excited line, Hz (one entry per line and experiment
+        block; a line excited in two blocks appears twice).
+    U : (n_l, n_u) complex array
+        Mean over the steady-state periods of the input DFT, N (per DFT bin).
+    Y : (n_l, n_y) complex array
+        Mean of the output DFT, m.
+    n_avg : (n_l,) int array
+        Periods averaged for each line.
+    dev_line : (n_d,) int array
+        Line index (into ``freq_hz``) of each period-to-period deviation.
+    dU : (n_d, n_u) complex array
+        Deviations ``U^(p) - U`` of the single periods from their mean, N.
+    dY : (n_d, n_y) complex array
+        Deviations ``Y^(p) - Y``, m.
+    """
+
+    fs: float
+    period: int
+    freq_hz: np.ndarray
+    U: np.ndarray
+    Y: np.ndarray
+    n_avg: np.ndarray
+    dev_line: np.ndarray
+    dU: np.ndarray
+    dY: np.ndarray
+
+    def __post_init__(self):
+        f = _frozen(self.freq_hz)
+        U, Y = _frozen(self.U, complex), _frozen(self.Y, complex)
+        n_l = f.shape[0]
+        if f.ndim != 1 or U.ndim != 2 or Y.ndim != 2 or U.shape[0] != n_l or Y.shape[0] != n_l:
+            raise InputError(
+                f"PeriodicSpectra: expected freq_hz (n_l,), U (n_l, n_u), Y (n_l, n_y), "
+                f"got {f.shape}, {U.shape}, {Y.shape}"
+            )
+        n_avg = _frozen(self.n_avg, int)
+        if n_avg.shape != (n_l,) or np.any(n_avg < 1):
+            raise InputError(
+                f"PeriodicSpectra.n_avg: expected ({n_l},) counts >= 1, got {n_avg.shape}"
+            )
+        dl = _frozen(self.dev_line, int)
+        dU = _frozen(np.reshape(self.dU, (-1, U.shape[1])), complex)
+        dY = _frozen(np.reshape(self.dY, (-1, Y.shape[1])), complex)
+        if dU.shape[0] != dl.shape[0] or dY.shape[0] != dl.shape[0]:
+            raise InputError(
+                f"PeriodicSpectra: expected dU, dY with one row per dev_line ({dl.shape[0]}), "
+                f"got {dU.shape[0]} and {dY.shape[0]}"
+            )
+        for name, a in (("freq_hz", f), ("U", U), ("Y", Y), ("n_avg", n_avg)):
+            object.__setattr__(self, name, a)
+        object.__setattr__(self, "dev_line", dl)
+        object.__setattr__(self, "dU", dU)
+        object.__setattr__(self, "dY", dY)
+        object.__setattr__(self, "fs", float(self.fs))
+        object.__setattr__(self, "period", int(self.period))
+
+    @property
+    def n_lines(self) -> int:
+        return self.freq_hz.shape[0]
+
+    @property
+    def n_u(self) -> int:
+        return self.U.shape[1]
+
+    @property
+    def n_y(self) -> int:
+        return self.Y.shape[1]
+
+    @property
+    def z(self) -> np.ndarray:
+        """(n_l,) ``exp(j 2 pi f / fs)`` of each line."""
+        return np.exp(2j * np.pi * self.freq_hz / self.fs)
+
+
+def periodic_spectra(data: TimeData, *, n_transient: int = 1) -> PeriodicSpectra:
+    """Average a periodic record over its steady-state periods, on the excited lines.
+
+    Parameters
+    ----------
+    data : TimeData
+        ``u`` (N, n_u) N, ``y`` (N, n_y) m, ``period`` set, ``N`` a multiple of
+        it. The excited lines are those of ``r`` (closed loop) or of ``u``
+        (open loop, no ``r``); a record of several experiments (blocks of
+        identical periods) gives each block's lines from its own excitation.
+    n_transient : int
+        Periods dropped at the start of each block (transient), >= 0.
+
+    Returns
+    -------
+    PeriodicSpectra
+        DC and the Nyquist line are left out (their noise is not circular).
+
+    Raises
+    ------
+    InputError
+        Not periodic, or no block with a steady-state period.
+    """
+    from workbench.frf_estimation import split_blocks
+
+    if not isinstance(data, TimeData):
+        raise InputError(f"data: expected periodic TimeData, got {type(data).__name__}")
+    P = data.period
+    if P is None or data.n_samples < P:
+        raise InputError(
+            f"data: key 'period': expected a periodic record (period set, at least one period), "
+            f"got period {P} for {data.n_samples} samples"
+        )
+    n_transient = int(n_transient)
+    if n_transient < 0:
+        raise InputError(f"n_transient: expected an integer >= 0, got {n_transient}")
+    ref = data.r if data.r is not None else data.u
+    f_all, U_all, Y_all, n_all, dl_all, dU_all, dY_all = [], [], [], [], [], [], []
+    n_l = 0
+    for first, n_per in split_blocks(ref, P):
+        skip = min(n_transient, n_per - 1)
+        n = n_per - skip
+        if n < 1:
+            continue
+        sl = slice((first + skip) * P, (first + n_per) * P)
+        R = np.fft.rfft(ref[sl].reshape(n, P, -1), axis=1).mean(axis=0)
+        power = np.sum(np.abs(R) ** 2, axis=1)
+        power[0] = 0.0
+        if P % 2 == 0:
+            power[-1] = 0.0
+        lines = np.flatnonzero(power > 1e-10 * power.max()) if power.max() > 0 else []
+        if len(lines) == 0:
+            continue
+        Uper = np.fft.rfft(data.u[sl].reshape(n, P, -1), axis=1)[:, lines]  # (n, n_k, n_u)
+        Yper = np.fft.rfft(data.y[sl].reshape(n, P, -1), axis=1)[:, lines]
+        Um, Ym = Uper.mean(axis=0), Yper.mean(axis=0)
+        f_all.append(lines * data.fs / P)
+        U_all.append(Um)
+        Y_all.append(Ym)
+        n_all.append(np.full(len(lines), n))
+        if n > 1:
+            dl_all.append(np.tile(n_l + np.arange(len(lines)), n))
+            dU_all.append((Uper - Um).reshape(-1, data.n_u))
+            dY_all.append((Yper - Ym).reshape(-1, data.n_y))
+        n_l += len(lines)
+    if not f_all:
+        raise InputError(
+            "data: expected a periodic excitation with excited lines after the transient "
+            f"({n_transient} period(s) dropped per block), got none"
+        )
+
+    def cat(parts, width):
+        return np.concatenate(parts) if parts else np.zeros((0, width), complex)
+
+    return PeriodicSpectra(
+        fs=data.fs,
+        period=P,
+        freq_hz=np.concatenate(f_all),
+        U=np.concatenate(U_all),
+        Y=np.concatenate(Y_all),
+        n_avg=np.concatenate(n_all),
+        dev_line=np.concatenate(dl_all) if dl_all else np.zeros(0, int),
+        dU=cat(dU_all, data.n_u),
+        dY=cat(dY_all, data.n_y),
+    )
+
+
+# ------------------------------------------------- ZOH responses of the modes
+def _phi(p: np.ndarray, T: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``E = exp(pT)``, ``phi = (E - 1) / p`` and ``dphi/dp``; series near p = 0."""
+    p = np.asarray(p, complex)
+    E = np.exp(p * T)
+    small = np.abs(p * T) < 1e-6
+    ps = np.where(small, 1.0, p)
+    phi = np.where(small, T * (1 + p * T / 2), (E - 1) / ps)
+    dphi = np.where(small, T * T / 2 * (1 + 2 * p * T / 3), (T * E * ps - (E - 1)) / ps**2)
+    return E, phi, dphi
+
+
+def _h(p, z, T):
+    """ZOH response ``phi(p) / (z - exp(pT))`` of ``1 / (s - p)`` and its p-derivative."""
+    E, phi, dphi = _phi(p, T)
+    den = z - E
+    return phi / den, dphi / den + phi * T * E / den**2
+
+
+def zoh_mode_response(
+    omega: float, zeta: float, z: np.ndarray, T: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """ZOH-sampled response of ``1 / (s^2 + 2 zeta omega s + omega^2)`` and its derivatives.
+
+    Parameters
+    ----------
+    omega : float
+        Natural frequency, rad/s (> 0).
+    zeta : float
+        Damping ratio, ``0 <= zeta < 1``.
+    z : (n_l,) complex array
+        Points ``exp(j w T)`` on the unit circle.
+    T : float
+        Sampling period, s.
+
+    Returns
+    -------
+    g, g_omega, g_zeta : (n_l,) complex arrays
+        The response, its derivative by ``omega`` (per rad/s) and by ``zeta``.
+
+    Notes
+    -----
+    With poles ``p, q = -zeta omega +- j omega sqrt(1 - zeta^2)``,
+    ``1 / ((s - p)(s - q)) = (1/(s - p) - 1/(s - q)) / (p - q)`` and the ZOH maps
+    ``1 / (s - p)`` to ``h(p) = (e^{pT} - 1) / (p (z - e^{pT}))`` exactly, so
+    ``g = (h(p) - h(q)) / (p - q)``; derivatives by the chain rule through
+    ``sigma = -zeta omega`` and ``omega_d = omega sqrt(1 - zeta^2)``.
+
+    Examples
+    --------
+    >>> import numpy as np, control
+    >>> z = np.exp(1j * np.array([0.3, 1.2]))
+    >>> g, _, _ = zoh_mode_response(2000.0, 0.05, z, 2e-4)
+    >>> sysd = control.c2d(control.tf([1], [1, 200.0, 4e6]), 2e-4)
+    >>> bool(np.allclose(g, sysd(z)))
+    True
+    """
+    z = np.asarray(z, complex)
+    sq = np.sqrt(complex(1 - zeta * zeta))
+    sigma, wd = -zeta * omega, omega * sq
+    p, q = sigma + 1j * wd, sigma - 1j * wd
+    hp, dhp = _h(p, z, T)
+    hq, dhq = _h(q, z, T)
+    d = p - q
+    g = (hp - hq) / d
+    g_p = dhp / d - (hp - hq) / d**2
+    g_q = -dhq / d + (hp - hq) / d**2
+    g_sigma = g_p + g_q
+    g_wd = 1j * (g_p - g_q)
+    g_omega = -zeta * g_sigma + sq * g_wd
+    g_zeta = -omega * g_sigma - omega * zeta / sq * g_wd
+    return g, g_omega, g_zeta
+
+
+def _zoh_rigid(z: np.ndarray, T: float) -> np.ndarray:
+    """ZOH of ``1 / s^2``: ``T^2 (z + 1) / (2 (z - 1)^2)``."""
+    return T * T * (z + 1) / (2 * (z - 1) ** 2)
+
+
+# ------------------------------------------------------ the parametrization
+@dataclass(frozen=True)
+class _Layout:
+    """Where each mode's parameters sit in theta, and how to rebuild the model."""
+
+    kinds: tuple[str, ...]  # per entry: "rigid_full", "rigid", "flexible", "real"
+    slices: tuple[dict, ...]
+    d_slice: slice | None
+    n_par: int
+    n_u: int
+    n_y: int
+    n_rigid: int
+    names: tuple[str, ...]
+
+
+def _layout(model: ModalModel, feedthrough: bool) -> tuple[_Layout, np.ndarray]:
+    n_u, n_y = model.n_u, model.n_y
+    rigid = model.modes_of_kind("rigid")
+    kinds, slices, theta, names = [], [], [], []
+    k = 0
+
+    def take(n, label):
+        nonlocal k
+        s = slice(k, k + n)
+        k += n
+        names.extend(f"{label}[{i}]" for i in range(n)) if n > 1 else names.append(label)
+        return s
+
+    full_rigid = len(rigid) >= min(n_u, n_y) and len(rigid) > 0
+    if full_rigid:
+        P = sum(np.outer(m.c, m.b) for m in rigid)
+        kinds.append("rigid_full")
+        slices.append({"P": take(n_y * n_u, "rigid P")})
+        theta.append(P.ravel())
+    j = 0
+    for m in model.modes:
+        j += 1
+        if m.kind == "rigid":
+            if full_rigid:
+                continue
+            kinds.append("rigid")
+            slices.append({"c": take(n_y, f"mode {j} c"), "b": take(n_u, f"mode {j} b")})
+            theta += [m.c, m.b]
+        elif m.kind == "flexible":
+            kinds.append("flexible")
+            slices.append(
+                {
+                    "f": take(1, f"mode {j} freq_hz"),
+                    "zeta": take(1, f"mode {j} damping"),
+                    "c": take(n_y, f"mode {j} c"),
+                    "b": take(n_u, f"mode {j} b"),
+                }
+            )
+            theta += [[m.freq_hz], [m.damping], m.c, m.b]
+        else:
+            kinds.append("real")
+            slices.append(
+                {
+                    "s": take(1, f"mode {j} pole"),
+                    "c": take(n_y, f"mode {j} c"),
+                    "b": take(n_u, f"mode {j} b"),
+                }
+            )
+            theta += [[m.pole.real], m.c, m.b]
+    d_slice = None
+    if feedthrough:
+        d_slice = take(n_y * n_u, "D")
+        theta.append(model.D.ravel())
+    lay = _Layout(
+        kinds=tuple(kinds),
+        slices=tuple(slices),
+        d_slice=d_slice,
+        n_par=k,
+        n_u=n_u,
+        n_y=n_y,
+        n_rigid=len(rigid),
+        names=tuple(names),
+    )
+    return lay, np.concatenate([np.ravel(t) for t in theta]).astype(float)
+
+
+def _model_jacobian(lay: _Layout, theta, z, U, T, delay):
+    """``G(theta, z_l) U_l`` (n_l, n_y) and its Jacobian (n_l, n_y, n_par), with z^-delay."""
+    n_l = z.shape[0]
+    n_y, n_u = lay.n_y, lay.n_u
+    GU = np.zeros((n_l, n_y), complex)
+    J = np.zeros((n_l, n_y, lay.n_par), complex)
+    rows = np.arange(n_y)
+    for kind, sl in zip(lay.kinds, lay.slices):
+        if kind == "rigid_full":
+            P = theta[sl["P"]].reshape(n_y, n_u)
+            g = _zoh_rigid(z, T)
+            GU += g[:, None] * (U @ P.T)
+            idx = np.arange(sl["P"].start, sl["P"].stop).reshape(n_y, n_u)
+            for i in range(n_y):
+                J[:, i, idx[i]] = g[:, None] * U
+            continue
+        c, b = theta[sl["c"]], theta[sl["b"]]
+        beta = U @ b  # (n_l,)
+        if kind == "rigid":
+            g = _zoh_rigid(z, T)
+        elif kind == "flexible":
+            f, zeta = theta[sl["f"]][0], theta[sl["zeta"]][0]
+            g, g_w, g_z = zoh_mode_response(2 * np.pi * f, zeta, z, T)
+            J[:, :, sl["f"].start] = np.outer(beta * g_w * 2 * np.pi, c)
+            J[:, :, sl["zeta"].start] = np.outer(beta * g_z, c)
+        else:
+            s = theta[sl["s"]][0]
+            g, g_s = _h(np.full(z.shape, s, complex), z, T)
+            J[:, :, sl["s"].start] = np.outer(beta * g_s, c)
+        GU += np.outer(beta * g, c)
+        ci = np.arange(sl["c"].start, sl["c"].stop)
+        J[:, rows, ci] = (beta * g)[:, None]
+        J[:, :, sl["b"]] = c[None, :, None] * (U * g[:, None])[:, None, :]
+    if lay.d_slice is not None:
+        Dm = theta[lay.d_slice].reshape(n_y, n_u)
+        GU += U @ Dm.T
+        idx = np.arange(lay.d_slice.start, lay.d_slice.stop).reshape(n_y, n_u)
+        for i in range(n_y):
+            J[:, i, idx[i]] = U
+    zd = z ** (-int(delay))
+    return GU * zd[:, None], J * zd[:, None, None]
+
+
+def _to_model(lay: _Layout, theta, template: ModalModel) -> ModalModel:
+    n_y, n_u = lay.n_y, lay.n_u
+    modes: list[Mode] = []
+    for kind, sl in zip(lay.kinds, lay.slices):
+        if kind == "rigid_full":
+            P = theta[sl["P"]].reshape(n_y, n_u)
+            modes += _split_rigid(P, lay.n_rigid)
+            continue
+        c, b = theta[sl["c"]].copy(), theta[sl["b"]].copy()
+        nc, nb = np.linalg.norm(c), np.linalg.norm(b)
+        if nc > 0 and nb > 0:  # |b| = |c|, the largest entry of c positive (as modal.py)
+            a = np.sqrt(nb / nc)
+            c, b = c * a, b / a
+            if c[np.argmax(np.abs(c))] < 0:
+                c, b = -c, -b
+        if kind == "rigid":
+            modes.append(Mode(kind="rigid", freq_hz=0.0, damping=0.0, b=b, c=c))
+        elif kind == "flexible":
+            f, zeta = theta[sl["f"]][0], theta[sl["zeta"]][0]
+            modes.append(Mode(kind="flexible", freq_hz=abs(f), damping=zeta, b=b, c=c))
+        else:
+            s = theta[sl["s"]][0]
+            modes.append(
+                Mode(
+                    kind="real",
+                    freq_hz=abs(s) / (2 * np.pi),
+                    damping=1.0 if s < 0 else -1.0,
+                    b=b,
+                    c=c,
+                )
+            )
+    order = {"rigid": 0, "flexible": 1, "real": 2}
+    modes.sort(key=lambda m: (order[m.kind], m.freq_hz))
+    D = theta[lay.d_slice].reshape(n_y, n_u) if lay.d_slice is not None else template.D
+    return ModalModel(
+        modes=tuple(modes),
+        D=D,
+        transform=None,
+        rigid_poles=np.zeros(2 * lay.n_rigid, complex),
+        input_names=template.input_names,
+        output_names=template.output_names,
+    )
+
+
+def _split_rigid(P: np.ndarray, n_r: int) -> list[Mode]:
+    """Rigid modes from the gain P of 1/s^2: one per output DOF if n_r = n_y, else by SVD."""
+    n_y = P.shape[0]
+    row = np.linalg.norm(P, axis=1)
+    if n_r == n_y and np.all(row > 1e-9 * max(row.max(), 1e-300)):
+        d = np.sqrt(row)
+        return [
+            Mode(kind="rigid", freq_hz=0.0, damping=0.0, b=P[k] / d[k], c=d[k] * np.eye(n_y)[k])
+            for k in range(n_r)
+        ]
+    U, s, Vt = np.linalg.svd(P)
+    n = min(n_r, s.size)
+    modes = [
+        Mode(
+            kind="rigid",
+            freq_hz=0.0,
+            damping=0.0,
+            b=np.sqrt(s[k]) * Vt[k],
+            c=U[:, k] * np.sqrt(s[k]),
+        )
+        for k in range(n)
+    ]
+    modes += [
+        Mode(kind="rigid", freq_hz=0.0, damping=0.0, b=np.zeros(P.shape[1]), c=np.zeros(n_y))
+        for _ in range(n_r - n)
+    ]
+    return modes
+
+
+def _per_mode_std(lay: _Layout, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Standard deviations of frequency (Hz) and damping per entry of the rebuilt model."""
+    f_std, z_std = [], []
+    for kind, sl in zip(lay.kinds, lay.slices):
+        if kind == "rigid_full":
+            f_std += [np.nan] * lay.n_rigid
+            z_std += [np.nan] * lay.n_rigid
+            continue
+        if kind == "rigid":
+            f_std.append(np.nan)
+            z_std.append(np.nan)
+        elif kind == "flexible":
+            i, j = sl["f"].start, sl["zeta"].start
+            f_std.append(np.sqrt(max(cov[i, i], 0.0)))
+            z_std.append(np.sqrt(max(cov[j, j], 0.0)))
+        else:
+            i = sl["s"].start
+            f_std.append(np.sqrt(max(cov[i, i], 0.0)) / (2 * np.pi))
+            z_std.append(0.0)
+    return np.array(f_std), np.array(z_std)
+
+
+def _mode_order(lay: _Layout, theta) -> np.ndarray:
+    """Permutation from layout order to the rebuilt model's order (rigid, flexible, real)."""
+    keys = []
+    for kind, sl in zip(lay.kinds, lay.slices):
+        if kind == "rigid_full":
+            keys += [(0, 0.0)] * lay.n_rigid
+        elif kind == "rigid":
+            keys.append((0, 0.0))
+        elif kind == "flexible":
+            keys.append((1, abs(theta[sl["f"]][0])))
+        else:
+            keys.append((2, abs(theta[sl["s"]][0]) / (2 * np.pi)))
+    return np.array(sorted(range(len(keys)), key=lambda i: keys[i]), int)
+
+
+def _covariance(Jr: np.ndarray) -> np.ndarray:
+    """``(2 Jr^T Jr)^+`` with column scaling; the b/c scale of each mode is a null direction."""
+    F = 2.0 * Jr.T @ Jr
+    d = np.sqrt(np.clip(np.diag(F), 1e-300, None))
+    Fs = F / np.outer(d, d)
+    return np.linalg.pinv(Fs, rcond=1e-10, hermitian=True) / np.outer(d, d)
+
+
+def _whiteners(C: np.ndarray) -> np.ndarray:
+    """Inverse Cholesky factors (n_l, n_y, n_y) of Hermitian covariances C (n_l, n_y, n_y).
+
+    A covariance that is zero (noise-free data) gives the identity; a
+    singular one is lifted to ``1e-12`` of its largest eigenvalue.
+    """
+    C = 0.5 * (C + np.conj(np.swapaxes(C, 1, 2)))
+    n_y = C.shape[1]
+    lam = np.linalg.eigvalsh(C)  # (n_l, n_y), ascending
+    top = lam[:, -1]
+    zero = ~(top > 0)
+    lift = np.where(zero, 1.0, np.maximum(0.0, 1e-12 * top - lam[:, 0]))
+    C = np.where(zero[:, None, None], 0.0, C) + lift[:, None, None] * np.eye(n_y)
+    L = np.linalg.cholesky(C)
+    return np.linalg.inv(L)
+
+
+def _local_noise(spec: PeriodicSpectra, G_lines: np.ndarray, n_window: int) -> np.ndarray | None:
+    """Covariance (n_l, n_y, n_y) of one period's output error ``dY - G dU`` near each line.
+
+    The sample covariance over the periods, pooled over the ``n_window``
+    lines nearest in frequency (a window widened until it holds at least
+    ``3 n_y`` degrees of freedom), so that the weights follow a noise level
+    that changes with frequency: coloured noise in open loop, and the
+    leakage of the noise-driven, non-periodic motion through the rigid-body
+    modes at the lowest lines in closed loop.
+    """
+    if spec.dev_line.size == 0:
+        return None
+    G_dev = G_lines[spec.dev_line]
+    dE = spec.dY - np.einsum("dij,dj->di", G_dev, spec.dU)
+    n_l, n_y = spec.n_lines, spec.n_y
+    S = np.zeros((n_l, n_y, n_y), complex)
+    np.add.at(S, spec.dev_line, dE[:, :, None] * dE[:, None, :].conj())
+    dof = np.zeros(n_l)
+    np.add.at(dof, spec.dev_line, 1.0)
+    dof = np.maximum(dof - (dof > 0), 0.0)  # n_avg - 1 per line with deviations
+    order = np.argsort(spec.freq_hz, kind="stable")
+    cS = np.concatenate([np.zeros((1, n_y, n_y), complex), np.cumsum(S[order], axis=0)])
+    cd = np.concatenate([[0.0], np.cumsum(dof[order])])
+    if cd[-1] <= 0:
+        return None
+    per_line = cd[-1] / n_l
+    w = int(min(n_l, max(n_window, np.ceil(3 * n_y / max(per_line, 1e-12)))))
+    lo = np.clip(np.arange(n_l) - w // 2, 0, n_l - w)
+    hi = lo + w
+    C_sorted = (cS[hi] - cS[lo]) / np.maximum(cd[hi] - cd[lo], 1.0)[:, None, None]
+    C = np.empty_like(C_sorted)
+    C[order] = C_sorted
+    return C
+
+
+def _frf_on(lay: _Layout, theta, z, T, delay, n_u) -> np.ndarray:
+    """The model's discrete FRF (n, n_y, n_u) at z, delay included."""
+    cols = []
+    for j in range(n_u):
+        e = np.zeros((z.shape[0], n_u))
+        e[:, j] = 1.0
+        cols.append(_model_jacobian(lay, theta, z, e, T, delay)[0])
+    return np.stack(cols, axis=2)
+
+
+def _check_model(model, spec: PeriodicSpectra):
+    if not isinstance(model, ModalModel):
+        raise InputError(f"model: expected a ModalModel, got {type(model).__name__}")
+    if model.n_u != spec.n_u or model.n_y != spec.n_y:
+        raise InputError(
+            f"model: expected {spec.n_y} outputs x {spec.n_u} inputs like the data, "
+            f"got {model.n_y} x {model.n_u}"
+        )
+    for k, m in enumerate(model.modes):
+        if m.kind == "flexible" and not 0 <= m.damping < 1:
+            raise InputError(
+                f"model: mode {k + 1}: expected a damping ratio in [0, 1) for a flexible "
+                f"mode, got {m.damping}"
+            )
+
+
+def _as_spectra(data, n_transient) -> PeriodicSpectra:
+    if isinstance(data, PeriodicSpectra):
+        return data
+    return periodic_spectra(data, n_transient=n_transient)
+
+
+def _line_cov(spec: PeriodicSpectra, noise_cov) -> np.ndarray:
+    """Single-period DFT covariance (n_y, n_y) from a per-sample covariance of white noise."""
+    S = np.asarray(noise_cov, float)
+    if S.ndim == 1:
+        S = np.diag(S)
+    if S.shape != (spec.n_y, spec.n_y):
+        raise InputError(
+            f"noise_cov: expected ({spec.n_y}, {spec.n_y}) (or ({spec.n_y},) variances), "
+            f"got {S.shape}"
+        )
+    return spec.period * S.astype(complex)
+
+
+# ------------------------------------------------------------ the estimator
+@dataclass(frozen=True)
+class RefineResult:
+    """A modal model refined by maximum likelihood on periodic data.
+
+    Attributes
+    ----------
+    model : ModalModel
+        The refined continuous modal model (rigid, flexible by frequency,
+        real); ``transform`` is None (no source realization).
+    start : ModalModel
+        The model it started from.
+    freq_std_hz : (n_modes,) array
+        Standard deviation of each mode's frequency from the inverse Fisher
+        information at the estimate with the estimated noise, Hz (NaN for
+        rigid modes).
+    damping_std : (n_modes,) array
+        Same for the damping ratio, - (NaN for rigid modes).
+    misfit : float
+        Weighted cost over its expected value under the noise alone,
+        ``sum |w|^2 / (n_l n_y - n_par / 2)``; about 1 when the model explains
+        the data to the noise level.
+    n_lines : int
+        Excited lines (and experiment blocks) used.
+    noise_cov : (n_l, n_y, n_y) array
+        Noise covariance behind the weights of each line, as the per-sample
+        covariance of a white noise of the same level (one period's DFT
+        covariance / period), m^2; estimated from the period-to-period spread
+        unless given.
+    input_delay : int
+        Samples of delay of the model.
+    success : bool
+        The optimizer's convergence flag.
+    message : str
+        The optimizer's message.
+    nfev : int
+        Function evaluations.
+    notes : tuple of str
+    """
+
+    model: ModalModel
+    start: ModalModel
+    freq_std_hz: np.ndarray
+    damping_std: np.ndarray
+    misfit: float
+    n_lines: int
+    noise_cov: np.ndarray
+    input_delay: int
+    success: bool
+    message: str
+    nfev: int
+    notes: tuple[str, ...] = field(default=())
+
+    def __post_init__(self):
+        object.__setattr__(self, "freq_std_hz", _frozen(self.freq_std_hz))
+        object.__setattr__(self, "damping_std", _frozen(self.damping_std))
+        object.__setattr__(self, "noise_cov", _frozen(np.real(self.noise_cov)))
+
+
+def refine_modal_model(
+    model: ModalModel,
+    data: TimeData | PeriodicSpectra,
+    *,
+    input_delay: int = 0,
+    feedthrough: bool = True,
+    noise_cov: np.ndarray | None = None,
+    n_transient: int = 1,
+    noise_lines: int = 21,
+    reweight: int = 1,
+    max_nfev: int = 200,
+) -> RefineResult:
+    """Maximum-likelihood refinement of a modal model on a periodic record.
+
+    Parameters
+    ----------
+    model : ModalModel
+        Start, e.g. ``ModalModel.from_statespace(identify_subspace(...).model)``;
+        its modes (kinds and count) are kept, their parameters refined.
+    data : TimeData or PeriodicSpectra
+        Periodic record, open or closed loop (``period`` set; ``r`` for
+        closed loop); or its :func:`periodic_spectra`.
+    input_delay : int
+        Samples of pure delay between ``u`` and ``y`` not in ``model``
+        (``SubspaceResult.input_delay``), >= 0.
+    feedthrough : bool
+        Estimate ``D`` (n_y, n_u); else keep the start's ``D``.
+    noise_cov : (n_y, n_y) or (n_y,) array, optional
+        Per-sample covariance (or variances) of the white output noise, m^2.
+        Default: estimated from the spread of the output error over the
+        steady-state periods, pooled over the ``noise_lines`` lines nearest in
+        frequency (needs >= 2 steady periods).
+    noise_lines : int
+        Lines pooled for each local noise covariance (widened to at least
+        ``3 n_y`` degrees of freedom).
+    n_transient : int
+        Periods dropped per block when ``data`` is TimeData.
+    reweight : int
+        Times the noise covariance is re-estimated at the new estimate and the
+        fit repeated (0: weights from the start model only).
+    max_nfev : int
+        Function evaluations per fit.
+
+    Returns
+    -------
+    RefineResult
+
+    Raises
+    ------
+    InputError
+        Mismatched dimensions, non-periodic data, no noise covariance
+        available (a single steady period and no ``noise_cov``).
+
+    Notes
+    -----
+    Per excited line ``l`` (frequency ``f_l``, ``z_l = exp(j 2 pi f_l / fs)``)
+    the model is ``G(theta, z) = z^-d [P g_r(z) + sum_k c_k b_k^T g_k(z) + D]``
+    with ``g_r`` the ZOH of ``1/s^2`` and ``g_k`` that of
+    ``1/(s^2 + 2 zeta_k w_k s + w_k^2)`` (:func:`zoh_mode_response`), so the
+    continuous modal parameters are estimated directly from sampled data. The
+    cost is the negative log-likelihood of circular complex Gaussian noise,
+
+    ``V(theta) = sum_l n_l e_l^H C^-1 e_l``,  ``e_l = Y_l - G(theta, z_l) U_l``,
+
+    minimized by Levenberg-Marquardt (``scipy.optimize.least_squares``,
+    ``method="lm"``) with the analytic Jacobian. ``C`` is the covariance of
+    one period's DFT of the output noise. Rigid modes enter through their
+    total gain ``P`` (n_y, n_u), linear, when there are at least
+    ``min(n_u, n_y)`` of them (then split back per output DOF, as
+    :meth:`ModalModel.from_statespace` does); otherwise each has its own
+    ``c_k, b_k``. The scale split between ``c_k`` and ``b_k`` is a null
+    direction of the Jacobian; the result is normalized to ``|b_k| = |c_k|``.
+
+    References
+    ----------
+    R. Pintelon, J. Schoukens, System Identification: A Frequency Domain
+    Approach, 2nd ed., Wiley-IEEE 2012, ch. 9-10 (ML on periodic data, the
+    sample noise covariance). L. Ljung, System Identification, 2nd ed., 1999,
+    sec. 13.4 (the direct method in closed loop).
+    """
+    spec = _as_spectra(data, n_transient)
+    _check_model(model, spec)
+    input_delay = int(input_delay)
+    if input_delay < 0:
+        raise InputError(f"input_delay: expected an integer >= 0 samples, got {input_delay}")
+    lay, theta0 = _layout(model, feedthrough)
+    T = 1.0 / spec.fs
+    z = spec.z
+    sw = np.sqrt(spec.n_avg)[:, None]
+    notes: list[str] = []
+
+    def noise(theta) -> np.ndarray:
+        if noise_cov is not None:
+            return np.broadcast_to(_line_cov(spec, noise_cov), (spec.n_lines, spec.n_y, spec.n_y))
+        G = _frf_on(lay, theta, z, T, input_delay, spec.n_u)
+        C1 = _local_noise(spec, G, int(noise_lines))
+        if C1 is None:
+            raise InputError(
+                "data: expected at least 2 steady-state periods to estimate the noise, "
+                "got 1; pass noise_cov"
+            )
+        return C1
+
+    def fit(theta, Winv):
+        cache = {}
+
+        def evaluate(x):
+            key = x.tobytes()
+            if key not in cache:
+                cache.clear()
+                GU, J = _model_jacobian(lay, x, z, spec.U, T, input_delay)
+                e = sw * np.einsum("lij,lj->li", Winv, spec.Y - GU)
+                Jw = -sw[:, :, None] * np.einsum("lij,ljp->lip", Winv, J)
+                cache[key] = (
+                    np.concatenate([e.real.ravel(), e.imag.ravel()]),
+                    np.concatenate(
+                        [Jw.real.reshape(-1, lay.n_par), Jw.imag.reshape(-1, lay.n_par)]
+                    ),
+                )
+            return cache[key]
+
+        sol = scipy.optimize.least_squares(
+            lambda x: evaluate(x)[0],
+            theta,
+            jac=lambda x: evaluate(x)[1],
+            method="lm",
+            x_scale="jac",
+            max_nfev=max_nfev,
+        )
+        return sol, evaluate(sol.x)
+
+    n_res = 2 * spec.n_lines * spec.n_y
+    if n_res < lay.n_par:
+        raise InputError(
+            f"data: expected at least {lay.n_par} real equations for {lay.n_par} parameters, "
+            f"got {n_res} ({spec.n_lines} lines x {spec.n_y} outputs); use a richer excitation "
+            "or fewer modes"
+        )
+    C1 = noise(theta0)
+    theta = theta0
+    for it in range(max(0, int(reweight)) + 1):
+        sol, (r, Jr) = fit(theta, _whiteners(C1))
+        theta = sol.x
+        if it < reweight and noise_cov is None:
+            C1 = noise(theta)
+        else:
+            break
+    cov = _covariance(Jr)
+    f_std, z_std = _per_mode_std(lay, cov)
+    perm = _mode_order(lay, theta)
+    f_std, z_std = f_std[perm], z_std[perm]
+    dof = max(n_res / 2 - lay.n_par / 2, 1.0)
+    misfit = float(np.sum(r**2) / dof)
+    refined = _to_model(lay, theta, model)
+    if not sol.success:
+        notes.append(f"the optimizer stopped without convergence: {sol.message}")
+    for m in refined.modes:
+        if m.kind == "flexible" and not 0 <= m.damping < 1:
+            notes.append(f"a flexible mode at {m.freq_hz:.4g} Hz left the range 0 <= zeta < 1")
+    return RefineResult(
+        model=refined,
+        start=model,
+        freq_std_hz=f_std,
+        damping_std=z_std,
+        misfit=misfit,
+        n_lines=spec.n_lines,
+        noise_cov=np.real(C1) / spec.period,  # per-sample equivalent, m^2
+        input_delay=input_delay,
+        success=bool(sol.success),
+        message=str(sol.message),
+        nfev=int(sol.nfev),
+        notes=tuple(notes),
+    )
+
+
+# ------------------------------------------------------------------ the bound
+@dataclass(frozen=True)
+class CramerRao:
+    """Cramer-Rao lower bound of a modal model's parameters for one experiment.
+
+    Attributes
+    ----------
+    freq_std_hz : (n_modes,) array
+        Lower bound of the standard deviation of each mode's frequency, Hz
+        (NaN for rigid modes), in the order of ``model.modes``.
+    damping_std : (n_modes,) array
+        Same for the damping ratio, -.
+    fisher : (n_par, n_par) array
+        Fisher information of theta (see ``param_names``).
+    covariance : (n_par, n_par) array
+        Its pseudo-inverse (the ``c_k`` / ``b_k`` scale is a null direction).
+    param_names : tuple of str
+    """
+
+    freq_std_hz: np.ndarray
+    damping_std: np.ndarray
+    fisher: np.ndarray
+    covariance: np.ndarray
+    param_names: tuple[str, ...]
+
+    def __post_init__(self):
+        for name in ("freq_std_hz", "damping_std", "fisher", "covariance"):
+            object.__setattr__(self, name, _frozen(getattr(self, name)))
+
+
+def modal_crb(
+    model: ModalModel,
+    spectra: PeriodicSpectra,
+    *,
+    noise_cov: np.ndarray,
+    input_delay: int = 0,
+    feedthrough: bool = True,
+) -> CramerRao:
+    """Cramer-Rao bound of the modal parameters for a periodic experiment.
+
+    Parameters
+    ----------
+    model : ModalModel
+        The true model (the bound is evaluated at its parameters), in the
+        parametrization of :func:`refine_modal_model`; modes must be ordered
+        rigid, flexible by frequency, real (as ``ModalModel.from_statespace``).
+    spectra : PeriodicSpectra
+        The experiment: lines, the noise-free input spectra ``U`` (n_l, n_u)
+        (for a noisy record its period means are a close substitute) and the
+        periods averaged per line ``n_avg``; ``Y`` is not used.
+    noise_cov : (n_y, n_y) or (n_y,) array
+        Per-sample covariance (or variances) of the white output noise, m^2.
+    input_delay : int
+        Samples of pure delay, as in :func:`refine_modal_model`.
+    feedthrough : bool
+        Whether ``D`` is a free parameter (as in the estimator).
+
+    Returns
+    -------
+    CramerRao
+
+    Notes
+    -----
+    Per line ``Y_l = G(theta, z_l) U0_l + V_l``, ``V_l`` circular complex
+    Gaussian with covariance ``C / n_l`` (``C = period * noise_cov``), so
+
+    ``F = 2 Re sum_l n_l J_l^H C^-1 J_l``,  ``J_l = dG(theta, z_l)/dtheta U0_l``.
+
+    Closed loop, ``u = r - K y``: ``Y = T R + S_o V`` with ``T = S_o G``,
+    ``S_o = (I + G K)^-1``; ``dT = S_o dG S_i`` with ``S_i = (I + K G)^-1``, so
+    the mean's derivative is ``S_o dG U0`` (``U0 = S_i R``, the noise-free
+    input) and the noise covariance ``S_o (C / n_l) S_o^H``: ``S_o`` cancels
+    and the bound is the open-loop one with ``U0``. The information in the
+    covariance's dependence on theta is of order one per line against the
+    mean's ``SNR^2`` and is left out. ``CRB = F^+`` (Pintelon & Schoukens
+    2012, sec. 17.5; S.M. Kay, Fundamentals of Statistical Signal Processing:
+    Estimation Theory, 1993, sec. 15.7).
+    """
+    if not isinstance(spectra, PeriodicSpectra):
+        raise InputError(
+            f"spectra: expected PeriodicSpectra (periodic_spectra(data)), "
+            f"got {type(spectra).__name__}"
+        )
+    _check_model(model, spectra)
+    lay, theta = _layout(model, feedthrough)
+    C1 = _line_cov(spectra, noise_cov)
+    _, J = _model_jacobian(lay, theta, spectra.z, spectra.U, 1.0 / spectra.fs, int(input_delay))
+    Winv = _whiteners(C1[None])[0]
+    Jw = np.sqrt(spectra.n_avg)[:, None, None] * np.einsum("ij,ljp->lip", Winv, J)
+    Jr = np.concatenate([Jw.real.reshape(-1, lay.n_par), Jw.imag.reshape(-1, lay.n_par)])
+    cov = _covariance(Jr)
+    f_std, z_std = _per_mode_std(lay, cov)
+    perm = _mode_order(lay, theta)
+    return CramerRao(
+        freq_std_hz=f_std[perm],
+        damping_std=z_std[perm],
+        fisher=2.0 * Jr.T @ Jr,
+        covariance=cov,
+        param_names=lay.names,
+    )
