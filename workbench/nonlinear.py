@@ -1,0 +1,157 @@
+"""Nonlinear simulation models: a linear model plus port nonlinearities.
+
+Linear models cannot hold friction, a hardening spring or a saturating
+amplifier, so ``augment --effect nonlinearity`` adds them to the *simulation
+model* used for time-domain comparison instead. The nonlinearities act at
+the plant's inputs, on ports collocated with them (a square model whose
+output j measures the displacement where input j pushes, as in DOF
+coordinates of a stage):
+
+    u_applied = sat(u[k - m]) - F_c tanh(v / v0) - k3 p^3,   p = C x,  v = C A x
+
+with p the port displacement (the collocated output) and v its velocity.
+Over each of ``substeps`` substeps per sample the linear part is propagated
+exactly (zero-order hold) and the port force is held (explicit, first order
+in the substep).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.optimize
+
+from workbench import lti
+from workbench.errors import InputError
+
+__all__ = ["PortNonlinearity", "simulate_nonlinear", "fit_friction"]
+
+
+@dataclass(frozen=True)
+class PortNonlinearity:
+    """Nonlinearities at the input ports.
+
+    Parameters
+    ----------
+    friction_force : (n_u,) array
+        Coulomb friction level per port, N (N m for torques); 0 = none.
+    friction_velocity : float
+        Velocity scale v0 of the smooth Coulomb law, m/s.
+    cubic_stiffness : (n_u,) array
+        Hardening spring k3 per port, N/m^3; 0 = none.
+    saturation : (n_u,) array
+        Symmetric saturation of each input, N; inf = none.
+    substeps : int
+        Substeps per sample.
+    """
+
+    friction_force: np.ndarray
+    friction_velocity: float = 1e-3
+    cubic_stiffness: np.ndarray | None = None
+    saturation: np.ndarray | None = None
+    substeps: int = 8
+    notes: tuple[str, ...] = field(default=())
+
+
+def _ports(sys):
+    A, B, C, D, dt = lti.as_matrices(sys)
+    if dt:
+        raise InputError("nonlinear simulation: expected a continuous model (dt = 0)")
+    if C.shape[0] != B.shape[1]:
+        raise InputError(
+            f"nonlinear simulation: expected a square model (ports collocated with the inputs), "
+            f"got {C.shape[0]} outputs and {B.shape[1]} inputs"
+        )
+    return A, B, C, D
+
+
+def simulate_nonlinear(
+    sys, u: np.ndarray, fs: float, nl: PortNonlinearity, *, delay_s: float = 0.0
+) -> np.ndarray:
+    """Response to the recorded input ``u`` (N, n_u), from rest; (N, n_y) outputs.
+
+    Without any nonlinearity this equals :func:`workbench.lti.simulate_zoh`
+    for integer-sample delays.
+    """
+    A, B, C, D = _ports(sys)
+    n = A.shape[0]
+    h = 1.0 / (fs * nl.substeps)
+    Ad, Bd, _, _ = lti.c2d_zoh(A, B, h)
+    m = int(round(delay_s * fs))
+    u = np.asarray(u, float)
+    N, n_u = u.shape
+    ud = np.zeros_like(u)
+    ud[m:] = u[: N - m]
+    if nl.saturation is not None:
+        sat = np.broadcast_to(np.asarray(nl.saturation, float), (n_u,))
+        ud = np.clip(ud, -sat, sat)
+    Fc = np.broadcast_to(np.asarray(nl.friction_force, float), (n_u,))
+    k3 = (
+        np.zeros(n_u)
+        if nl.cubic_stiffness is None
+        else np.broadcast_to(np.asarray(nl.cubic_stiffness, float), (n_u,))
+    )
+    CA = C @ A
+    v0 = nl.friction_velocity
+    x = np.zeros(n)
+    y = np.empty((N, C.shape[0]))
+    for k in range(N):
+        y[k] = C @ x + D @ ud[k]
+        for _ in range(nl.substeps):
+            f = ud[k] - Fc * np.tanh((CA @ x) / v0) - k3 * (C @ x) ** 3
+            x = Ad @ x + Bd @ f
+    return y
+
+
+def fit_friction(
+    sys,
+    u: np.ndarray,
+    y: np.ndarray,
+    fs: float,
+    *,
+    delay_s: float = 0.0,
+    friction_velocity: float = 1e-3,
+    per_port: bool = False,
+    substeps: int = 4,
+    max_nfev: int = 40,
+) -> tuple[PortNonlinearity, float, float]:
+    """Fit Coulomb friction levels so that the simulation reproduces ``y``.
+
+    Parameters
+    ----------
+    sys : control.StateSpace
+        Continuous, square model (ports collocated with the inputs).
+    u, y : (N, n_u), (N, n_y) arrays
+        Recorded input and output (time data of spec 1a).
+    per_port : bool
+        One level per input (else one level, N, for all).
+
+    Returns
+    -------
+    (PortNonlinearity, error_before, error_after)
+        The spec's time-domain relative error without and with the friction.
+    """
+    _ports(sys)
+    u = np.asarray(u, float)
+    y = np.asarray(y, float)
+    n_u = u.shape[1]
+
+    def model(theta):
+        level = np.exp(theta) * (np.ones(n_u) if per_port else np.ones(1))
+        nl = PortNonlinearity(
+            friction_force=level, friction_velocity=friction_velocity, substeps=substeps
+        )
+        return nl, simulate_nonlinear(sys, u, fs, nl, delay_s=delay_s)
+
+    def residual(theta):
+        return (model(theta)[1] - y).ravel() / np.linalg.norm(y)
+
+    before = lti.relative_error_time(y, lti.simulate_zoh(sys, u, fs, delay_s=delay_s))
+    # coarse grid on the common level, 1 mN .. 10 N, then least squares
+    grid = np.log(np.logspace(-3, 1, 9))
+    costs = [np.sum(residual(np.full(1, g)) ** 2) for g in grid]
+    theta0 = np.full(n_u if per_port else 1, grid[int(np.argmin(costs))])
+    sol = scipy.optimize.least_squares(residual, theta0, max_nfev=max_nfev, x_scale=1.0)
+    nl, y_fit = model(sol.x)
+    return nl, before, lti.relative_error_time(y, y_fit)
