@@ -4,8 +4,10 @@ Reads a time-domain measurement (spec 1a), identifies a discrete model
 (dt = 1/fs) with a closed-loop (projection onto r) or open-loop subspace
 method, prints the singular values with the suggested order, and writes the
 model in the spec model format (plus ``delay_s`` when an input delay was
-given). ``--modal`` also writes the continuous modal model; ``--sv-plot``
-saves the singular values as a PNG.
+given). ``--modal`` also writes the continuous modal model; ``--refine``
+refines it first by maximum likelihood on the period-averaged spectra of a
+periodic record (:func:`workbench.ident.refine.refine_modal_model`);
+``--sv-plot`` saves the singular values as a PNG.
 """
 
 from __future__ import annotations
@@ -50,6 +52,12 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument(
         "--rigid-threshold-hz", type=float, default=5.0, help="rigid-body threshold for --modal, Hz"
     )
+    p.add_argument(
+        "--refine",
+        action="store_true",
+        help="refine the --modal model by maximum likelihood on the period-averaged spectra "
+        "(periodic records)",
+    )
     p.add_argument("--sv-plot", metavar="PNG", help="save the singular values plot")
     return p
 
@@ -61,6 +69,10 @@ def run(args) -> int:
     if len(set(outputs)) != len(outputs):
         raise InputError(
             "--out, --modal and --sv-plot: expected distinct files, got a repeated path"
+        )
+    if getattr(args, "refine", False) and not args.modal:
+        raise InputError(
+            "--refine: expected --modal MODAL.npz for the refined modal model, got none"
         )
     data = load_measurement(args.data)
     if not isinstance(data, TimeData):
@@ -81,6 +93,14 @@ def run(args) -> int:
         from workbench.modal import ModalModel
 
         modal = ModalModel.from_statespace(res.model, rigid_threshold_hz=args.rigid_threshold_hz)
+    refined = None
+    if modal is not None and getattr(args, "refine", False):
+        from workbench.ident.refine import refine_modal_model
+
+        refined = refine_modal_model(
+            modal, data, input_delay=res.input_delay, feedthrough=not args.no_feedthrough
+        )
+        modal = refined.model
     extra = {"delay_s": np.array(res.delay_s)} if res.input_delay else {}
     save_model(args.out, res.model, **extra)
     if modal is not None:
@@ -104,6 +124,16 @@ def run(args) -> int:
     for note in res.notes:
         print(f"note: {note}")
     print(f"wrote {args.out} (order {res.order}, dt = {1 / data.fs:g} s)")
+    if refined is not None:
+        print(
+            f"refined by maximum likelihood on {refined.n_lines} lines: weighted misfit "
+            f"{refined.misfit:.2f} (1 = noise level), {refined.nfev} evaluations"
+        )
+        for m, sf, sz in zip(refined.model.modes, refined.freq_std_hz, refined.damping_std):
+            if m.kind == "flexible":
+                print(f"  {m.freq_hz:10.3f} +/- {sf:.3f} Hz   damping {m.damping:.5f} +/- {sz:.5f}")
+        for note in refined.notes:
+            print(f"note: {note}")
     if modal is not None:
         print(f"wrote {args.modal} (continuous modal model, {len(modal.modes)} modes)")
     return 0

@@ -572,14 +572,15 @@ def _whiteners(C: np.ndarray) -> np.ndarray:
 
 
 def _local_noise(
-    spec: PeriodicSpectra, G_lines: np.ndarray, n_window: int, n_level: int = 1
+    spec: PeriodicSpectra, G_lines: np.ndarray, n_window: int, level_dof: int = 24
 ) -> np.ndarray | None:
     """Covariance (n_l, n_y, n_y) of one period's output error ``dY - G dU`` near each line.
 
     The sample covariance over the periods, pooled over the ``n_window``
     lines nearest in frequency (a window widened until it holds at least
-    ``3 n_y`` degrees of freedom), then scaled per line to the level of its
-    ``n_level`` nearest lines, ``tr(C^-1 S) / (n_y dof)``, so that the weights
+    ``3 n_y`` degrees of freedom), then scaled per line to the level
+    ``tr(C^-1 S) / (n_y dof)`` of the fewest nearest lines that hold
+    ``level_dof`` complex samples (``n_y`` per degree of freedom), so that the weights
     follow a noise level that changes with frequency: coloured noise in open
     loop, and the leakage of the noise-driven, non-periodic motion through the
     rigid-body modes at the lowest lines in closed loop.
@@ -604,12 +605,12 @@ def _local_noise(
     lo = np.clip(np.arange(n_l) - w // 2, 0, n_l - w)
     hi = lo + w
     C_sorted = (cS[hi] - cS[lo]) / np.maximum(cd[hi] - cd[lo], 1.0)[:, None, None]
-    # the level of each line relative to its window's shape, over n_level lines:
+    # the level of each line relative to its window's shape, over a few lines:
     # the noise rises steeply at the lowest lines, faster than a wide window follows
     Winv = _whiteners(C_sorted)
     q = np.real(np.einsum("lij,ljk,lik->l", Winv, S[order], Winv.conj()))  # tr(C^-1 S_l)
     cq = np.concatenate([[0.0], np.cumsum(q)])
-    v = int(min(n_l, max(n_level, 1)))
+    v = int(min(n_l, max(1, np.ceil(level_dof / (n_y * max(per_line, 1e-12))))))
     lo = np.clip(np.arange(n_l) - v // 2, 0, n_l - v)
     hi = lo + v
     level = (cq[hi] - cq[lo]) / np.maximum(n_y * (cd[hi] - cd[lo]), 1.0)
@@ -845,9 +846,9 @@ def refine_modal_model(
             return cache[key]
 
         sol = scipy.optimize.least_squares(
-            lambda x: evaluate(x)[0],
+            lambda x: evaluate(x)[0].copy(),
             theta,
-            jac=lambda x: evaluate(x)[1],
+            jac=lambda x: evaluate(x)[1].copy(),
             method="lm",
             x_scale="jac",
             max_nfev=max_nfev,
