@@ -943,8 +943,7 @@ def modal_crb(
     ----------
     model : ModalModel
         The true model (the bound is evaluated at its parameters), in the
-        parametrization of :func:`refine_modal_model`; modes must be ordered
-        rigid, flexible by frequency, real (as ``ModalModel.from_statespace``).
+        parametrization of :func:`refine_modal_model`.
     spectra : PeriodicSpectra
         The experiment: lines, the noise-free input spectra ``U`` (n_l, n_u)
         (for a noisy record its period means are a close substitute) and the
@@ -991,10 +990,18 @@ def modal_crb(
     Jr = np.concatenate([Jw.real.reshape(-1, lay.n_par), Jw.imag.reshape(-1, lay.n_par)])
     cov = _covariance(Jr)
     f_std, z_std = _per_mode_std(lay, cov)
-    perm = _mode_order(lay, theta)
+    # layout order: the model's, except that a shared rigid gain P puts every rigid mode first
+    kinds = [m.kind for m in model.modes]
+    where = list(range(len(kinds)))
+    if "rigid_full" in lay.kinds:
+        where = [k for k in where if kinds[k] == "rigid"] + [
+            k for k in where if kinds[k] != "rigid"
+        ]
+    f_out, z_out = np.empty(len(kinds)), np.empty(len(kinds))
+    f_out[where], z_out[where] = f_std, z_std
     return CramerRao(
-        freq_std_hz=f_std[perm],
-        damping_std=z_std[perm],
+        freq_std_hz=f_out,
+        damping_std=z_out,
         fisher=2.0 * Jr.T @ Jr,
         covariance=cov,
         param_names=lay.names,
