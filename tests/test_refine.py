@@ -361,3 +361,12 @@ def test_cli_identify_refine(tmp_path, capsys):
     assert f == pytest.approx([310.0, 455.0], abs=0.3)
     assert main(argv + ["--refine"]) == 2  # --refine needs --modal
     assert "--modal" in capsys.readouterr().err
+
+
+def test_docstring_examples_run():
+    import doctest
+
+    import workbench.ident.refine as mod
+
+    result = doctest.testmod(mod)
+    assert result.attempted >= 2 and result.failed == 0
