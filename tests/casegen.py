@@ -183,10 +183,12 @@ def make_case(
     names = []
     for effect, size in effects:
         if effect == "nonlinearity":
-            level = {"clear": 0.2, "subtle": 0.05}[size]  # N of Coulomb friction
+            # Coulomb friction, N; v0 well below the motion's velocities (stage ~1e-4 m/s,
+            # beam ~1e-3 m/s), else the smooth law is a viscous damper, a linear effect
+            level = {"clear": 0.2, "subtle": 0.05}[size]
             f = {
                 "friction_force": level if plant == "wafer_stage" else 2e-3 * level,
-                "friction_velocity": 1e-3,
+                "friction_velocity": 1e-6 if plant == "wafer_stage" else 1e-5,
             }
         else:
             f = _fields(plant, effect, size, rng)
