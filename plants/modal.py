@@ -22,6 +22,7 @@ from functools import cached_property
 
 import numpy as np
 
+from workbench.arrays import readonly
 from workbench.errors import InputError
 
 from .effects import Effects, as_channel_vector
@@ -29,12 +30,6 @@ from .effects import Effects, as_channel_vector
 __all__ = ["ModalSet", "apply_modal_effects", "LinearChain"]
 
 KINDS = ("rigid", "flexible", "residual", "extra", "suspension")
-
-
-def _frozen(a) -> np.ndarray:
-    a = np.array(a, dtype=float)
-    a.setflags(write=False)
-    return a
 
 
 @dataclass(frozen=True)
@@ -63,7 +58,7 @@ class ModalSet:
 
     def __post_init__(self):
         for name in ("freq_hz", "damping", "b", "c"):
-            object.__setattr__(self, name, _frozen(getattr(self, name)))
+            object.__setattr__(self, name, readonly(getattr(self, name), float))
         n = self.freq_hz.shape[0]
         if self.freq_hz.shape != (n,) or self.damping.shape != (n,):
             raise InputError(

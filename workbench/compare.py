@@ -32,6 +32,7 @@ import scipy.signal
 import scipy.stats
 
 from workbench import lti
+from workbench.arrays import readonly
 from workbench.formats import FrfData, TimeData, check_model_matches
 from workbench.quality import runs
 
@@ -39,11 +40,7 @@ __all__ = ["Band", "Comparison", "FrfDetail", "TimeDetail", "compare", "band_thr
 
 
 def _ro(a) -> np.ndarray | None:
-    if a is None:
-        return None
-    a = np.array(a, copy=True)
-    a.setflags(write=False)
-    return a
+    return None if a is None else readonly(a)
 
 
 # ---------------------------------------------------------------- results

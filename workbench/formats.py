@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from workbench.arrays import readonly
 from workbench.atomic import save_npz
 from workbench.errors import InputError, describe
 
@@ -40,12 +41,6 @@ __all__ = [
 
 
 # --------------------------------------------------------------------- helpers
-def _frozen(a: np.ndarray) -> np.ndarray:
-    a = np.array(a, copy=True)
-    a.setflags(write=False)
-    return a
-
-
 def _names(
     names, n: int, default: str, src: str = "channel names", key: str = ""
 ) -> tuple[str, ...]:
@@ -116,9 +111,9 @@ class TimeData:
                     f"{src}: key 'period': expected a positive divisor of N={u.shape[0]}, "
                     f"got {self.period}"
                 )
-        object.__setattr__(self, "u", _frozen(u))
-        object.__setattr__(self, "y", _frozen(y))
-        object.__setattr__(self, "r", None if r is None else _frozen(r))
+        object.__setattr__(self, "u", readonly(u))
+        object.__setattr__(self, "y", readonly(y))
+        object.__setattr__(self, "r", None if r is None else readonly(r))
         object.__setattr__(self, "fs", fs)
         object.__setattr__(self, "period", period)
         object.__setattr__(
@@ -213,9 +208,9 @@ class FrfData:
             if np.any(G_var < 0):
                 raise InputError(f"{src}: key 'G_var': expected variances >= 0, got negative")
         fs = None if self.fs is None else _positive_scalar(self.fs, src, "fs")
-        object.__setattr__(self, "freq", _frozen(freq))
-        object.__setattr__(self, "G", _frozen(G))
-        object.__setattr__(self, "G_var", None if G_var is None else _frozen(G_var))
+        object.__setattr__(self, "freq", readonly(freq))
+        object.__setattr__(self, "G", readonly(G))
+        object.__setattr__(self, "G_var", None if G_var is None else readonly(G_var))
         object.__setattr__(self, "fs", fs)
         object.__setattr__(
             self, "input_names", _names(self.input_names, G.shape[2], "u", src, "input_names")

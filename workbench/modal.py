@@ -25,18 +25,13 @@ from typing import Literal
 import numpy as np
 import scipy.linalg
 
+from workbench.arrays import readonly
 from workbench.errors import InputError
 from workbench.lti import as_matrices
 
 __all__ = ["Mode", "ModalModel", "plot_model_bode", "plot_mode_superposition"]
 
 Kind = Literal["rigid", "flexible", "real"]
-
-
-def _frozen(a, dtype=float) -> np.ndarray:
-    a = np.array(a, dtype=dtype, copy=True)
-    a.setflags(write=False)
-    return a
 
 
 @dataclass(frozen=True)
@@ -74,8 +69,8 @@ class Mode:
             raise InputError(
                 f"mode kind: expected 'rigid', 'flexible' or 'real', got {self.kind!r}"
             )
-        b = _frozen(self.b)
-        c = _frozen(self.c)
+        b = readonly(self.b, float)
+        c = readonly(self.c, float)
         if b.ndim != 1 or c.ndim != 1:
             raise InputError(
                 f"mode: expected b (n_u,) and c (n_y,), got shapes {b.shape}, {c.shape}"
@@ -148,7 +143,7 @@ class ModalModel:
     output_names: tuple[str, ...] = ()
 
     def __post_init__(self):
-        D = _frozen(self.D)
+        D = readonly(self.D, float)
         if D.ndim != 2:
             raise InputError(f"modal model: expected D of shape (n_y, n_u), got {D.shape}")
         modes = tuple(self.modes)
@@ -163,8 +158,8 @@ class ModalModel:
         object.__setattr__(self, "modes", modes)
         object.__setattr__(self, "D", D)
         if self.transform is not None:
-            object.__setattr__(self, "transform", _frozen(self.transform))
-        object.__setattr__(self, "rigid_poles", _frozen(self.rigid_poles, complex))
+            object.__setattr__(self, "transform", readonly(self.transform, float))
+        object.__setattr__(self, "rigid_poles", readonly(self.rigid_poles, complex))
         n_u, n_y = D.shape[1], D.shape[0]
         object.__setattr__(
             self, "input_names", tuple(self.input_names) or tuple(f"u{i}" for i in range(n_u))
