@@ -540,6 +540,7 @@ def plot_model_bode(model: ModalModel, path, *, freq_hz=None, title: str = "") -
     from matplotlib.figure import Figure
 
     from workbench.atomic import atomic_path
+    from workbench.plotting import lean_axes
 
     f = _freq_axis(model, freq_hz)
     G = model.frf(f)
@@ -549,7 +550,8 @@ def plot_model_bode(model: ModalModel, path, *, freq_hz=None, title: str = "") -
         for j in range(model.n_u):
             ax = axes[i, j]
             ax.loglog(f, np.abs(G[:, i, j]), lw=0.8)
-            ax.grid(True, which="both", alpha=0.2)
+            ax.grid(True, alpha=0.2)
+            lean_axes(ax)
             if i == 0:
                 ax.set_title(model.input_names[j], fontsize=8)
             if j == 0:
@@ -557,7 +559,8 @@ def plot_model_bode(model: ModalModel, path, *, freq_hz=None, title: str = "") -
             ax.tick_params(labelsize=6)
     fig.suptitle(title or "Modal model: |G| per input-output pair")
     fig.supxlabel("frequency (Hz)")
-    fig.tight_layout()
+    # fixed margins: tight_layout costs seconds on a 6 x 6 grid
+    fig.subplots_adjust(left=0.07, right=0.98, bottom=0.07, top=0.93, hspace=0.35, wspace=0.35)
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=100)
 

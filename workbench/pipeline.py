@@ -275,7 +275,7 @@ def stage_model(st: RunState, table: dict) -> None:
 # ---------------------------------------------------------------- plotting
 def _plot_frf_grid(path: Path, frf, *, mark_hz=(), title: str = "", G_model=None) -> None:
     """Magnitude of every element on one page, modes marked by vertical lines."""
-    from workbench.plotting import _figure, _save
+    from workbench.plotting import _figure, _save, lean_axes
 
     n_y, n_u = frf.n_y, frf.n_u
     fig = _figure(2.2 * n_u + 1, 1.8 * n_y + 1)
@@ -290,6 +290,7 @@ def _plot_frf_grid(path: Path, frf, *, mark_hz=(), title: str = "", G_model=None
                 ax.axvline(f, color="tab:blue", lw=0.6, ls="--")
             ax.set_title(f"{frf.output_names[i]} / {frf.input_names[j]}", fontsize=7)
             ax.tick_params(labelsize=6)
+            lean_axes(ax)
     fig.suptitle(
         title + (f" (dashed: {', '.join(f'{f:g} Hz' for f in mark_hz)})" if mark_hz else ""),
         fontsize=9,
