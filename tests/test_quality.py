@@ -244,3 +244,14 @@ def test_info_prints_warning_and_exits_zero(tmp_path, rng, capsys):
 
     info = json.loads(capsys.readouterr().out)
     assert info["kind"] == "time" and info["n_u"] == 3 and len(info["warnings"]) == 1
+
+
+def test_data_reading_commands_warn_on_poor_data(capsys):
+    """compare warns like info, one line, exit 0 (the stage FRF has noise-dominated lines)."""
+    from workbench.cli import main
+
+    folder = EXAMPLES / "example_stage_missing_frf"
+    argv = ["compare", "--model", str(folder / "nominal_model.npz")]
+    assert main(argv + ["--data", str(folder / "measurement.npz")]) == 0
+    warnings_ = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("warning:")]
+    assert len(warnings_) == 1 and "noise variance exceeds |G|^2" in warnings_[0]

@@ -17,6 +17,7 @@ from workbench.atomic import check_not_input, write_text
 from workbench.compare import Comparison, compare
 from workbench.errors import InputError
 from workbench.formats import load_measurement, read_npz
+from workbench.quality import check_measurement
 
 _MAX_PRINTED_BANDS = 40
 
@@ -192,6 +193,8 @@ def run(args) -> int:
         model_src=str(args.model),
         data_src=str(args.data),
     )
+    # after compare() has refused what it refuses: a refusal is never preceded by warnings
+    check_measurement(data, src=str(args.data))
     print(format_text(res, str(args.model), str(args.data)))
     if args.json:
         summary = {"model": str(args.model), "data": str(args.data), **res.as_dict()}

@@ -16,6 +16,7 @@ import numpy as np
 from workbench.atomic import check_not_input
 from workbench.errors import InputError
 from workbench.formats import TimeData, load_measurement, save_measurement
+from workbench.quality import check_measurement
 
 
 def register(subparsers) -> argparse.ArgumentParser:
@@ -52,6 +53,7 @@ def run(args) -> int:
     data = load_measurement(args.data)
     if not isinstance(data, TimeData):
         raise InputError(f"{args.data}: key 'kind': expected a time record ('time'), got 'frf'")
+    check_measurement(data, src=str(args.data))
     est = estimate_frf(
         data,
         method=args.method,
