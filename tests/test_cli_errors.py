@@ -5,14 +5,14 @@ from __future__ import annotations
 
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import SHARED_EXAMPLES
 
 from workbench.cli import main
 
-EXAMPLES = Path("/work/shared/examples")
+EXAMPLES = SHARED_EXAMPLES
 
 
 def one_line(err: str) -> str:

@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import json
 import time
-from pathlib import Path
 
 import control
 import numpy as np
 import pytest
+from conftest import SHARED_EXAMPLES
 
 from workbench import lti
 from workbench.cli import main
@@ -23,7 +23,7 @@ from workbench.formats import (
     save_model,
 )
 
-EXAMPLES = Path("/work/shared/examples")
+EXAMPLES = SHARED_EXAMPLES
 FREQ = np.arange(1.0, 1000.0, 1.0)  # Hz: 999 lines, 1 Hz apart (a typical multisine grid)
 
 

@@ -17,11 +17,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import SHARED_EXAMPLES
 
 from workbench import formats, lti
 from workbench.cli import main
 
-EXAMPLES = Path("/work/shared/examples")
+EXAMPLES = SHARED_EXAMPLES
 N = 64  # samples of the small synthetic records: any N >= 2 would do
 
 

@@ -3,12 +3,12 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import control
 import numpy as np
 import pytest
 import scipy.linalg
+from conftest import SHARED_EXAMPLES
 
 from workbench.cli import main
 from workbench.d2c import d2c
@@ -17,7 +17,7 @@ from workbench.formats import load_model, save_model
 from workbench.lti import frf
 from workbench.modal import ModalModel, Mode, plot_mode_superposition, plot_model_bode
 
-EXAMPLE = Path("/work/shared/examples/example_stage_delay_time/nominal_model.npz")
+EXAMPLE = SHARED_EXAMPLES / "example_stage_delay_time" / "nominal_model.npz"
 
 
 def chain(n_mass: int, *, grounded: bool, alpha: float = 2e-5, beta: float = 0.5):

@@ -4,18 +4,18 @@ naming the channel or band; good data gives no warning."""
 from __future__ import annotations
 
 import warnings
-from pathlib import Path
 
 import numpy as np
 import pytest
 import scipy.signal
+from conftest import SHARED_EXAMPLES
 
 from workbench.cli import main
 from workbench.errors import DataWarning
 from workbench.formats import FrfData, TimeData, load_measurement, save_measurement
 from workbench.quality import check_measurement, runs
 
-EXAMPLES = Path("/work/shared/examples")
+EXAMPLES = SHARED_EXAMPLES
 FS = 2000.0  # Hz, sampling of the synthetic records (any rate would do)
 
 
