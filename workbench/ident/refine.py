@@ -732,7 +732,7 @@ def refine_modal_model(
     feedthrough: bool = True,
     noise_cov: np.ndarray | None = None,
     n_transient: int = 1,
-    noise_lines: int = 21,
+    noise_lines: int = 61,
     reweight: int = 1,
     max_nfev: int = 200,
 ) -> RefineResult:
