@@ -442,7 +442,8 @@ def part_refine(args) -> None:
     )
     print(
         "(met: |mean| + 2 sigma within the target; 2 sigma CRB: 2 sqrt(mean over realizations "
-        "of the bound's variance); ref/CRB: refined 2 sigma over the 2 sigma CRB)"
+        "of the bound's variance); ref/CRB: refined 2 sigma over the 2 sigma CRB, itself "
+        f"uncertain by 1/sqrt(2 (n - 1)) = {100 / np.sqrt(2 * (n - 1)):.0f} % at n = {n})"
     )
 
 
