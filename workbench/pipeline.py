@@ -191,8 +191,15 @@ def stage_modes(st: RunState, table: dict) -> None:
         raise InputError("[modes] needs an identified model: an [identify] table")
     threshold = take(table, "rigid_threshold_hz", 5.0, where="modes", kind=(int, float))
     superpose = take(table, "superposition", [[2, 2]], where="modes", kind=list)
+    refine = take(table, "refine", False, where="modes", kind=bool)
     refuse_leftovers(table, where="modes")
     st.modal = ModalModel.from_statespace(st.ident.model, rigid_threshold_hz=float(threshold))
+    refined = None
+    if refine:  # maximum-likelihood refinement on the periodic record (workbench.ident.refine)
+        from workbench.ident.refine import refine_modal_model
+
+        refined = refine_modal_model(st.modal, st.data, input_delay=st.ident.input_delay)
+        st.modal = refined.model
     sys_c = st.modal.to_statespace()
     formats.save_model(st.path("model_modal.npz"), sys_c, delay_s=np.array(st.ident.delay_s))
     st.write_json("modes.json", json.loads(st.modal.to_json()))
@@ -210,6 +217,13 @@ def stage_modes(st: RunState, table: dict) -> None:
         "n_rigid": len(st.modal.modes_of_kind("rigid")),
         "flexible": [{"freq_hz": m.freq_hz, "damping": m.damping} for m in flexible],
     }
+    if refined is not None:
+        st.summary["modes"]["refined"] = {
+            "freq_std_hz": refined.freq_std_hz,
+            "damping_std": refined.damping_std,
+            "misfit": refined.misfit,
+            "success": refined.success,
+        }
     if st.frf is not None:
         G_model = lti.frf(sys_c, st.frf.freq, delay_s=st.ident.delay_s)
         save_bode_overlay(

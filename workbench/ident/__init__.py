@@ -9,10 +9,14 @@ Data flow::
         -> order.suggest_order     order at the largest gap (user may override)
         -> A, C (shift invariance), B, D (Toeplitz least squares)
         -> SubspaceResult.model    control.StateSpace, dt = 1/fs
-    then workbench.d2c -> workbench.modal -> workbench.minimality.
+    then workbench.d2c -> workbench.modal (ModalModel)
+        -> refine.refine_modal_model   maximum-likelihood refinement on periodic data,
+                                       near the Cramer-Rao bound (refine.modal_crb)
+        -> workbench.minimality.
 """
 
 from workbench.ident.order import format_singular_values, plot_singular_values, suggest_order
+from workbench.ident.refine import RefineResult, modal_crb, periodic_spectra, refine_modal_model
 from workbench.ident.subspace import METHODS, SubspaceResult, identify_subspace
 
 __all__ = [
@@ -22,4 +26,8 @@ __all__ = [
     "suggest_order",
     "format_singular_values",
     "plot_singular_values",
+    "refine_modal_model",
+    "RefineResult",
+    "modal_crb",
+    "periodic_spectra",
 ]
