@@ -39,6 +39,7 @@ import numpy as np
 import scipy.linalg
 import scipy.optimize
 
+from workbench.arrays import readonly
 from workbench.errors import InputError
 from workbench.formats import TimeData
 from workbench.modal import ModalModel, Mode
@@ -52,12 +53,6 @@ __all__ = [
     "modal_crb",
     "zoh_mode_response",
 ]
-
-
-def _frozen(a, dtype=float) -> np.ndarray:
-    a = np.array(a, dtype=dtype, copy=True)
-    a.setflags(write=False)
-    return a
 
 
 # ----------------------------------------------------------------- the data
@@ -99,22 +94,22 @@ class PeriodicSpectra:
     dY: np.ndarray
 
     def __post_init__(self):
-        f = _frozen(self.freq_hz)
-        U, Y = _frozen(self.U, complex), _frozen(self.Y, complex)
+        f = readonly(self.freq_hz, float)
+        U, Y = readonly(self.U, complex), readonly(self.Y, complex)
         n_l = f.shape[0]
         if f.ndim != 1 or U.ndim != 2 or Y.ndim != 2 or U.shape[0] != n_l or Y.shape[0] != n_l:
             raise InputError(
                 f"PeriodicSpectra: expected freq_hz (n_l,), U (n_l, n_u), Y (n_l, n_y), "
                 f"got {f.shape}, {U.shape}, {Y.shape}"
             )
-        n_avg = _frozen(self.n_avg, int)
+        n_avg = readonly(self.n_avg, int)
         if n_avg.shape != (n_l,) or np.any(n_avg < 1):
             raise InputError(
                 f"PeriodicSpectra.n_avg: expected ({n_l},) counts >= 1, got {n_avg.shape}"
             )
-        dl = _frozen(self.dev_line, int)
-        dU = _frozen(np.reshape(self.dU, (-1, U.shape[1])), complex)
-        dY = _frozen(np.reshape(self.dY, (-1, Y.shape[1])), complex)
+        dl = readonly(self.dev_line, int)
+        dU = readonly(np.reshape(self.dU, (-1, U.shape[1])), complex)
+        dY = readonly(np.reshape(self.dY, (-1, Y.shape[1])), complex)
         if dU.shape[0] != dl.shape[0] or dY.shape[0] != dl.shape[0]:
             raise InputError(
                 f"PeriodicSpectra: expected dU, dY with one row per dev_line ({dl.shape[0]}), "
@@ -719,9 +714,9 @@ class RefineResult:
     notes: tuple[str, ...] = field(default=())
 
     def __post_init__(self):
-        object.__setattr__(self, "freq_std_hz", _frozen(self.freq_std_hz))
-        object.__setattr__(self, "damping_std", _frozen(self.damping_std))
-        object.__setattr__(self, "noise_cov", _frozen(np.real(self.noise_cov)))
+        object.__setattr__(self, "freq_std_hz", readonly(self.freq_std_hz, float))
+        object.__setattr__(self, "damping_std", readonly(self.damping_std, float))
+        object.__setattr__(self, "noise_cov", readonly(np.real(self.noise_cov), float))
 
 
 def refine_modal_model(
@@ -949,7 +944,7 @@ class CramerRao:
 
     def __post_init__(self):
         for name in ("freq_std_hz", "damping_std", "fisher", "covariance"):
-            object.__setattr__(self, name, _frozen(getattr(self, name)))
+            object.__setattr__(self, name, readonly(getattr(self, name), float))
 
 
 def modal_crb(

@@ -24,6 +24,7 @@ from typing import Literal
 import numpy as np
 import scipy.linalg
 
+from workbench.arrays import readonly
 from workbench.errors import DataWarning, InputError
 from workbench.formats import TimeData
 from workbench.ident.gram import hankel, hankel_gram
@@ -33,12 +34,6 @@ __all__ = ["SubspaceResult", "identify_subspace", "METHODS"]
 
 Method = Literal["cl-n4sid", "cl-moesp", "cl-cva", "n4sid", "moesp"]
 METHODS: tuple[str, ...] = ("cl-n4sid", "cl-moesp", "cl-cva", "n4sid", "moesp")
-
-
-def _frozen(a) -> np.ndarray:
-    a = np.array(a, dtype=float, copy=True)
-    a.setflags(write=False)
-    return a
 
 
 @dataclass(frozen=True)
@@ -82,7 +77,7 @@ class SubspaceResult:
     notes: tuple[str, ...] = field(default=())
 
     def __post_init__(self):
-        object.__setattr__(self, "singular_values", _frozen(self.singular_values))
+        object.__setattr__(self, "singular_values", readonly(self.singular_values, float))
 
     @property
     def delay_s(self) -> float:
