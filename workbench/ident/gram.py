@@ -88,24 +88,19 @@ def hankel_gram(signals, scales, *, n_blocks: int, n_samples: int, chunk: int = 
     zh = np.zeros((2 * k, m))
     got = stacked_signals(signals, scales, 0, min(N, 2 * k))
     zh[: got.shape[0]] = got
-    # head[d, a] = sum_{t<a} z_t z_{t+d}^T, a = 0..k-1
-    lag_h = np.lib.stride_tricks.sliding_window_view(zh, k, axis=0)[:k]  # [t, q, d] = z_{t+d}
-    prod_h = np.einsum("tp,tqd->dtpq", zh[:k], lag_h).reshape(k, k, m * m)
-    head = np.zeros_like(prod_h)
-    for t in range(1, k):  # running sums over t (np.cumsum on a middle axis is slow)
-        np.add(head[:, t - 1], prod_h[:, t - 1], out=head[:, t])
-    head = head.reshape(k, k, m, m)
-    # tail[d, a] = sum_{t=a+j}^{N-1-d} z_t z_{t+d}^T
+
+    def lag_products(w):  # [d, t] = w_t w_{t+d}^T, flattened to m * m, t = 0..k-1
+        lagged = np.stack([w[d : d + k] for d in range(k)])  # [d, t, q] = w_{t+d}
+        return (w[None, :k, :, None] * lagged[:, :, None, :]).reshape(k, k, m * m)
+
+    # head[d, a] = sum_{t<a} z_t z_{t+d}^T, a = 0..k-1: a strictly lower triangular
+    # matrix of ones sums the running products, one small GEMM per lag
+    head = (np.tril(np.ones((k, k)), -1) @ lag_products(zh)).reshape(k, k, m, m)
+    # tail[d, a] = sum_{t=a+j}^{N-1-d} z_t z_{t+d}^T (zero padding past N-1)
     zt = np.zeros((2 * k, m))
     got = stacked_signals(signals, scales, N - (k - 1), N)  # samples j .. N-1
     zt[: got.shape[0]] = got
-    lag_t = np.lib.stride_tricks.sliding_window_view(zt, k, axis=0)[:k]  # [s, q, d] = z_{j+s+d}
-    # zero where j+s+d > N-1 (padding); tail[d, a] = sum_{s >= a} prod_t[d, s]
-    prod_t = np.einsum("sp,sqd->dspq", zt[:k], lag_t).reshape(k, k, m * m)
-    tail = prod_t.copy()
-    for t in range(k - 2, -1, -1):
-        tail[:, t] += tail[:, t + 1]
-    tail = tail.reshape(k, k, m, m)
+    tail = (np.triu(np.ones((k, k))) @ lag_products(zt)).reshape(k, k, m, m)
 
     G = np.empty((k * m, k * m))
     G4 = G.reshape(k, m, k, m)  # a view: G4[a, p, b, q]
