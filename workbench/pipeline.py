@@ -281,8 +281,8 @@ def stage_model(st: RunState, table: dict) -> None:
         name = nominal_of.pop("name", None)
         if name is None:
             raise InputError("[model] key 'nominal_plant': missing key 'name'")
-        st.model = plants.get_plant(name, **nominal_of).linear_model()
-        st.model_delay_s = float(plants.get_plant(name, **nominal_of).delay_s)
+        nominal = plants.get_plant(name, **nominal_of)
+        st.model, st.model_delay_s = nominal.linear_model(), float(nominal.delay_s)
     formats.save_model(st.path("model_nominal.npz"), st.model, delay_s=np.array(st.model_delay_s))
 
 
