@@ -106,8 +106,9 @@ def stage_plant(rng: np.random.Generator) -> Plant:
         modes.append((0.0, 0.0, e.copy(), e.copy()))
     f1 = rng.uniform(300, 1400)
     for f in (f1, f1 * rng.uniform(1.1, 1.5)):
-        b = rng.normal(0, 0.3, 6) * rng.uniform(0.3, 1.5)
-        c = rng.normal(0, 0.3, 6) * rng.uniform(0.3, 1.5)
+        # participation like the example's: small on the heavy translations
+        b = rng.normal(0, 0.6, 6) * inv * rng.uniform(0.3, 1.5)
+        c = rng.normal(0, 0.6, 6) * inv * rng.uniform(0.3, 1.5)
         modes.append((f, rng.uniform(0.005, 0.03), b, c))
     fs = float(rng.choice([4000.0, 5000.0, 8000.0, 10000.0], p=[0.2, 0.5, 0.15, 0.15]))
     return Plant("stage", modes, np.zeros((6, 6)), 6, 6, fs, fs / 2)
@@ -260,10 +261,15 @@ def effect_params(rng, plant: Plant, effect: str, kind: str) -> dict:
             return {"matrix": np.array(plant.D)}
         # truncated modes of the stage: a few modes at 3-10x the band, static part
         R = np.zeros((n_y, n_u))
+        modes = []
+        # half the cases: real modes just above the band (1.15-3x), else a static D term
+        dynamic = rng.random() < 0.5
         for _ in range(int(rng.integers(1, 4))):
             b, c = rng.normal(0, 1, n_u), rng.normal(0, 1, n_y)
-            R += np.outer(c, b) / (2 * np.pi * rng.uniform(3, 10) * band) ** 2
-        return {"matrix": R}
+            f = rng.uniform(1.15, 3) * band if dynamic else rng.uniform(3, 10) * band
+            R += np.outer(c, b) / (2 * np.pi * f) ** 2
+            modes.append((f, float(rng.uniform(0.005, 0.03)), b, c))
+        return {"matrix": R, "modes": modes if dynamic else []}
     if effect in ("actuator_dynamics", "sensor_dynamics"):
         n = n_u if effect == "actuator_dynamics" else n_y
         mode = rng.choice(["all_equal", "all", "some"], p=[0.2, 0.4, 0.4])
@@ -319,7 +325,11 @@ def apply_effect(truth: Truth, nominal: Plant, effect: str, p: dict, s: float) -
             # the nominal lacks (part of) the static contribution of the truncated modes
             nominal.D = nominal.D - s * p["matrix"]
             return {"matrix": s * p["matrix"]}
-        P.D = P.D + s * p["matrix"]
+        if p["modes"]:
+            for f, z, b, c in p["modes"]:
+                P.modes.append((f, z, b * np.sqrt(s), c * np.sqrt(s)))
+        else:
+            P.D = P.D + s * p["matrix"]
         return {"matrix": s * p["matrix"]}
     if effect in ("actuator_dynamics", "sensor_dynamics"):
         cut = p["cutoff_hz"] / s
@@ -406,7 +416,9 @@ def multisine(n_u, period, fs, f_max, rng, *, tilt=0.0, k_min=1):
     return u
 
 
-def time_record(truth: Truth, nominal: Plant, rng, *, N, period, closed, r, noise_sd):
+def time_record(
+    truth: Truth, nominal: Plant, rng, *, N, period, closed, r, noise_sd, gain=1.0, stats=None
+):
     """Simulate the true plant (linear part exact ZOH, nonlinearity per sample)."""
     A, B, C, D = (np.asarray(M, float) for M in truth.ss_mats())
     fs = truth.plant.fs
@@ -418,10 +430,12 @@ def time_record(truth: Truth, nominal: Plant, rng, *, N, period, closed, r, nois
     nl = truth.nl
     if closed:
         inv = np.array([np.linalg.norm(md[2]) ** 2 for md in nominal.modes if md[0] == 0])
-        fbw = rng.uniform(15, 60)
+        fbw = rng.uniform(10, 40) * gain
         w = 2 * np.pi * fbw
         kp, kd = w**2 / 3 / inv, 2 * 0.7 * w / inv
         ki = kp * 2 * np.pi * fbw / 10
+        a_d = np.exp(-6 * w / fs)  # derivative low-pass at 6x the bandwidth
+        d_state = np.zeros(n_y)
     applied = np.zeros((N, n_u))
     # rigid-body velocity states for friction (the plant's rigid / suspension blocks)
     rig = [i for i, md in enumerate(truth.plant.modes) if md[0] < 30]
@@ -433,7 +447,12 @@ def time_record(truth: Truth, nominal: Plant, rng, *, N, period, closed, r, nois
     y_prev = np.zeros(n_y)
     n_lag = A.shape[0] - 2 * len(truth.plant.modes)
     off = n_lag if truth.act_cut is not None else 0
+    q_sq = 0.0
     for k in range(N):
+        if pos_flex:
+            q_sq += x[off + 2 * pos_flex[0]] ** 2
+        if not np.all(np.isfinite(x)) or (k > 10 and np.abs(x).max() > 1e6):
+            raise _Unstable()
         ua = applied[k - m] if k - m >= 0 else np.zeros(n_u)
         y0[k] = C @ x + D @ ua
         y[k] = y0[k] + noise[k]
@@ -442,7 +461,8 @@ def time_record(truth: Truth, nominal: Plant, rng, *, N, period, closed, r, nois
             u[k] = r[k] + cmd_prev
             e = -y[k]
             integ += e / fs
-            cmd_prev = kp * e + kd * (e + y_prev) * fs + ki * integ
+            d_state = a_d * d_state + (1 - a_d) * (e + y_prev) * fs
+            cmd_prev = kp * e + kd * d_state + ki * integ
             y_prev = y[k]
         else:
             u[k] = r[k]
@@ -466,7 +486,16 @@ def time_record(truth: Truth, nominal: Plant, rng, *, N, period, closed, r, nois
             w = 2 * np.pi * f
             q = x[off + 2 * i]
             x[off + 2 * i + 1] -= nl["k3"] * w * q**3 / fs
+    if stats is not None:
+        stats["q_rms"] = np.sqrt(q_sq / N)
+    half = N // 2
+    if closed and np.abs(y0[half:]).max() > 5 * np.abs(y0[:half]).max():
+        raise _Unstable()
     return u, y, y0
+
+
+class _Unstable(Exception):
+    pass
 
 
 def _visibility(ans_floor, ans_nom):
@@ -504,6 +533,7 @@ def _build(base_plant, effects, params, strengths, kind, rng_seed, opts):
         fs = P.fs
         N, period, closed = opts["N"], opts["period"], opts["closed"]
         r = opts["r"]
+        gain = opts.get("gain", 1.0)
         if truth.nl:
             nlp = dict(truth.nl)
             s = nlp.pop("s")
@@ -517,12 +547,27 @@ def _build(base_plant, effects, params, strengths, kind, rng_seed, opts):
                     closed=closed,
                     r=r,
                     noise_sd=0.0,
+                    gain=gain,
                 )
                 nlp["lim"] = np.quantile(np.abs(u_lin), 1 - 0.1 * s, axis=0)
             elif nlp["type"] == "friction":
                 nlp["Fc"] = 0.1 * s * np.std(r, axis=0)
             else:
-                nlp["k3"] = 3e9 * s
+                stats: dict = {}
+                time_record(
+                    Truth(P, truth.delay_s, truth.act_cut, truth.sen_cut, truth.T_out, truth.T_in),
+                    nom,
+                    np.random.default_rng(rng_seed),
+                    N=N,
+                    period=period,
+                    closed=closed,
+                    r=r,
+                    noise_sd=0.0,
+                    gain=gain,
+                    stats=stats,
+                )
+                # cubic spring: k3 q^2 ~ 0.3 s of the linear stiffness at the rms amplitude
+                nlp["k3"] = 0.3 * s / stats["q_rms"] ** 2
             truth.nl = nlp
         u, y0, _ = None, None, None
         u, yclean, y0 = time_record(
@@ -534,6 +579,7 @@ def _build(base_plant, effects, params, strengths, kind, rng_seed, opts):
             closed=closed,
             r=r,
             noise_sd=0.0,
+            gain=gain,
         )
         sd = opts["noise_rel"] * np.std(y0)
         u, y, y0 = time_record(
@@ -545,6 +591,7 @@ def _build(base_plant, effects, params, strengths, kind, rng_seed, opts):
             closed=closed,
             r=r,
             noise_sd=sd,
+            gain=gain,
         )
         data = TimeData(
             fs=fs,
@@ -562,7 +609,7 @@ def _build(base_plant, effects, params, strengths, kind, rng_seed, opts):
             y_lin = lti.simulate_zoh(control.ss(A, B, C, D), u, fs, delay_s=truth.delay_s)
             for a, e in zip(answers, effects):
                 if e == "nonlinearity":
-                    a["level"] = float(np.sum((y0 - y_lin) ** 2) / np.sum(y**2))
+                    a["level"] = float(min(np.sum((y0 - y_lin) ** 2) / np.sum(y**2), 1.0))
     A, B, C, D = truth.ss_mats()
     return nominal, data, answers, floor, nom_err, control.ss(A, B, C, D), truth.delay_s
 
@@ -618,7 +665,13 @@ def make_case(
     seed = int(rng.integers(2**31))
 
     def build(strengths):
-        return _build(base, effects, params, strengths, kind, seed, opts)
+        for gain in (1.0, 0.5, 0.25, 0.12):
+            opts["gain"] = gain
+            try:
+                return _build(base, effects, params, strengths, kind, seed, opts)
+            except _Unstable:
+                continue
+        raise RuntimeError("closed loop unstable at every gain")
 
     # strengths: clear = 1 (raised until visibility >= 8), subtle: visibility ~3.5
     target = {"clear": None, "subtle": 3.5}.get(size)
@@ -627,7 +680,7 @@ def make_case(
     tunable = [i for i, e in enumerate(effects) if e not in ("none", "residual_compliance_beam")]
     if effects != ("none",) and not (plant == "beam" and "suspension_stiffness" in effects):
         if target is None:
-            for _ in range(6):
+            for _ in range(10):
                 vis = _visibility(out[3], out[4])
                 if vis >= 8:
                     break
@@ -650,6 +703,8 @@ def make_case(
                 out = build(strengths)
     nominal, data, answers, floor, nom_err, true_ss, delay = out
     vis = _visibility(floor, nom_err)
+    if effects != ("none",) and vis < 1.5:
+        raise RuntimeError(f"{effects} not visible in {plant} {kind} data (visibility {vis:.2f})")
     eff_list = []
     for e, a in zip(effects, answers):
         ins, outs = _where(e, a, base)
@@ -686,3 +741,45 @@ def _where(effect, a, plant):
     if effect == "sensor_dynamics":
         return list(range(n_u)), [i for i, c in enumerate(a["cutoff_hz"]) if c is not None]
     return list(range(n_u)), list(range(n_y))
+
+
+def _jsonable(x):
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, float) and not np.isfinite(x):
+        return None
+    return x
+
+
+def save_case(folder, case: IndepCase) -> None:
+    """Write a case as the examples are: measurement.npz, nominal_model.npz, answer.json."""
+    import json
+    from pathlib import Path
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    d = case.data
+    if isinstance(d, FrfData):
+        meas = {"kind": "frf", "freq": d.freq, "G": d.G, "fs": d.fs}
+        if d.G_var is not None:
+            meas["G_var"] = d.G_var
+    else:
+        meas = {"kind": "time", "fs": d.fs, "u": d.u, "y": d.y, "loop": d.loop}
+        if d.r is not None:
+            meas["r"] = d.r
+        if d.period:
+            meas["period"] = d.period
+    np.savez(folder / "measurement.npz", **meas)
+    m = case.nominal
+    np.savez(folder / "nominal_model.npz", A=m.A, B=m.B, C=m.C, D=m.D, dt=0.0)
+    t = case.true_ss
+    np.savez(
+        folder / "answer_true_model.npz", A=t.A, B=t.B, C=t.C, D=t.D, dt=0.0, delay_s=case.delay_s
+    )
+    (folder / "answer.json").write_text(json.dumps(_jsonable(case.answer), indent=1))

@@ -41,6 +41,10 @@ FLOOR_RATIO = 1.1
 PERIODIC_F = 1.25
 #: periodic power on unexcited lines above this multiple of the noise is distortion
 NL_F = 4.0
+#: ... the same on a raw closed-loop record, tested before any fit (stricter: no model help)
+NL_F_RAW = 8.0
+#: periodic residual left by the best linear model beyond this multiple of its noise: not linear
+PERIODIC_NL = 2.5
 #: candidates refitted jointly with the earlier findings each round
 JOINT_CANDIDATES = 3
 
@@ -216,6 +220,17 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Dia
     accepted_bases: list[ExtendedModel] = []
     runners: list = []
     cur_err0 = cur_err
+    # Closed-loop periodic record: the loop settles within a period, so distortion on the
+    # unexcited lines of r is tested on the raw output, before any linear model is fitted (a
+    # nonlinearity such as friction makes a linear model's simulation drift, and the linear
+    # search would otherwise name whatever absorbs the drift, e.g. suspension_stiffness).
+    nl_first = None
+    if isinstance(data, TimeData) and data.loop == "closed" and data.r is not None:
+        nl0 = detect.nonlinearity(data, None)
+        if nl0 is not None and nl0.f_stat > NL_F_RAW and nl0.level > 1e-4:
+            nl_first = nl0
+            max_effects = min(max_effects, 1)
+            n_full_fits = 2 if n_full_fits is None else n_full_fits
     for round_ in range(max_effects):
         if floor is not None and cur_err <= FLOOR_RATIO * floor:
             break
@@ -306,8 +321,32 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Dia
         cur_cost, cur_err = last.cost, last.error
         if last.effect != "missing_mode":
             exclude.add(last.effect)
+    found = _merge_compliance(found)
     nl = detect.nonlinearity(data, problem.predict(current)) if isinstance(data, TimeData) else None
-    if nl is not None and nl.f_stat > NL_F and nl.level > 1e-4:
+    F_end = (
+        detect.periodic_misfit(data, problem.predict(current))
+        if isinstance(data, TimeData) and nl_first is None
+        else None
+    )
+    if nl_first is not None:
+        found.insert(0, _nonlinearity_finding(nl_first, data, error_before))
+    elif F_end is not None and F_end > PERIODIC_NL and (nl is None or nl.f_stat <= NL_F):
+        # a reproducible (period-synchronous) residual that no linear effect of the vocabulary
+        # removes: the response is not linear in the recorded input (friction, saturation of
+        # the applied force). It comes first when the linear findings leave most of the error
+        # or when the only linear finding absorbs a drift (a spring to the world on a rigid
+        # body, which is what a force error integrated twice looks like to a linear model).
+        level = float(min(cur_err**2, 1.0))
+        ev = detect.NonlinearityEvidence(
+            level=level, f_stat=float(F_end), n_lines=0, band_hz=problem.band_hz
+        )
+        finding = _nonlinearity_finding(ev, data, error_before)
+        drift_only = [f.effect for f in found] == ["suspension_stiffness"]
+        if drift_only or cur_err > 0.5 * error_before:
+            found.insert(0, finding)
+        else:
+            found.append(finding)
+    elif nl is not None and nl.f_stat > NL_F and nl.level > 1e-4:
         # periodic power where a linear system has none: distortion. It ranks first when it
         # carries a share of the output power comparable with the linear misfit.
         finding = _nonlinearity_finding(nl, data, error_before)
@@ -345,6 +384,19 @@ def _sigma(problem, model_after, fr: FitResult | None, freq, G_after) -> np.ndar
 
 def _finding(fr: FitResult, runner, problem, base, data, err_before, floor) -> Finding:
     params, params_std = fr.structure.report(fr, problem, base)
+    effect = fr.effect
+    if effect == "missing_mode" and _above_band(params, problem):
+        # a "mode" whose resonance lies above the measured band shows only its static part:
+        # physically that is the residual compliance of truncated high-frequency modes
+        effect = "residual_compliance"
+        f0 = np.array([1e-3 * problem.band_hz[0]])
+        static = (fr.model.core_frf(f0) - base.core_frf(f0))[0].real
+        params = {
+            "matrix": static.tolist(),
+            "freq_hz_fitted": params["freq_hz"],
+            "damping_fitted": params["damping"],
+        }
+        params_std = {}
     if problem.kind == "frf":
         freq = problem.freq
     else:
@@ -389,20 +441,58 @@ def _finding(fr: FitResult, runner, problem, base, data, err_before, floor) -> F
             freq[sel], problem.data.G[sel], G_before[sel], weight=w[sel]
         )
         ev.update(phase_slope_deg_per_hz=slope, magnitude_db=mag_db, n_channels_used=n_ch)
-    if fr.effect == "missing_mode":
+    if effect == "missing_mode":
         S = np.linalg.svd(np.asarray(params["residue_matrix"]), compute_uv=False)
         ev["rank_one_ratio"] = float(S[1] / S[0]) if S.size > 1 and S[0] > 0 else 0.0
+    if effect != fr.effect:
+        ev["alternative"] = ("missing_mode", fr.error)
     return Finding(
-        effect=fr.effect,
+        effect=effect,
         inputs=tuple(ins),
         outputs=tuple(outs),
         band_hz=where.band_hz,
         parameters=params,
         parameters_std=params_std,
         error_after=fr.error,
-        explanation=explain(fr.effect, ev),
+        explanation=explain(effect, ev),
         model=fr.model,
     )
+
+
+def _merge_compliance(found: list[Finding]) -> list[Finding]:
+    """One residual_compliance finding: the static parts of modes above the band add up."""
+    rc = [f for f in found if f.effect == "residual_compliance"]
+    if len(rc) < 2:
+        return found
+    M = sum(np.asarray(f.parameters["matrix"], float) for f in rc)
+    last = rc[-1]
+    merged = Finding(
+        effect="residual_compliance",
+        inputs=tuple(sorted(set().union(*(f.inputs for f in rc)))),
+        outputs=tuple(sorted(set().union(*(f.outputs for f in rc)))),
+        band_hz=(min(f.band_hz[0] for f in rc), max(f.band_hz[1] for f in rc)),
+        parameters={"matrix": M.tolist()},
+        parameters_std={},
+        error_after=last.error_after,
+        explanation=rc[0].explanation,
+        model=last.model,
+    )
+    out, done = [], False
+    for f in found:
+        if f.effect != "residual_compliance":
+            out.append(f)
+        elif not done:
+            out.append(merged)
+            done = True
+    return out
+
+
+def _above_band(params: dict, problem) -> bool:
+    """The fitted resonance and its half-power band lie above the data's top frequency."""
+    f, z = params.get("freq_hz"), params.get("damping")
+    if f is None or z is None:
+        return False
+    return f * (1 - min(z, 0.5)) > problem.band_hz[1]
 
 
 def _nonlinearity_finding(nl, data, err) -> Finding:

@@ -159,7 +159,11 @@ def fit(
             _, starts = screen(structure, problem, base)
         starts = _distinct(starts, n_starts, hi - lo)
         best = None
+        # a start on a bound (a zero delay, say) stalls the trust region: the first steps are
+        # tiny relative to |x| = 0 and xtol ends the search; start just inside
+        inner = np.where(np.isfinite(hi - lo), 1e-3 * (hi - lo), 0.0)
         for th0 in starts:
+            th0 = np.clip(th0, lo + inner, hi - inner)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
                 res = scipy.optimize.least_squares(

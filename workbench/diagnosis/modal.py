@@ -301,6 +301,19 @@ def _realize(t: Term):
     return A, B, C
 
 
+def _charpoly(M: np.ndarray) -> np.ndarray:
+    """Characteristic polynomial det(zI - M), highest power first (Faddeev-LeVerrier, small n)."""
+    n = M.shape[0]
+    c = np.zeros(n + 1)
+    c[0] = 1.0
+    Mk = np.zeros_like(M)
+    eye = np.eye(n)
+    for k in range(1, n + 1):
+        Mk = M @ Mk + c[k - 1] * eye
+        c[k] = -np.trace(M @ Mk) / k
+    return c
+
+
 def zoh_filter(num, den, u: np.ndarray, dt: float, delay_s: float = 0.0) -> np.ndarray:
     """Exact ZOH response of num(s)/den(s) (proper) to u, with an input delay, from rest."""
     num = np.atleast_1d(np.asarray(num, float))
@@ -331,9 +344,12 @@ def zoh_filter(num, den, u: np.ndarray, dt: float, delay_s: float = 0.0) -> np.n
         B = B / np.diag(Tb)[:, None]
         C = C * np.diag(Tb)[None, :]
         Ad, B0, B1, _ = c2d_zoh(A, B, dt, delay_s=frac)
-        b0, a = scipy.signal.ss2tf(Ad, B0, C, np.zeros((1, 1)))
-        b1, _ = scipy.signal.ss2tf(Ad, B1, C, np.zeros((1, 1)))
-        b = np.concatenate([b0[0], [0.0]]) + np.concatenate([[0.0], b1[0]])
+        # SISO transfer functions of (Ad, B0, C) and (Ad, B1, C): numerator
+        # det(zI - Ad + B C) - det(zI - Ad) (what scipy's ss2tf computes, without its overhead)
+        a = _charpoly(Ad)
+        b0 = _charpoly(Ad - B0 @ C) - a
+        b1 = _charpoly(Ad - B1 @ C) - a
+        b = np.concatenate([b0, [0.0]]) + np.concatenate([[0.0], b1])
         y = scipy.signal.lfilter(b, a, u, axis=0)
         if m_int:
             y = np.concatenate([np.zeros((min(m_int, N),) + u.shape[1:]), y[: max(N - m_int, 0)]])
