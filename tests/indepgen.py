@@ -403,8 +403,8 @@ def _c2d(A, B, dt, delay):
     return Ad, G1, P1 @ Gt, m
 
 
-def multisine(n_u, period, fs, f_max, rng, *, tilt=0.0, k_min=1):
-    k = np.arange(max(k_min, 1), int(f_max * period / fs))
+def multisine(n_u, period, fs, f_max, rng, *, tilt=0.0, k_min=1, odd=False):
+    k = np.arange(max(k_min, 1), int(f_max * period / fs), 2 if odd else 1)
     k = k[rng.random(k.size) > 0.25]
     amp = (k / k[0]) ** tilt
     t = np.arange(period)
@@ -430,7 +430,7 @@ def time_record(
     nl = truth.nl
     if closed:
         inv = np.array([np.linalg.norm(md[2]) ** 2 for md in nominal.modes if md[0] == 0])
-        fbw = rng.uniform(10, 40) * gain
+        fbw = rng.uniform(20, 120) * gain
         w = 2 * np.pi * fbw
         kp, kd = w**2 / 3 / inv, 2 * 0.7 * w / inv
         ki = kp * 2 * np.pi * fbw / 10
@@ -643,9 +643,11 @@ def make_case(
         N = 10000
         if periodic:
             N = period * (N // period)
-            tilt = 1.0 if closed else 0.0
+            # like the example's r: flat odd random-phase multisine from the 3rd line to
+            # 0.3 fs, about a quarter of the odd lines left out; sometimes all lines
+            odd = rng.random() < 0.7
             one = multisine(
-                base.n_u, period, fs, 0.4 * fs, rng, tilt=tilt, k_min=1 if closed else 3
+                base.n_u, period, fs, float(rng.choice([0.3, 0.4])) * fs, rng, k_min=3, odd=odd
             )
             r = np.tile(one, (N // period, 1))
         else:
