@@ -115,6 +115,8 @@ class NonlinearityEvidence:
     f_stat: float
     n_lines: int
     band_hz: tuple[float, float]
+    #: unexcited-line power of the last period over the first kept one (a transient decays)
+    stationarity: float = 1.0
 
 
 def nonlinearity(data: TimeData, y_model: np.ndarray | None = None) -> NonlinearityEvidence | None:
@@ -178,11 +180,14 @@ def nonlinearity(data: TimeData, y_model: np.ndarray | None = None) -> Nonlinear
         excess = max(pw.sum() - nz.sum(), 0.0)
         distortion += excess * np.sum(band & (k % 2 == parity)) / sel.sum()
     f = np.fft.rfftfreq(P, 1 / data.fs)
+    # distortion is stationary; a transient from rest that has not settled decays over periods
+    p_per = np.sum(np.abs(Y[:, unexc]) ** 2, axis=(1, 2))
     return NonlinearityEvidence(
         level=float(min(distortion / max(p_total, 1e-300), 1.0)),
         f_stat=f_stat,
         n_lines=int(unexc.sum()),
         band_hz=(float(f[lo]), float(f[hi])),
+        stationarity=float(p_per[-1] / max(p_per[0], 1e-300)),
     )
 
 

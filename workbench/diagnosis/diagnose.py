@@ -45,6 +45,9 @@ NL_F = 4.0
 NL_F_RAW = 8.0
 #: periodic residual left by the best linear model beyond this multiple of its noise: not linear
 PERIODIC_NL = 2.5
+#: raw-record distortion is stationary: last period's unexcited-line power over the first kept
+#: one within these bounds (a transient decays, a lightly damped closed-loop mode may grow)
+NL_STATIONARY = (0.5, 1.2)
 #: candidates refitted jointly with the earlier findings each round
 JOINT_CANDIDATES = 3
 
@@ -227,7 +230,12 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Dia
     nl_first = None
     if isinstance(data, TimeData) and data.loop == "closed" and data.r is not None:
         nl0 = detect.nonlinearity(data, None)
-        if nl0 is not None and nl0.f_stat > NL_F_RAW and nl0.level > 1e-4:
+        if (
+            nl0 is not None
+            and nl0.f_stat > NL_F_RAW
+            and nl0.level > 1e-4
+            and NL_STATIONARY[0] < nl0.stationarity < NL_STATIONARY[1]
+        ):
             nl_first = nl0
             max_effects = min(max_effects, 1)
             n_full_fits = 2 if n_full_fits is None else n_full_fits
@@ -333,16 +341,16 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Dia
     elif F_end is not None and F_end > PERIODIC_NL and (nl is None or nl.f_stat <= NL_F):
         # a reproducible (period-synchronous) residual that no linear effect of the vocabulary
         # removes: the response is not linear in the recorded input (friction, saturation of
-        # the applied force). It comes first when the linear findings leave most of the error
-        # or when the only linear finding absorbs a drift (a spring to the world on a rigid
-        # body, which is what a force error integrated twice looks like to a linear model).
+        # the applied force). It comes first when the only linear finding absorbs a drift (a
+        # spring to the world on a rigid body, which is what a force error integrated twice
+        # looks like to a linear model), after the linear findings otherwise.
         level = float(min(cur_err**2, 1.0))
         ev = detect.NonlinearityEvidence(
             level=level, f_stat=float(F_end), n_lines=0, band_hz=problem.band_hz
         )
         finding = _nonlinearity_finding(ev, data, error_before)
         drift_only = [f.effect for f in found] == ["suspension_stiffness"]
-        if drift_only or cur_err > 0.5 * error_before:
+        if drift_only:
             found.insert(0, finding)
         else:
             found.append(finding)
