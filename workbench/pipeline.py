@@ -32,6 +32,7 @@ import numpy as np
 
 from workbench import atomic, lti
 from workbench.errors import InputError
+from workbench.jsonutil import jsonable
 from workbench.scenario import Scenario, refuse_leftovers, take
 
 
@@ -55,29 +56,13 @@ class RunState:
 
     def write_json(self, name: str, payload: dict) -> Path:
         path = self.out / name
-        atomic.write_text(path, json.dumps(_jsonable(payload), indent=2) + "\n")
+        atomic.write_text(path, json.dumps(jsonable(payload), indent=2) + "\n")
         self.files.append(name)
         return path
 
     def path(self, name: str) -> Path:
         self.files.append(name)
         return self.out / name
-
-
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, (np.floating, float)):
-        return float(x) if np.isfinite(x) else None
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    if isinstance(x, complex):
-        return {"re": x.real, "im": x.imag}
-    return x
 
 
 # --------------------------------------------------------------------- stages
