@@ -30,19 +30,9 @@ from test_diagnose_gen import (  # noqa: E402
     time_case,
 )
 
-from workbench.diagnosis import diagnose  # noqa: E402
+from workbench.diagnosis import LINEAR_EFFECTS, diagnose  # noqa: E402
 
-EFFECTS = [
-    "none",
-    "time_delay",
-    "missing_mode",
-    "modal_mismatch",
-    "residual_compliance",
-    "actuator_dynamics",
-    "sensor_dynamics",
-    "suspension_stiffness",
-    "crosstalk",
-]
+EFFECTS = ["none", *LINEAR_EFFECTS]
 KEY = {
     "time_delay": "delay_s",
     "missing_mode": "freq_hz",
@@ -133,7 +123,7 @@ def main(argv=None):
         f"\n{hits}/{scored} top findings right ({len(runs) - scored} invisible cases not "
         f"scored); time median {np.median(times):.1f} s, max {times.max():.1f} s"
     )
-    ex = Path("/work/shared/examples")
+    ex = Path(__file__).resolve().parents[2] / "shared" / "examples"
     if ex.is_dir():
         from workbench.formats import load_measurement, load_model
 

@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import pytest
+from conftest import SHARED_EXAMPLES
 
 from workbench.diagnosis import diagnose
 from workbench.formats import load_measurement, load_model
 
-EXAMPLES = Path("/work/shared/examples")
+EXAMPLES = SHARED_EXAMPLES
 NAMES = ["example_stage_missing_frf", "example_beam_none_frf", "example_stage_delay_time"]
 
 

@@ -12,18 +12,9 @@ import numpy as np
 import pytest
 from test_diagnose_gen import beam, beam_params, frf_case, stage, stage_params
 
-from workbench.diagnosis import diagnose
+from workbench.diagnosis import LINEAR_EFFECTS, diagnose
 
-EFFECTS = [
-    "time_delay",
-    "missing_mode",
-    "modal_mismatch",
-    "residual_compliance",
-    "actuator_dynamics",
-    "sensor_dynamics",
-    "suspension_stiffness",
-    "crosstalk",
-]
+EFFECTS = list(LINEAR_EFFECTS)
 
 
 def _rel(a, b):

@@ -17,29 +17,21 @@ from typing import Any
 
 import numpy as np
 
-from workbench.diagnosis import detect
-from workbench.diagnosis.diagnose import _jsonable, _spec_error
+from workbench.diagnosis import LINEAR_EFFECTS, detect
+from workbench.diagnosis.diagnose import _spec_error
 from workbench.diagnosis.effects import candidate_structures
 from workbench.diagnosis.fit import FitResult, fit, screen
 from workbench.diagnosis.modal import ExtendedModel, decompose
 from workbench.diagnosis.problem import make_problem
 from workbench.errors import InputError
 from workbench.formats import FrfData, TimeData, check_model_matches
+from workbench.jsonutil import jsonable
 from workbench.lti import as_matrices
 
 __all__ = ["EFFECTS", "Augmented", "augment", "pade_delay"]
 
-EFFECTS = (
-    "time_delay",
-    "missing_mode",
-    "modal_mismatch",
-    "residual_compliance",
-    "actuator_dynamics",
-    "sensor_dynamics",
-    "suspension_stiffness",
-    "crosstalk",
-    "nonlinearity",
-)
+#: what ``augment`` can add: every effect of the vocabulary but 'none'
+EFFECTS = LINEAR_EFFECTS + ("nonlinearity",)
 
 
 @dataclass(frozen=True)
@@ -74,8 +66,8 @@ class Augmented:
     def to_json(self) -> dict:
         return {
             "effect": self.effect,
-            "parameters": _jsonable(self.parameters),
-            "parameters_std": _jsonable(self.parameters_std),
+            "parameters": jsonable(self.parameters),
+            "parameters_std": jsonable(self.parameters_std),
             "delay_s": float(self.delay_s),
             "error_before": float(self.error_before),
             "error_after": float(self.error_after),

@@ -84,9 +84,9 @@ def run(args) -> int:
         save_model(args.out, res.model, **extra)
         print(f"augmented model: {args.out} ({res.model.nstates} states, continuous)")
     if args.json:
-        from workbench.diagnosis.diagnose import _jsonable
+        from workbench.jsonutil import jsonable
 
-        write_text(args.json, json.dumps(_jsonable(res.to_json()), indent=2) + "\n")
+        write_text(args.json, json.dumps(jsonable(res.to_json()), indent=2) + "\n")
     if args.plots and res.extended is not None:
         from workbench.diagnosis.modal import decompose
         from workbench.diagnosis.plots import write_plots

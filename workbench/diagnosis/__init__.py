@@ -19,6 +19,22 @@ Public entry points: :func:`diagnose` and, for one given effect,
 :func:`workbench.augment.augment`.
 """
 
-from workbench.diagnosis.diagnose import Diagnosis, Finding, diagnose
+#: The effect vocabulary of the exchange spec (section 3), in its order.
+VOCABULARY = (
+    "time_delay",
+    "missing_mode",
+    "modal_mismatch",
+    "residual_compliance",
+    "actuator_dynamics",
+    "sensor_dynamics",
+    "suspension_stiffness",
+    "crosstalk",
+    "nonlinearity",
+    "none",
+)
+#: The effects a linear model can take on (fitted and added by ``augment``).
+LINEAR_EFFECTS = VOCABULARY[:8]
 
-__all__ = ["diagnose", "Diagnosis", "Finding"]
+from workbench.diagnosis.diagnose import Diagnosis, Finding, diagnose  # noqa: E402
+
+__all__ = ["diagnose", "Diagnosis", "Finding", "VOCABULARY", "LINEAR_EFFECTS"]

@@ -27,6 +27,7 @@ from workbench.diagnosis.modal import ExtendedModel, decompose
 from workbench.diagnosis.problem import make_problem
 from workbench.errors import InputError
 from workbench.formats import FrfData, TimeData, check_model_matches
+from workbench.jsonutil import jsonable
 from workbench.lti import as_matrices, frf, relative_error_frf, relative_error_time, simulate_zoh
 
 __all__ = ["Finding", "Diagnosis", "diagnose"]
@@ -72,8 +73,8 @@ class Finding:
             "inputs": [int(i) for i in self.inputs],
             "outputs": [int(i) for i in self.outputs],
             "band_hz": [float(self.band_hz[0]), float(self.band_hz[1])],
-            "parameters": _jsonable(self.parameters),
-            "parameters_std": _jsonable(self.parameters_std),
+            "parameters": jsonable(self.parameters),
+            "parameters_std": jsonable(self.parameters_std),
             "error_after": float(self.error_after),
             "explanation": self.explanation,
         }
@@ -113,24 +114,10 @@ class Diagnosis:
         if self.noise_floor is not None:
             out["noise_floor"] = float(self.noise_floor)
         out["data_kind"] = self.data_kind
-        out["alternatives"] = _jsonable(list(self.alternatives))
+        out["alternatives"] = jsonable(list(self.alternatives))
         if self.notes:
             out["notes"] = list(self.notes)
         return out
-
-
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, list | tuple):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, np.generic):
-        x = x.item()
-    if isinstance(x, float) and not math.isfinite(x):
-        return None
-    return x
 
 
 def _bic(cost: float, n: int, k: int) -> float:
@@ -275,7 +262,7 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Dia
                     "effect": r.effect,
                     "error_after": r.error,
                     "delta_bic": bic0 - _bic(r.cost, n, r.n_params),
-                    "parameters": _jsonable(
+                    "parameters": jsonable(
                         {
                             k: v
                             for k, v in r.structure.report(r, problem, current)[0].items()
