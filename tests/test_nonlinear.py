@@ -8,7 +8,7 @@ import pytest
 import plants
 from workbench import lti
 from workbench.experiments import ExperimentConfig, run_experiment
-from workbench.nonlinear import PortNonlinearity, fit_friction, simulate_nonlinear
+from workbench.nonlinear import PortNonlinearity, simulate_nonlinear
 
 
 @pytest.fixture(scope="module")
@@ -34,11 +34,16 @@ def test_saturation_equals_the_linear_response_to_the_clipped_input(stage_model)
     assert np.max(np.abs(y - ref)) <= 1e-9 * np.max(np.abs(ref))
 
 
-def test_friction_fitted_to_closed_loop_stage_data(stage_model):
-    # the true stage has 0.2 N (N m) of smooth Coulomb friction at every port
-    truth = plants.wafer_stage(delay_s=2e-4, friction_force=0.2, friction_velocity=1e-3)
+def test_augment_adds_friction_fitted_to_closed_loop_stage_data(stage_model):
+    """augment --effect nonlinearity: Coulomb friction in the simulation model (fit_friction)."""
+    from workbench.augment import augment
+
+    # the true stage has 1 N (N m) of Coulomb friction at every port (v0 = 1 um/s, far
+    # below the motion's velocities): the linear simulation drifts by orders of magnitude
+    truth = plants.wafer_stage(delay_s=0.0, friction_force=1.0, friction_velocity=1e-6)
     cfg = ExperimentConfig(kind="closed_loop_multisine", period=2000, periods=5)
     data = run_experiment(truth, cfg, rng=1)
-    nl, before, after = fit_friction(stage_model, data.u, data.y, data.fs, delay_s=2e-4)
-    assert nl.friction_force[0] == pytest.approx(0.2, rel=0.2)  # issue 4: 20 % tolerance
-    assert after < before / 100  # the drift of the linear simulation is gone
+    out = augment(stage_model, data, "nonlinearity")
+    assert out.nonlinear is not None
+    assert out.parameters["friction_force"][0] == pytest.approx(1.0, rel=0.2)  # issue 4: 20 %
+    assert out.error_after < out.error_before / 100  # the drift of the linear simulation is gone

@@ -27,6 +27,7 @@ from workbench.errors import InputError
 from workbench.formats import FrfData, TimeData, check_model_matches
 from workbench.jsonutil import jsonable
 from workbench.lti import as_matrices
+from workbench.nonlinear import PortNonlinearity
 
 __all__ = ["EFFECTS", "Augmented", "augment", "pade_delay"]
 
@@ -62,6 +63,7 @@ class Augmented:
     error_after: float
     extended: ExtendedModel | None = field(default=None, repr=False)
     note: str = ""
+    nonlinear: PortNonlinearity | None = field(default=None, repr=False)
 
     def to_json(self) -> dict:
         return {
@@ -145,21 +147,7 @@ def augment(model, data: FrfData | TimeData, effect: str) -> Augmented:
         problem = make_problem(data)
         error_before = _spec_error(model, data)
         if effect == "nonlinearity":
-            nl = (
-                detect.nonlinearity(data, problem.predict(base))
-                if isinstance(data, TimeData)
-                else None
-            )
-            if nl is None:
-                note = (
-                    "nonlinearity needs a periodic time record with at least 3 periods; not tested"
-                )
-                params: dict = {}
-            else:
-                note = "nonlinear effects are reported, not added to the linear model"
-                params = {"level": nl.level, "f_stat": nl.f_stat}
-            sys, delay = base.to_statespace()
-            return Augmented(sys, delay, effect, params, {}, error_before, error_before, base, note)
+            return _augment_nonlinearity(model, data, base, problem, error_before)
         structures = [s for s in candidate_structures(base, problem) if s.effect == effect]
         if not structures:
             raise InputError(
@@ -178,3 +166,42 @@ def augment(model, data: FrfData | TimeData, effect: str) -> Augmented:
         return Augmented(
             sys, delay, effect, params, params_std, error_before, best.error, best.model, note
         )
+
+
+def _augment_nonlinearity(model, data, base, problem, error_before) -> Augmented:
+    """Nonlinearity: its level (unexcited lines), and Coulomb friction added to the
+    simulation model (:mod:`workbench.nonlinear`) when the data are a time record of a
+    square model, so the time-domain comparison can run with it."""
+    from workbench.nonlinear import fit_friction
+
+    sys, delay = base.to_statespace()
+    nl = detect.nonlinearity(data, problem.predict(base)) if isinstance(data, TimeData) else None
+    params: dict = {} if nl is None else {"level": nl.level, "f_stat": nl.f_stat}
+    notes = []
+    if nl is None:
+        notes.append("the level needs a periodic time record with at least 3 periods")
+    error_after, friction = error_before, None
+    if isinstance(data, TimeData) and sys.ninputs == sys.noutputs:
+        friction, _, error_after = fit_friction(sys, data.u, data.y, data.fs, delay_s=delay)
+        params["friction_force"] = [
+            float(v) for v in np.broadcast_to(friction.friction_force, (sys.ninputs,))
+        ]
+        params["friction_velocity"] = friction.friction_velocity
+        notes.append(
+            "Coulomb friction at the input ports added to the simulation model "
+            "(workbench.nonlinear); the linear model file cannot hold it"
+        )
+    else:
+        notes.append("reported only: friction is fitted on time records of square models")
+    return Augmented(
+        sys,
+        delay,
+        "nonlinearity",
+        params,
+        {},
+        error_before,
+        error_after,
+        base,
+        "; ".join(notes),
+        friction,
+    )

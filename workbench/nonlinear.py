@@ -94,12 +94,18 @@ def simulate_nonlinear(
     )
     CA = C @ A
     v0 = nl.friction_velocity
+    # velocity change of each port per unit force held over one substep: friction is
+    # limited to the force that stops the port within the substep, so the explicit
+    # scheme cannot make friction reverse the motion (stable for any F_c and v0)
+    mobility = np.maximum(np.abs(np.diag(CA @ Bd)), 1e-300)
     x = np.zeros(n)
     y = np.empty((N, C.shape[0]))
     for k in range(N):
         y[k] = C @ x + D @ ud[k]
         for _ in range(nl.substeps):
-            f = ud[k] - Fc * np.tanh((CA @ x) / v0) - k3 * (C @ x) ** 3
+            v = CA @ x
+            friction = np.minimum(Fc * np.abs(np.tanh(v / v0)), np.abs(v) / mobility)
+            f = ud[k] - np.sign(v) * friction - k3 * (C @ x) ** 3
             x = Ad @ x + Bd @ f
     return y
 
@@ -111,7 +117,7 @@ def fit_friction(
     fs: float,
     *,
     delay_s: float = 0.0,
-    friction_velocity: float = 1e-3,
+    friction_velocity: float | None = None,
     per_port: bool = False,
     substeps: int = 4,
     max_nfev: int = 40,
@@ -124,6 +130,9 @@ def fit_friction(
         Continuous, square model (ports collocated with the inputs).
     u, y : (N, n_u), (N, n_y) arrays
         Recorded input and output (time data of spec 1a).
+    friction_velocity : float, optional
+        v0 of the smooth Coulomb law, m/s; default 1e-3 of the rms port velocity
+        seen in ``y``.
     per_port : bool
         One level per input (else one level, N, for all).
 
@@ -135,6 +144,8 @@ def fit_friction(
     _ports(sys)
     u = np.asarray(u, float)
     y = np.asarray(y, float)
+    if friction_velocity is None:  # Coulomb-like: far below the measured port velocities
+        friction_velocity = 1e-3 * float(np.sqrt(np.mean((np.diff(y, axis=0) * fs) ** 2)))
     n_u = u.shape[1]
 
     def model(theta):
