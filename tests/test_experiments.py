@@ -87,8 +87,9 @@ def test_wafer_stage_record_matches_the_paper_layout(stage):
 
 
 def test_wafer_stage_record_on_the_project_plant():
-    ws = pytest.importorskip("plants.wafer_stage")
-    td = wafer_stage_closed_loop_record(ws.wafer_stage(), rng=0)
+    import plants
+
+    td = wafer_stage_closed_loop_record(plants.wafer_stage(), rng=0)
     assert td.n_samples == 10_000 and td.period == 2000
     assert np.all((td.y.std(axis=0) > 1e-8) & (td.y.std(axis=0) < 1e-5))
 
@@ -148,9 +149,6 @@ def test_configured_runs_and_refusals(stage):
 
 
 def test_cli_simulate_scenario(tmp_path):
-    plants = pytest.importorskip("plants")
-    if not hasattr(plants, "get_plant"):
-        pytest.skip("plants.get_plant not available yet")
     from workbench.cli import main
     from workbench.formats import load_measurement
 

@@ -259,7 +259,6 @@ def test_wafer_stage_closed_loop_record_gives_the_modes():
     within 10 % on a single record (the 20-realization study with the 0.1 Hz
     / 5 % targets is benchmarks/bench_subspace.py); 6 rigid-body modes.
     """
-    pytest.importorskip("plants.wafer_stage")
     from plants.wafer_stage import wafer_stage
     from workbench.experiments import wafer_stage_closed_loop_record
     from workbench.modal import ModalModel
