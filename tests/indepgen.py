@@ -542,25 +542,14 @@ def _build(base_plant, effects, params, strengths, kind, rng_seed, opts):
         if truth.nl:
             nlp = dict(truth.nl)
             s = nlp.pop("s")
-            if nlp["type"] == "saturation":
-                u_lin, _, _ = time_record(
-                    Truth(P, truth.delay_s, truth.act_cut, truth.sen_cut, truth.T_out, truth.T_in),
-                    nom,
-                    np.random.default_rng(rng_seed),
-                    N=N,
-                    period=period,
-                    closed=closed,
-                    r=r,
-                    noise_sd=0.0,
-                    gain=gain,
+
+            def linear_noise_free(stats=None):
+                # the same record without the nonlinearity and without noise
+                linear = Truth(
+                    P, truth.delay_s, truth.act_cut, truth.sen_cut, truth.T_out, truth.T_in
                 )
-                nlp["lim"] = np.quantile(np.abs(u_lin), 1 - 0.1 * s, axis=0)
-            elif nlp["type"] == "friction":
-                nlp["Fc"] = 0.1 * s * np.std(r, axis=0)
-            else:
-                stats: dict = {}
-                time_record(
-                    Truth(P, truth.delay_s, truth.act_cut, truth.sen_cut, truth.T_out, truth.T_in),
+                return time_record(
+                    linear,
                     nom,
                     np.random.default_rng(rng_seed),
                     N=N,
@@ -571,6 +560,15 @@ def _build(base_plant, effects, params, strengths, kind, rng_seed, opts):
                     gain=gain,
                     stats=stats,
                 )
+
+            if nlp["type"] == "saturation":
+                u_lin, _, _ = linear_noise_free()
+                nlp["lim"] = np.quantile(np.abs(u_lin), 1 - 0.1 * s, axis=0)
+            elif nlp["type"] == "friction":
+                nlp["Fc"] = 0.1 * s * np.std(r, axis=0)
+            else:
+                stats: dict = {}
+                linear_noise_free(stats)
                 # cubic spring: k3 q^2 ~ 0.3 s of the linear stiffness at the rms amplitude
                 nlp["k3"] = 0.3 * s / stats["q_rms"] ** 2
             truth.nl = nlp

@@ -23,18 +23,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 from bench_diagnose_indep import TOL, accepted_effects, param_error  # noqa: E402
 from indepgen import make_case  # noqa: E402
 
-from workbench.diagnosis import diagnose  # noqa: E402
+from workbench.diagnosis import LINEAR_EFFECTS, diagnose  # noqa: E402
 
-FRF_STAGE = [
-    "time_delay",
-    "missing_mode",
-    "modal_mismatch",
-    "residual_compliance",
-    "actuator_dynamics",
-    "sensor_dynamics",
-    "suspension_stiffness",
-    "crosstalk",
-]
+FRF_STAGE = list(LINEAR_EFFECTS)
 FRF_BEAM = ["time_delay", "missing_mode", "modal_mismatch", "sensor_dynamics"]
 #: the CI subset (every effect once over the two plants; the rest in the slow test)
 CI_STAGE = [
