@@ -63,6 +63,13 @@ class SubspaceResult:
         Input delay in samples removed from the data before identification.
     fs : float
         Sampling frequency, Hz.
+    notes : tuple of str
+    bd_method : str
+        How B and D were estimated: least squares on the simulated output
+        (open-loop methods) or from the projected data (closed-loop methods,
+        where the output-error least squares is biased by the feedback).
+    x0 : (n,) array or None
+        Initial state of the identification record (least-squares route only).
     """
 
     model: object
@@ -75,9 +82,13 @@ class SubspaceResult:
     input_delay: int = 0
     fs: float = 1.0
     notes: tuple[str, ...] = field(default=())
+    bd_method: str = ""
+    x0: np.ndarray | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "singular_values", readonly(self.singular_values, float))
+        if self.x0 is not None:
+            object.__setattr__(self, "x0", readonly(self.x0, float))
 
     @property
     def delay_s(self) -> float:
@@ -97,6 +108,8 @@ def identify_subspace(
     factorization: Literal["gram", "qr"] = "gram",
     projection: Literal["auto", "lags", "periodic"] = "auto",
     chunk: int = 1024,
+    bd: Literal["auto", "least-squares", "projection"] = "auto",
+    orders=None,
 ) -> SubspaceResult:
     """Identify a discrete state-space model from a time record.
 
@@ -135,10 +148,22 @@ def identify_subspace(
         the record holds at least two periods.
     chunk : int
         Samples per chunk of the correlation sums.
+    bd : {"auto", "least-squares", "projection"}
+        Route to B and D. ``"least-squares"``: B, D and the initial state
+        jointly by linear least squares on the simulated output (SLICOT
+        IB01CD; :func:`workbench.ident.validate.least_squares_bd_x0`), which
+        needs no rest at the start and no white input. ``"projection"``: the
+        Toeplitz relation of the (projected) data below. ``"auto"``: least
+        squares for the open-loop methods, projection for the closed-loop
+        ones (on closed-loop data the output error is correlated with u
+        through the controller, so its least squares is biased).
+    orders : sequence of int, optional
+        Realize each of these orders from one decomposition and return a list
+        of results (the order scan); ``order`` is then ignored.
 
     Returns
     -------
-    SubspaceResult
+    SubspaceResult (a list of them with ``orders``)
 
     Notes
     -----
@@ -148,7 +173,8 @@ def identify_subspace(
     MOESP that of ``L32 L22^+ L22`` (``W2 = Pi_perp(U_f)``); CVA that of
     ``W1 L32 L22^+ L22`` with ``W1 = ((Y_f/U_f^perp)(Y_f/U_f^perp)^T)^(-1/2)``.
     ``Gamma = W1^-1 U_n S_n^(1/2)``, ``C`` its first block row and ``A`` from
-    shift invariance. ``B, D`` by least squares from the Toeplitz relation
+    shift invariance. Open loop: ``B, D, x0`` by least squares on the
+    simulated output (see ``bd``). Closed loop: ``B, D`` by least squares from the Toeplitz relation
     ``Gamma^perp Y_f U_f^+ = Gamma^perp H_i`` (Verhaegen 1994), linear in
     ``[D; B]``.
 
@@ -195,6 +221,14 @@ def identify_subspace(
     if max_order is None:
         max_order = max(1, i * n_y // 2)
     max_order = min(int(max_order), i * n_y - 1)
+    if bd not in ("auto", "least-squares", "projection"):
+        raise InputError(f"bd: expected 'auto', 'least-squares' or 'projection', got {bd!r}")
+    for o in [order] if orders is None else list(orders):
+        if o is not None and not 1 <= int(o) < i * n_y:
+            raise InputError(
+                f"order: expected 1 <= order < block_rows * n_y = {i * n_y}, got {o}; "
+                "increase block_rows"
+            )
     if order is not None and not 1 <= int(order) < i * n_y:
         raise InputError(
             f"order: expected 1 <= order < block_rows * n_y = {i * n_y}, got {order}; "
@@ -251,13 +285,79 @@ def identify_subspace(
     L, r1 = _rank_revealing(L, i * n_u)
     Gamma_full, sv, W1inv = _weighted_svd(L, S_cva, r1=r1, i=i, n_u=n_u, n_y=n_y, method=method)
     suggested, gap = suggest_order(sv, max_order=max_order)
-    n = suggested if order is None else int(order)
-    Gamma = W1inv @ Gamma_full[:, :n] * np.sqrt(sv[:n])
+    dec = _Decomposition(
+        data=data,
+        method=method,
+        closed=closed,
+        periodic=periodic,
+        L=L,
+        r1=r1,
+        Gamma_full=Gamma_full,
+        sv=sv,
+        W1inv=W1inv,
+        su=su,
+        sy=sy,
+        u=u,
+        y=y,
+        i=i,
+        input_delay=input_delay,
+        feedthrough=feedthrough,
+        suggested=suggested,
+        gap=gap,
+        bd=bd,
+    )
+    if orders is not None:
+        return [_realize(dec, int(n)) for n in orders]
+    return _realize(dec, suggested if order is None else int(order))
+
+
+@dataclass(frozen=True)
+class _Decomposition:
+    """Everything the realization of one order needs (internal; small but for u, y views)."""
+
+    data: TimeData
+    method: str
+    closed: bool
+    periodic: bool
+    L: np.ndarray
+    r1: int
+    Gamma_full: np.ndarray
+    sv: np.ndarray
+    W1inv: np.ndarray
+    su: np.ndarray
+    sy: np.ndarray
+    u: np.ndarray
+    y: np.ndarray
+    i: int
+    input_delay: int
+    feedthrough: bool
+    suggested: int
+    gap: float
+    bd: str
+
+
+def _realize(dec: _Decomposition, n: int) -> SubspaceResult:
+    """A, C from the observability matrix of order n; B, D (and x0) by the chosen route."""
+    data, i, sv = dec.data, dec.i, dec.sv
+    n_u, n_y = data.n_u, data.n_y
+    Gamma = dec.W1inv @ dec.Gamma_full[:, :n] * np.sqrt(sv[:n])
     C = Gamma[:n_y]
     A = np.linalg.lstsq(Gamma[:-n_y], Gamma[n_y:], rcond=None)[0]
-    B, D = _b_d(L, A, C, r1=r1, i=i, n_u=n_u, n_y=n_y, feedthrough=feedthrough)
+    use_ls = dec.bd == "least-squares" or (dec.bd == "auto" and not dec.closed)
+    x0 = None
+    if use_ls:
+        from workbench.ident.validate import least_squares_bd_x0
 
-    # undo the channel scaling: y = sy * y_s, u = su * u_s
+        B, D, x0 = least_squares_bd_x0(
+            A, C, dec.u, dec.y, su=dec.su, sy=dec.sy, feedthrough=dec.feedthrough
+        )
+        bd_route = "least squares on the simulated output (B, D, x0 jointly)"
+    else:
+        B, D = _b_d(dec.L, A, C, r1=dec.r1, i=i, n_u=n_u, n_y=n_y, feedthrough=dec.feedthrough)
+        bd_route = "projection (Toeplitz relation of the projected data)"
+
+    # undo the channel scaling: y = sy * y_s, u = su * u_s (the state is unchanged)
+    su, sy = dec.su, dec.sy
     B = B / su[None, :]
     C = sy[:, None] * C
     D = sy[:, None] * D / su[None, :]
@@ -269,32 +369,33 @@ def identify_subspace(
     notes = []
     if np.max(np.abs(np.linalg.eigvals(A))) >= 1.0:
         notes.append("the identified model has poles on or outside the unit circle")
-    if r1 < i * n_u:
+    if dec.r1 < i * n_u:
         notes.append(
-            f"U_f is numerically rank-deficient ({r1} of {i * n_u}: a band-limited excitation)"
+            f"U_f is numerically rank-deficient ({dec.r1} of {i * n_u}: a band-limited excitation)"
             + (
                 "; the N4SID oblique projection is ill-posed here, prefer MOESP or CVA"
-                if method.endswith("n4sid")
+                if dec.method.endswith("n4sid")
                 else ""
             )
         )
-    if periodic:
+    if dec.periodic:
         notes.append(
             f"periodic projection: {data.n_samples // data.period} periods, the first of each "
             "experiment block dropped as a transient"
         )
-    notes = tuple(notes)
     return SubspaceResult(
         model=model,
         singular_values=sv,
         order=n,
-        suggested_order=suggested,
-        gap=gap,
-        method=method,
+        suggested_order=dec.suggested,
+        gap=dec.gap,
+        method=dec.method,
         block_rows=i,
-        input_delay=input_delay,
+        input_delay=dec.input_delay,
         fs=data.fs,
-        notes=notes,
+        notes=tuple(notes),
+        bd_method=bd_route,
+        x0=x0,
     )
 
 
