@@ -116,7 +116,9 @@ def with_pade(sys, delay_s: float, order: int):
     return control.series(control.ss(A, B, C, D), sys)
 
 
-def augment(model, data: FrfData | TimeData, effect: str) -> Augmented:
+def augment(
+    model, data: FrfData | TimeData, effect: str, *, blas_threads: int | None = 1
+) -> Augmented:
     """Add ``effect`` to ``model``, fit its parameters to ``data``.
 
     Parameters
@@ -126,12 +128,14 @@ def augment(model, data: FrfData | TimeData, effect: str) -> Augmented:
     data : FrfData or TimeData
     effect : str
         One of :data:`EFFECTS`.
+    blas_threads : int or None
+        BLAS threads during the call (restored on return); None keeps the caller's setting.
 
     Returns
     -------
     Augmented
     """
-    from threadpoolctl import threadpool_limits
+    from workbench.blas import limited_blas
 
     if effect not in EFFECTS:
         raise InputError(f"--effect: expected one of {', '.join(EFFECTS)}, got {effect!r}")
@@ -139,7 +143,7 @@ def augment(model, data: FrfData | TimeData, effect: str) -> Augmented:
     _, _, _, _, dt = as_matrices(model)
     if isinstance(data, TimeData) and dt > 0 and abs(dt * data.fs - 1) > 1e-9:
         raise InputError(f"model: expected dt = 1/fs = {1 / data.fs:g} s, got dt = {dt:g} s")
-    with threadpool_limits(limits=1):
+    with limited_blas(blas_threads):
         try:
             base = decompose(model)
         except ValueError as exc:

@@ -47,12 +47,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
     for name in COMMANDS:
-        try:
-            module = importlib.import_module(f"workbench.commands.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name == f"workbench.commands.{name}":
-                continue
-            raise
+        # every listed command must import: a broken import fails loudly, it is never
+        # turned into a missing command
+        module = importlib.import_module(f"workbench.commands.{name}")
         p = module.register(sub)
         p.set_defaults(_run=module.run)
     return parser

@@ -274,10 +274,10 @@ def stage_model(st: RunState, table: dict) -> None:
 # ---------------------------------------------------------------- plotting
 def _plot_frf_grid(path: Path, frf, *, mark_hz=(), title: str = "", G_model=None) -> None:
     """Magnitude of every element on one page, modes marked by vertical lines."""
-    from workbench.plotting import _figure, _save, lean_axes
+    from workbench.plotting import lean_axes, new_figure, save_png
 
     n_y, n_u = frf.n_y, frf.n_u
-    fig = _figure(2.2 * n_u + 1, 1.8 * n_y + 1)
+    fig = new_figure(2.2 * n_u + 1, 1.8 * n_y + 1)
     axes = fig.subplots(n_y, n_u, squeeze=False, sharex=True)
     for i in range(n_y):
         for j in range(n_u):
@@ -295,7 +295,7 @@ def _plot_frf_grid(path: Path, frf, *, mark_hz=(), title: str = "", G_model=None
         fontsize=9,
     )
     fig.subplots_adjust(left=0.06, right=0.98, bottom=0.05, top=0.92, hspace=0.5, wspace=0.35)
-    _save(fig, path)
+    save_png(fig, path)
 
 
 STAGE_FUNCTIONS = {

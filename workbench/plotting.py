@@ -18,6 +18,8 @@ import numpy as np
 from workbench.atomic import atomic_path
 
 __all__ = [
+    "new_figure",
+    "save_png",
     "save_bode_overlay",
     "save_error_map",
     "save_time_overlay",
@@ -26,11 +28,12 @@ __all__ = [
 ]
 
 
-def _figure(width: float, height: float):
+def new_figure(width: float, height: float, *, dpi: int = 80):
+    """A matplotlib Figure on its own Agg canvas (inches): no pyplot, no global backend."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    fig = Figure(figsize=(width, height), dpi=80)
+    fig = Figure(figsize=(width, height), dpi=dpi)
     FigureCanvasAgg(fig)
     return fig
 
@@ -47,7 +50,8 @@ def lean_axes(ax) -> None:
             axis.set_major_locator(MaxNLocator(4))
 
 
-def _save(fig, path: str | os.PathLike) -> None:
+def save_png(fig, path: str | os.PathLike) -> None:
+    """Write ``fig`` as PNG atomically (temporary file in the same folder, then rename)."""
     with atomic_path(path, suffix=".png") as tmp:
         fig.savefig(tmp, format="png")
 
@@ -73,7 +77,7 @@ def save_bode_overlay(
         |G| +- 2 sigma, the phase band +- arcsin(min(1, 2 sigma / |G|)).
     """
     n_f, n_y, n_u = G_meas.shape
-    fig = _figure(2.6 * n_u + 1, 2.6 * n_y + 1)
+    fig = new_figure(2.6 * n_u + 1, 2.6 * n_y + 1)
     axes = fig.subplots(2 * n_y, n_u, squeeze=False, sharex=True)
     for i in range(n_y):
         for j in range(n_u):
@@ -105,7 +109,7 @@ def save_bode_overlay(
     axes[0, 0].legend(fontsize=6)
     # tight_layout costs seconds on a 12 x 6 grid; fixed margins do
     fig.subplots_adjust(left=0.07, right=0.98, bottom=0.05, top=0.96, hspace=0.45, wspace=0.35)
-    _save(fig, path)
+    save_png(fig, path)
 
 
 def save_error_map(
@@ -128,7 +132,7 @@ def save_error_map(
         Drawn as the colour bar's mark when finite.
     """
     n_f, n_ch = stat.shape
-    fig = _figure(10, 1.2 + 0.28 * n_ch)
+    fig = new_figure(10, 1.2 + 0.28 * n_ch)
     ax = fig.subplots()
     data = np.log10(np.maximum(stat.T, 1e-12))
     edges = np.r_[freq_hz[0], 0.5 * (freq_hz[1:] + freq_hz[:-1]), freq_hz[-1]]
@@ -144,7 +148,7 @@ def save_error_map(
     if np.isfinite(threshold) and threshold > 0:
         cb.ax.axhline(np.log10(threshold), color="c", lw=2)
     fig.tight_layout()
-    _save(fig, path)
+    save_png(fig, path)
 
 
 def save_time_overlay(
@@ -152,7 +156,7 @@ def save_time_overlay(
 ) -> None:
     """Measured vs simulated output and the residual per output. t (N,) s, y (N, n_y) m."""
     n_y = y.shape[1]
-    fig = _figure(10, 1.8 * n_y + 1)
+    fig = new_figure(10, 1.8 * n_y + 1)
     axes = fig.subplots(n_y, 2, squeeze=False, sharex=True)
     for i in range(n_y):
         axes[i, 0].plot(t, y[:, i], "k", lw=0.6, label="measured")
@@ -167,7 +171,7 @@ def save_time_overlay(
     axes[-1, 0].set_xlabel("time, s")
     axes[-1, 1].set_xlabel("time, s")
     fig.tight_layout()
-    _save(fig, path)
+    save_png(fig, path)
 
 
 def save_residual_spectra(
@@ -177,7 +181,7 @@ def save_residual_spectra(
     n_y = psd_output.shape[1]
     cols = min(3, n_y)
     rows = int(np.ceil(n_y / cols))
-    fig = _figure(4 * cols, 2.6 * rows + 0.5)
+    fig = new_figure(4 * cols, 2.6 * rows + 0.5)
     axes = np.atleast_1d(fig.subplots(rows, cols, squeeze=False)).ravel()
     f = freq_hz[1:]
     for i in range(n_y):
@@ -189,7 +193,7 @@ def save_residual_spectra(
         ax.set_visible(False)
     axes[0].legend(fontsize=6)
     fig.tight_layout()
-    _save(fig, path)
+    save_png(fig, path)
 
 
 def save_xcorr(
@@ -197,7 +201,7 @@ def save_xcorr(
 ) -> None:
     """Residual/excitation cross-correlation per pair with the +-bound. xcorr (n_lag, n_y, n_u)."""
     _, n_y, n_u = xcorr.shape
-    fig = _figure(2.2 * n_u + 1, 1.6 * n_y + 1)
+    fig = new_figure(2.2 * n_u + 1, 1.6 * n_y + 1)
     axes = fig.subplots(n_y, n_u, squeeze=False, sharex=True, sharey=True)
     for i in range(n_y):
         for j in range(n_u):
@@ -212,4 +216,4 @@ def save_xcorr(
                 ax.set_ylabel(f"e: {output_names[i]}", fontsize=7)
     fig.suptitle("residual cross-correlation, 99 % bounds (lag in samples)", fontsize=9)
     fig.tight_layout()
-    _save(fig, path)
+    save_png(fig, path)

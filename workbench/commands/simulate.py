@@ -59,13 +59,10 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 
 def _get_plant(name: str, config: dict):
-    import plants
+    from plants import get_plant
 
-    get = getattr(plants, "get_plant", None)
-    if get is None:
-        raise InputError("plants.get_plant is not available in this installation")
     try:
-        return get(name, **config)
+        return get_plant(name, **config)
     except TypeError as exc:
         raise InputError(f"[plant] '{name}': {exc}") from None
 

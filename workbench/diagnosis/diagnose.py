@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from workbench.blas import limited_blas
 from workbench.diagnosis import detect
 from workbench.diagnosis.effects import candidate_structures
 from workbench.diagnosis.explain import explain
@@ -66,18 +67,45 @@ class Finding:
     error_after: float
     explanation: str
     model: ExtendedModel | None = field(default=None, repr=False, compare=False)
+    fit_status: str = "ok"
+    """"ok", or why the least-squares fit stopped without converging."""
+
+    @property
+    def undetermined(self) -> tuple[str, ...]:
+        """Parameters whose standard deviation the data cannot give (NaN in parameters_std)."""
+        return tuple(k for k, v in self.parameters_std.items() if _has_nan(v))
 
     def to_json(self) -> dict:
-        return {
+        out = {
             "effect": self.effect,
             "inputs": [int(i) for i in self.inputs],
             "outputs": [int(i) for i in self.outputs],
             "band_hz": [float(self.band_hz[0]), float(self.band_hz[1])],
             "parameters": jsonable(self.parameters),
-            "parameters_std": jsonable(self.parameters_std),
+            "parameters_std": jsonable(_mark_undetermined(self.parameters_std)),
             "error_after": float(self.error_after),
             "explanation": self.explanation,
+            "fit_status": self.fit_status,
         }
+        return out
+
+
+def _has_nan(v) -> bool:
+    try:
+        return bool(np.any(np.isnan(np.asarray(v, float))))
+    except (TypeError, ValueError):
+        return False
+
+
+def _mark_undetermined(x):
+    """NaN standard deviations become the word "undetermined" in JSON (not null, not a number)."""
+    if isinstance(x, dict):
+        return {k: _mark_undetermined(v) for k, v in x.items()}
+    if isinstance(x, list | tuple | np.ndarray):
+        return [_mark_undetermined(v) for v in np.asarray(x, dtype=object).tolist()]
+    if isinstance(x, float | np.floating) and math.isnan(x):
+        return "undetermined"
+    return x
 
 
 @dataclass(frozen=True)
@@ -145,13 +173,15 @@ def diagnose(
     n_full_fits: int | None = None,
     effects: tuple[str, ...] | None = None,
     delay_s: float = 0.0,
+    blas_threads: int | None = 1,
 ) -> Diagnosis:
     """Tell which physical effect ``model`` misses to explain ``data``, fit it, rank the findings.
 
     Parameters
     ----------
-    model : control.StateSpace
-        The engineer's model, continuous (dt = 0) or discrete (dt = 1/fs for time data).
+    model : LTIModel, control.StateSpace or model file path
+        The engineer's model, continuous (dt = 0) or discrete (dt = 1/fs for time data);
+        an LTIModel's delay is the delay the model already has.
     data : FrfData or TimeData
     max_effects : int
         Rounds of "find the best effect, add it, look again".
@@ -161,16 +191,22 @@ def diagnose(
     effects : tuple of str, optional
         Restrict the candidates to these effects.
     delay_s : float
-        Input delay the model already has, s (a model file's ``delay_s`` key).
+        Input delay added to the model's own, s.
+    blas_threads : int or None
+        BLAS threads during the call (restored on return); None keeps the caller's setting.
 
     Returns
     -------
     Diagnosis
     """
-    from threadpoolctl import threadpool_limits
+    from workbench.model import as_model
 
+    # the model's own delay travels with it; delay_s adds to it
+    lti_model = as_model(model)
+    delay_s = lti_model.delay_s + float(delay_s)
+    model = lti_model.without_delay().to_statespace()
     # many tiny matrix operations: BLAS threads only add overhead (100x on a loaded machine)
-    with threadpool_limits(limits=1):
+    with limited_blas(blas_threads):
         return _diagnose(
             model,
             data,
@@ -191,6 +227,8 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Dia
         )
     try:
         base = decompose(model)
+    except InputError:
+        raise
     except ValueError as exc:
         raise InputError(f"model: {exc}") from None
     if delay_s:
@@ -240,8 +278,13 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Dia
             break
         screened = []
         for s in structures:
-            c, starts = screen(s, problem, current)
-            screened.append((c, s, starts))
+            sc = screen(s, problem, current)
+            screened.append((sc.cost, s, sc.starts))
+            if sc.n_failed:
+                notes.append(
+                    f"round {round_ + 1}: {sc.n_failed} grid point(s) of {s.effect} failed "
+                    "numerically and were scored as infinite cost"
+                )
         screened.sort(key=lambda t: t[0])
         n_fits = (
             n_full_fits
@@ -441,6 +484,15 @@ def _finding(fr: FitResult, runner, problem, base, data, err_before, floor) -> F
         ev["rank_one_ratio"] = float(S[1] / S[0]) if S.size > 1 and S[0] > 0 else 0.0
     if effect != fr.effect:
         ev["alternative"] = ("missing_mode", fr.error)
+    explanation = explain(effect, ev)
+    undetermined = [k for k, v in params_std.items() if _has_nan(v)]
+    if undetermined:
+        explanation += (
+            f" The data do not determine {', '.join(undetermined)}: no standard deviation is "
+            "given for them."
+        )
+    if fr.status != "ok":
+        explanation += f" The fit did not converge ({fr.status}): the parameters are approximate."
     return Finding(
         effect=effect,
         inputs=tuple(ins),
@@ -449,8 +501,9 @@ def _finding(fr: FitResult, runner, problem, base, data, err_before, floor) -> F
         parameters=params,
         parameters_std=params_std,
         error_after=fr.error,
-        explanation=explain(effect, ev),
+        explanation=explanation,
         model=fr.model,
+        fit_status=fr.status,
     )
 
 

@@ -28,7 +28,7 @@ import scipy.optimize
 
 from workbench.diagnosis.modal import ExtendedModel
 
-__all__ = ["Structure", "Realized", "FitResult", "fit", "screen"]
+__all__ = ["Structure", "Realized", "FitResult", "Screening", "fit", "parameter_std", "screen"]
 
 
 @dataclass(frozen=True)
@@ -69,7 +69,8 @@ class FitResult:
     Attributes
     ----------
     theta, theta_std : (n_theta,) arrays
-        Nonlinear parameters and standard deviations (Jacobian, residual-scaled).
+        Nonlinear parameters and standard deviations (Jacobian, residual-scaled); NaN for a
+        parameter the data do not determine (see :func:`parameter_std`).
     realized : Realized
         Model and linear parameters at ``theta``; linear standard deviations are
         scaled by ``sigma2``.
@@ -91,6 +92,7 @@ class FitResult:
     n_params: int
     error: float
     status: str = "ok"
+    """"ok", or why the least-squares search stopped without converging."""
 
     @property
     def model(self) -> ExtendedModel:
@@ -101,23 +103,55 @@ class FitResult:
         return self.structure.effect
 
 
-def screen(structure: Structure, problem, base: ExtendedModel) -> tuple[float, list[np.ndarray]]:
-    """Projected cost on the structure's grid: (lowest cost, grid points sorted by cost).
+#: Exceptions that mean "this parameter point is numerically infeasible" (a singular
+#: projection, an overflow): such a grid point is scored as infinite cost and counted. Any other
+#: exception (an InputError, a shape bug inside an effect's code) propagates: a broken effect
+#: must fail loudly, not silently drop out of the ranking.
+NUMERICAL_FAILURES = (np.linalg.LinAlgError, FloatingPointError)
+
+
+@dataclass(frozen=True)
+class Screening:
+    """Grid screening of one structure.
+
+    Attributes
+    ----------
+    cost : float
+        Lowest projected cost on the grid (inf when every point failed numerically).
+    starts : list of (n_theta,) arrays
+        Grid points sorted by cost, best first (empty for a structure without parameters).
+    n_failed : int
+        Grid points scored as infinite because of a numerical failure.
+    """
+
+    cost: float
+    starts: list
+    n_failed: int = 0
+
+    def __iter__(self):  # (cost, starts) unpacking, as callers used it
+        return iter((self.cost, self.starts))
+
+
+def screen(structure: Structure, problem, base: ExtendedModel) -> Screening:
+    """Projected cost on the structure's grid, grid points sorted by cost, numerical failures.
 
     A structure without nonlinear parameters is evaluated once (its fit is exact).
     """
     lo, hi = (np.asarray(b, float) for b in structure.bounds(problem, base))
     if lo.size == 0:
-        return problem.cost(structure.build(np.zeros(0), problem, base).model), []
+        return Screening(problem.cost(structure.build(np.zeros(0), problem, base).model), [])
     grid = [np.clip(np.asarray(g, float), lo, hi) for g in structure.grid(problem, base)]
     costs = []
     for g in grid:
         try:
             costs.append(problem.cost(structure.build(g, problem, base).model))
-        except (np.linalg.LinAlgError, ValueError, FloatingPointError):
+        except NUMERICAL_FAILURES:
             costs.append(np.inf)
-    order = np.argsort(costs)
-    return float(costs[order[0]]), [grid[i] for i in order]
+    costs = np.asarray(costs, float)
+    costs[~np.isfinite(costs)] = np.inf  # a NaN cost is a numerical failure too
+    order = np.argsort(costs, kind="stable")
+    n_failed = int(np.sum(np.isinf(costs)))
+    return Screening(float(costs[order[0]]), [grid[i] for i in order], n_failed)
 
 
 def fit(
@@ -185,12 +219,7 @@ def fit(
     cost = float(r @ r)
     n_params = n_theta + structure.n_linear(base)
     sigma2 = cost / max(problem.n_obs - n_params, 1)
-    if n_theta:
-        JtJ = jac.T @ jac
-        cov = np.linalg.pinv(JtJ) * sigma2
-        theta_std = np.sqrt(np.abs(np.diag(cov)))
-    else:
-        theta_std = np.zeros(0)
+    theta_std = parameter_std(jac, sigma2) if n_theta else np.zeros(0)
     lin_std = {k: np.asarray(v) * np.sqrt(sigma2) for k, v in realized.linear_std.items()}
     realized = Realized(realized.model, realized.linear, lin_std)
     return FitResult(
@@ -204,6 +233,29 @@ def fit(
         error=problem.error(realized.model),
         status=status,
     )
+
+
+def parameter_std(jac: np.ndarray, sigma2: float, *, rtol: float = 1e-8) -> np.ndarray:
+    """Standard deviations of least-squares parameters, NaN where the data cannot determine them.
+
+    The covariance is ``sigma2 (J^T J)^-1``, computed from the SVD of the column-scaled
+    Jacobian ``J`` (n_obs, n_theta). Directions whose singular value is below ``rtol`` times
+    the largest are not determined by the data; a parameter with a component along such a
+    direction gets NaN ("undetermined") instead of the meaningless number a pseudo-inverse
+    would give.
+    """
+    jac = np.asarray(jac, float)
+    scale = np.linalg.norm(jac, axis=0)
+    undetermined = ~(scale > 0)
+    Js = jac / np.where(undetermined, 1.0, scale)
+    _, sv, Vt = np.linalg.svd(Js, full_matrices=False)
+    keep = sv > rtol * (sv[0] if sv.size else 0.0)
+    null = Vt[~keep]
+    if null.size:
+        undetermined |= np.max(np.abs(null), axis=0) > 1e-6
+    Vk = Vt[keep] / sv[keep][:, None]
+    var = np.sum(Vk**2, axis=0) * sigma2 / np.where(undetermined, 1.0, scale) ** 2
+    return np.where(undetermined, np.nan, np.sqrt(var))
 
 
 def _distinct(points: list[np.ndarray], n: int, span: np.ndarray) -> list[np.ndarray]:

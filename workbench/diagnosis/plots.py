@@ -1,6 +1,7 @@
 """PNG figures for diagnose and augment: error maps and Bode overlays, before and after.
 
-matplotlib is imported here only (Agg backend, no display needed).
+Figures use matplotlib's object API on their own Agg canvas
+(:func:`workbench.plotting.new_figure`): no pyplot, no global backend switch.
 """
 
 from __future__ import annotations
@@ -9,9 +10,9 @@ from pathlib import Path
 
 import numpy as np
 
-from workbench.atomic import atomic_path
 from workbench.diagnosis.modal import ExtendedModel
 from workbench.formats import FrfData, TimeData
+from workbench.plotting import new_figure, save_png
 
 __all__ = ["write_plots"]
 
@@ -34,11 +35,6 @@ def write_plots(
 
     Returns the paths written.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     f = _freq(data)
@@ -49,7 +45,8 @@ def write_plots(
     if isinstance(data, FrfData):
         nrm = np.linalg.norm(data.G, axis=(1, 2))[:, None, None]
         maps = [np.abs(data.G - G) / nrm for G in (Gb, Ga)]
-        fig, axes = plt.subplots(1, 2, figsize=(12, 5), sharey=True)
+        fig = new_figure(12, 5, dpi=110)
+        axes = fig.subplots(1, 2, sharey=True)
         vmax = np.log10(max(m.max() for m in maps))
         for ax, m, name in zip(axes, maps, ("before", "after")):
             im = ax.imshow(
@@ -70,7 +67,8 @@ def write_plots(
         written.append(_save(fig, folder / "error_map.png"))
     # Bode overlay of the diagonal (or first) channels
     chans = [(i, i) for i in range(min(n_y, n_u))][:4] or [(0, 0)]
-    fig, axes = plt.subplots(2, len(chans), figsize=(4 * len(chans), 6), squeeze=False)
+    fig = new_figure(4 * len(chans), 6, dpi=110)
+    axes = fig.subplots(2, len(chans), squeeze=False)
     for k, (i, j) in enumerate(chans):
         ax_m, ax_p = axes[0, k], axes[1, k]
         if isinstance(data, FrfData):
@@ -92,7 +90,8 @@ def write_plots(
 
         prob = TimeProblem(data)
         t = data.t
-        fig, axes = plt.subplots(1, 2, figsize=(12, 4), sharey=True)
+        fig = new_figure(12, 4, dpi=110)
+        axes = fig.subplots(1, 2, sharey=True)
         for ax, m, name in zip(axes, (before, after), ("before", "after")):
             e = data.y - prob.predict(m)
             ax.plot(t, e, lw=0.5)
@@ -108,9 +107,5 @@ def write_plots(
 
 
 def _save(fig, path: Path) -> Path:
-    import matplotlib.pyplot as plt
-
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
+    save_png(fig, path)
     return path
