@@ -19,6 +19,7 @@ from collections import Counter, defaultdict
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
@@ -127,7 +128,8 @@ def main(argv=None) -> int:
                         specs.append((plant, kind, pr, "clear"))
     rows = []
     confusion: dict[str, Counter] = defaultdict(Counter)
-    for plant, kind, effs, size in specs:
+    # progress on stderr, silent when stderr is not a terminal (disable=None)
+    for plant, kind, effs, size in tqdm(specs, unit="case", disable=None, file=sys.stderr):
         try:
             case = make_case(
                 rng,

@@ -16,14 +16,19 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
+from tqdm import tqdm  # noqa: E402
+
 import casegen  # noqa: E402
 from workbench.diagnosis import diagnose  # noqa: E402
 
 
 def run(specs, seeds, *, verbose=True):
     rows, scores = [], []
+    # progress on stderr, silent when stderr is not a terminal (disable=None)
+    bar = tqdm(total=len(seeds) * len(specs), unit="case", disable=None, file=sys.stderr)
     for seed in seeds:
         for spec in specs:
+            bar.update()
             case = casegen.make_case(*spec, seed=seed)
             t0 = time.perf_counter()
             result = diagnose(case.model, case.data).to_json()
@@ -39,6 +44,7 @@ def run(specs, seeds, *, verbose=True):
                     f"after/floor={s['error_after_ratio']:.2f} {dt:5.1f}s {perr}",
                     flush=True,
                 )
+    bar.close()
     return rows, scores
 
 

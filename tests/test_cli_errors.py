@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import SHARED_EXAMPLES
+from conftest import SHARED_EXAMPLES, require_shared
 
 from workbench.cli import main
 
@@ -40,6 +40,7 @@ def test_usage_errors_exit_2_one_line(argv, capsys):
 
 
 def test_compare_with_measurement_as_model_is_refused(capsys):
+    require_shared()
     m = str(EXAMPLES / "example_beam_none_frf" / "measurement.npz")
     assert main(["compare", "--model", m, "--data", m]) == 2
     line = one_line(capsys.readouterr().err)
@@ -47,6 +48,7 @@ def test_compare_with_measurement_as_model_is_refused(capsys):
 
 
 def test_compare_with_model_as_data_is_refused(capsys):
+    require_shared()
     m = str(EXAMPLES / "example_beam_none_frf" / "nominal_model.npz")
     assert main(["compare", "--model", m, "--data", m]) == 2
     line = one_line(capsys.readouterr().err)
@@ -54,6 +56,7 @@ def test_compare_with_model_as_data_is_refused(capsys):
 
 
 def test_compare_bad_delay_in_model_file(tmp_path, capsys):
+    require_shared()
     arrays = dict(np.load(EXAMPLES / "example_beam_none_frf" / "nominal_model.npz"))
     arrays["delay_s"] = np.array([1e-4, 2e-4])
     np.savez(tmp_path / "m.npz", **arrays)
@@ -63,6 +66,7 @@ def test_compare_bad_delay_in_model_file(tmp_path, capsys):
 
 
 def test_negative_delay_option_is_refused(capsys):
+    require_shared()
     folder = EXAMPLES / "example_beam_none_frf"
     argv = ["compare", "--model", str(folder / "nominal_model.npz"), "--data"]
     assert main(argv + [str(folder / "measurement.npz"), "--delay-s=-1e-3"]) == 2

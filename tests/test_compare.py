@@ -4,12 +4,11 @@ known truth (closed-form modal FRFs) and on the shared time example."""
 from __future__ import annotations
 
 import json
-import time
 
 import control
 import numpy as np
 import pytest
-from conftest import SHARED_EXAMPLES
+from conftest import SHARED_EXAMPLES, require_shared
 
 from workbench import lti
 from workbench.cli import main
@@ -128,23 +127,23 @@ def test_threshold_matches_simulation(rng):
     assert np.mean(med > T) == pytest.approx(0.01, abs=0.0015)
 
 
-def test_6x6_with_2500_lines_is_fast(rng):
+def test_6x6_with_2500_lines_has_a_full_error_map(rng):
+    """Shape only; its speed is measured in benchmarks/bench_speed.py (no timings in tests)."""
     freq = np.linspace(1.0, 2500.0, 2500)
     modes = [(f, 0.01, rng.standard_normal(6), rng.standard_normal(6)) for f in (300, 700, 1300)]
     sys6 = modal_model(modes, 6, 6)
     G = lti.frf(sys6, freq)
     data = FrfData(freq=freq, G=G * 1.001, G_var=(0.01 * np.abs(G)) ** 2)
-    compare(sys6, data)  # warm-up (imports)
-    t0 = time.perf_counter()
     res = compare(sys6, data)
-    elapsed = time.perf_counter() - t0
     assert res.error_map.shape == (2500, 6, 6)
-    assert elapsed < 0.5, elapsed
+    # |G_meas - G_model|^2 / G_var with a 0.1 % gain error and 1 % noise std: z = 0.01 everywhere
+    assert res.z_mean == pytest.approx(0.01, rel=1e-6)
 
 
 # ------------------------------------------------------------- time data
 @pytest.fixture(scope="module")
 def delay_case():
+    require_shared()
     folder = EXAMPLES / "example_stage_delay_time"
     data = load_measurement(folder / "measurement.npz")
     nominal = load_model(folder / "nominal_model.npz")

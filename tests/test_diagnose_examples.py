@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 
 import pytest
-from conftest import SHARED_EXAMPLES
+from conftest import SHARED_EXAMPLES, require_shared
 
 from workbench.diagnosis import diagnose
 from workbench.formats import load_measurement, load_model
@@ -16,9 +16,7 @@ NAMES = ["example_stage_missing_frf", "example_beam_none_frf", "example_stage_de
 
 @pytest.mark.parametrize("name", NAMES)
 def test_example_top_finding(name):
-    folder = EXAMPLES / name
-    if not folder.is_dir():
-        pytest.skip("shared examples not available")
+    folder = require_shared(EXAMPLES / name)
     answer = json.loads((folder / "answer.json").read_text())
     result = diagnose(
         load_model(folder / "nominal_model.npz"), load_measurement(folder / "measurement.npz")

@@ -70,6 +70,7 @@ def _assert_suite(results):
         for c, res, _, p, q in results
     ]
     msg = "\n".join(lines)
+    assert n > 0 and right, "empty suite or nothing right: the checks below would pass vacuously"
     assert len(right) >= 0.9 * n, msg
     assert all(p for *_, p, _ in right), msg
     assert all(q <= 2.0 for *_, q in right), msg

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import SHARED_EXAMPLES
+from conftest import SHARED_EXAMPLES, require_shared
 
 from workbench import formats, lti
 from workbench.cli import main
@@ -424,6 +424,7 @@ def test_shared_example_nominal_error_is_reproduced(case):
     """The examples come from code independent of the workbench: reading them and
     following the conventions (ZOH-compensated FRFs, time records from rest)
     must give answer.json's nominal_error to its 6 digits."""
+    require_shared()
     folder = EXAMPLES / case
     answer = json.loads((folder / "answer.json").read_text())
     data = formats.load_measurement(folder / "measurement.npz")
@@ -439,6 +440,7 @@ def test_shared_example_nominal_error_is_reproduced(case):
 
 @pytest.mark.parametrize("case", CASES)
 def test_shared_example_true_model_reaches_noise_floor(case):
+    require_shared()
     folder = EXAMPLES / case
     answer = json.loads((folder / "answer.json").read_text())
     data = formats.load_measurement(folder / "measurement.npz")
@@ -455,6 +457,7 @@ def test_shared_example_true_model_reaches_noise_floor(case):
 
 @pytest.mark.parametrize("case", CASES)
 def test_info_reads_shared_examples(case, capsys):
+    require_shared()
     for name in ["measurement.npz", "nominal_model.npz", "answer_true_model.npz"]:
         assert main(["info", str(EXAMPLES / case / name)]) == 0
         out = capsys.readouterr().out

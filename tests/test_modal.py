@@ -8,7 +8,7 @@ import control
 import numpy as np
 import pytest
 import scipy.linalg
-from conftest import SHARED_EXAMPLES
+from conftest import SHARED_EXAMPLES, require_shared
 
 from workbench.cli import main
 from workbench.d2c import d2c
@@ -176,8 +176,8 @@ def test_discrete_identified_style_model_goes_through_d2c():
     assert np.allclose(mm.damping, z_ref, rtol=1e-6)
 
 
-@pytest.mark.skipif(not EXAMPLE.exists(), reason="shared example files not present")
 def test_example_nominal_model_layout_is_reproduced():
+    require_shared()
     sys = load_model(EXAMPLE)
     mm = ModalModel.from_statespace(sys)
     assert mm.kinds == ("rigid",) * 6 + ("flexible",) * 2

@@ -8,7 +8,7 @@ import warnings
 import numpy as np
 import pytest
 import scipy.signal
-from conftest import SHARED_EXAMPLES
+from conftest import SHARED_EXAMPLES, require_shared
 
 from workbench.cli import main
 from workbench.errors import DataWarning
@@ -217,6 +217,7 @@ def test_runs_merges_small_gaps():
 def test_shared_examples_warnings_are_justified():
     """The time example is clean; the FRF examples have elements below the noise
     (small cross-couplings of the stage, antiresonances of the beam): one line each."""
+    require_shared()
     for case, n_expected in [
         ("example_stage_delay_time", 0),
         ("example_stage_missing_frf", 1),
@@ -248,6 +249,7 @@ def test_info_prints_warning_and_exits_zero(tmp_path, rng, capsys):
 
 def test_data_reading_commands_warn_on_poor_data(capsys):
     """compare warns like info, one line, exit 0 (the stage FRF has noise-dominated lines)."""
+    require_shared()
     from workbench.cli import main
 
     folder = EXAMPLES / "example_stage_missing_frf"

@@ -1,0 +1,77 @@
+"""Speed figures that used to be wall-clock asserts in unit tests (timings never go in tests).
+
+Each line prints the workbench's time against a reference measured in the same run:
+
+- ``compare`` of a 6x6 model with 2,500 FRF lines, against the bare arithmetic it cannot avoid
+  (model FRF by ``workbench.lti.frf`` plus the noise-normalized error ``|G - G_m|^2 / G_var``);
+- the wafer stage's linear simulation of 300,000 samples x 6 inputs, against real time (60 s at
+  5 kHz); the closed-loop simulator's own benchmark is benchmarks/bench_sim.py.
+
+Run: ``python benchmarks/bench_speed.py [--repeat 3]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+
+
+def best_of(fn, repeat: int) -> float:
+    fn()  # warm-up: imports, caches
+    t = np.inf
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        t = min(t, time.perf_counter() - t0)
+    return t
+
+
+def bench_compare(repeat: int) -> None:
+    from test_compare import modal_model
+
+    from workbench import lti
+    from workbench.compare import compare
+    from workbench.formats import FrfData
+
+    rng = np.random.default_rng(0)
+    freq = np.linspace(1.0, 2500.0, 2500)
+    modes = [(f, 0.01, rng.standard_normal(6), rng.standard_normal(6)) for f in (300, 700, 1300)]
+    sys6 = modal_model(modes, 6, 6)
+    G = lti.frf(sys6, freq)
+    data = FrfData(freq=freq, G=G * 1.001, G_var=(0.01 * np.abs(G)) ** 2)
+    t_cmp = best_of(lambda: compare(sys6, data), repeat)
+    t_ref = best_of(lambda: np.abs(data.G - lti.frf(sys6, freq)) ** 2 / data.G_var, repeat)
+    print(
+        f"compare 6x6 x 2500 lines: {1e3 * t_cmp:8.1f} ms   bare FRF + z: {1e3 * t_ref:7.1f} ms"
+        f"   ratio {t_cmp / t_ref:5.1f}x"
+    )
+
+
+def bench_stage_simulation(repeat: int) -> None:
+    from plants import get_plant
+
+    stage = get_plant("wafer_stage")
+    u = np.random.default_rng(0).standard_normal((300_000, 6))
+    t_sim = best_of(lambda: stage.simulate(u, rng=np.random.default_rng(0)), repeat)
+    line = f"stage linear simulation 300k x 6: {1e3 * t_sim:8.1f} ms   real time 60 s: "
+    line += f"{60.0 / t_sim:6.0f}x faster"
+    print(line)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeat", type=int, default=3)
+    a = ap.parse_args()
+    bench_compare(a.repeat)
+    bench_stage_simulation(a.repeat)
+
+
+if __name__ == "__main__":
+    main()
