@@ -1,18 +1,35 @@
 """Feedback controllers for the experiments and the control-design studies.
 
-Every controller is an immutable design with explicit state, the verbs shared
-with plants and observers::
+Every controller implements :class:`controllers.protocol.Controller`: an
+immutable design with explicit state, the verbs shared with plants and
+observers::
 
-    ctrl = tune_pid(mass, crossover_hz=100.0, fs=5000.0)   # design (frozen)
-    state = ctrl.init()
-    u_c, state = ctrl.step(state, y_k)                   # controller output at sample k
-    ctrl.statespace()                                    # the same law as a discrete StateSpace
+    K = tune_pid(mass, crossover_hz=100.0, fs=5000.0)   # design (frozen)
+    state = K.init()
+    u, state = K.step(state, e_k)                      # e = r - y -> plant input at sample k
+    K.statespace()                                     # the same law, discrete StateSpace e -> u
 
-Sign convention: the controller output is added to the excitation at the plant
-input, ``u = r + u_c``, and ``u_c = -K(z) y`` (negative feedback, set point 0);
-the loop gain is ``L = G K``.
+    workbench.sim.closed_loop(plant, K, r=..., d=..., rng=...)   # any plant, any Controller
+
+Sign convention (spec section 5): ``u = K e`` with ``e = r - y``; an excitation
+``d`` adds at the plant input, ``u = d + K e``; the loop gain is ``L = G K``.
+:class:`StateSpaceController` wraps any discrete StateSpace or spec-5 controller file.
 """
 
-from controllers.pid import ControllerState, DecentralizedController, PidChannel, tune_pid
+from controllers.pid import DecentralizedController, PidChannel, tune_pid
+from controllers.protocol import (
+    Controller,
+    ControllerState,
+    StateSpaceController,
+    StrictlyProper,
+)
 
-__all__ = ["ControllerState", "DecentralizedController", "PidChannel", "tune_pid"]
+__all__ = [
+    "Controller",
+    "ControllerState",
+    "DecentralizedController",
+    "PidChannel",
+    "StateSpaceController",
+    "StrictlyProper",
+    "tune_pid",
+]

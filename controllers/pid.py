@@ -14,6 +14,9 @@ computation delay: the output at sample k is computed from the measurements up
 to k - 1, the usual timing of a digital motion controller, and the one the
 shared example record was made with (its ``u - r`` is exactly 0 at k = 0 and
 does not depend on ``y[k]``).
+
+The controller implements :class:`controllers.protocol.Controller`: it maps the
+control error ``e = r - y`` to the plant input ``u = K e`` (spec section 5).
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ import numpy as np
 import scipy.linalg
 import scipy.signal
 
+from controllers.protocol import ControllerState
 from workbench.errors import InputError
 
 __all__ = ["PidChannel", "DecentralizedController", "ControllerState", "tune_pid"]
@@ -106,15 +110,8 @@ class PidChannel:
 
 
 @dataclass(frozen=True)
-class ControllerState:
-    """Explicit controller state: x (n_x,)."""
-
-    x: np.ndarray
-
-
-@dataclass(frozen=True)
 class DecentralizedController:
-    """Diagonal (decentralized) discrete controller ``u_c = -K(z) y``.
+    """Diagonal (decentralized) discrete controller ``u = K(z) e``, e = r - y.
 
     Parameters
     ----------
@@ -131,8 +128,9 @@ class DecentralizedController:
 
     Notes
     -----
-    The discrete matrices (A, B, C, D) of the map y (n_y) -> u_c (n_u) are built
-    once on construction; ``step`` is x+ = A x + B y, u = C x + D y.
+    The discrete matrices (A, B, C, D) of the map e (n_y) -> u (n_u) are built
+    once on construction; ``step`` is x+ = A x + B e, u = C x + D e. With the
+    set point 0 of the experiments, e = -y.
     """
 
     channels: tuple[PidChannel, ...]
@@ -182,8 +180,7 @@ class DecentralizedController:
         a, b, c, d = (np.atleast_2d(np.asarray(m, float)) for m in (a, b, c, d))
         if a.size == 0:
             a, b, c = np.zeros((0, 0)), np.zeros((0, 1)), np.zeros((1, 0))
-        c, d = -c, -d  # u_c = -K y
-        for _ in range(self.delay_samples):  # q+ = c x + d y ; u = q
+        for _ in range(self.delay_samples):  # q+ = c x + d e ; u = q
             n = a.shape[0]
             a = np.block([[a, np.zeros((n, 1))], [c, np.zeros((1, 1))]])
             b = np.vstack([b, d])
@@ -200,19 +197,24 @@ class DecentralizedController:
         return self._abcd[0].shape[0]
 
     @property
+    def linear(self) -> bool:
+        """Always True: ``step`` is exactly :meth:`statespace`."""
+        return True
+
+    @property
     def matrices(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Discrete (A, B, C, D) of y (n_y) -> u_c (n_u), read-only."""
+        """Discrete (A, B, C, D) of e (n_y) -> u (n_u), read-only."""
         return self._abcd
 
     def statespace(self):
-        """The controller as a discrete ``control.StateSpace`` (dt = 1/fs) from y to u_c."""
+        """The controller as a discrete ``control.StateSpace`` (dt = 1/fs) from e to u."""
         import control
 
         A, B, C, D = self._abcd
         return control.ss(A, B, C, D, 1.0 / self.fs)
 
     def frf(self, freq_hz) -> np.ndarray:
-        """Frequency response of y -> u_c, (n_f, n_u, n_y) (note the minus sign of u_c = -K y)."""
+        """Frequency response of e -> u, (n_f, n_u, n_y); the loop gain is G K."""
         from workbench import lti
 
         return lti.frf(self.statespace(), freq_hz)
@@ -222,18 +224,18 @@ class DecentralizedController:
         return ControllerState(np.zeros(self.n_x))
 
     def output(self, state: ControllerState) -> np.ndarray:
-        """u_c[k] before y[k] is known; only for delay_samples >= 1 (then D = 0)."""
+        """u[k] before e[k] is known; only for delay_samples >= 1 (then D = 0)."""
         if self.delay_samples < 1:
             raise InputError(
                 "output: needs delay_samples >= 1 (a controller without direct feedthrough)"
             )
         return self._abcd[2] @ state.x
 
-    def step(self, state: ControllerState, y: np.ndarray) -> tuple[np.ndarray, ControllerState]:
-        """Controller output u_c[k] (n_u,) from y[k] (n_y,), and the next state."""
+    def step(self, state: ControllerState, e: np.ndarray) -> tuple[np.ndarray, ControllerState]:
+        """Controller output u[k] (n_u,) from e[k] = r[k] - y[k] (n_y,), and the next state."""
         A, B, C, D = self._abcd
-        y = np.asarray(y, float)
-        return C @ state.x + D @ y, ControllerState(A @ state.x + B @ y)
+        e = np.asarray(e, float)
+        return C @ state.x + D @ e, ControllerState(A @ state.x + B @ e)
 
 
 def tune_pid(

@@ -58,8 +58,8 @@ def test_linear_and_step_paths_agree(stage):
     u2, y2 = simulate_closed_loop(stage, K, r, rng=7, method="step")
     np.testing.assert_allclose(u1, u2, atol=1e-9 * np.abs(u1).max())
     np.testing.assert_allclose(y1, y2, atol=1e-9 * np.abs(y1).max())
-    # u = r + u_c with u_c = -K y: the controller's own discrete model replays it
-    uc = lti.simulate_zoh(K.statespace(), y1, FS)
+    # u = r + K e with e = -y (set point 0): the controller's own discrete model replays it
+    uc = lti.simulate_zoh(K.statespace(), -y1, FS)
     np.testing.assert_allclose(u1 - r, uc, atol=1e-9 * np.abs(uc).max())
     assert np.all(u1[0] == r[0])  # one-sample controller delay: nothing fed back at k = 0
 
@@ -110,7 +110,7 @@ def test_closed_loop_multisine_frf_within_its_variance(stage):
 def test_pid_tuning_crossover_and_margin(stage):
     K = tune_pid(STAGE_MASS, crossover_hz=100.0, fs=FS)
     f = np.linspace(20, 400, 3801)
-    L = np.einsum("fij,fjk->fik", stage.frf(f), -K.frf(f))  # loop gain G K, K = -(y -> u_c)
+    L = np.einsum("fij,fjk->fik", stage.frf(f), K.frf(f))  # loop gain G K, K: e -> u
     l = L[:, np.arange(6), np.arange(6)]
     for j in range(6):
         i = np.argmin(np.abs(np.abs(l[:, j]) - 1))

@@ -9,11 +9,12 @@ Data flow::
             MultisineExperiment (R, n_exp, P, period, n_ch) arrays   or   TimeData
                     .to_time_data() -> TimeData (spec 1a, experiments concatenated, `period` set)
 
-Closed loop (``controller`` given): the excitation ``r`` enters at the plant
-input, ``u = r + u_c`` with ``u_c = -K y``; the controller sees the measured
-``y`` (noise included); any computation delay of the plant is the plant's own
-(``plant.delay_s``), the controller's own is ``controller.delay_samples``.
-Every run starts at rest and is reproducible from its ``rng``.
+Closed loop (``controller`` given, any :class:`controllers.Controller`): the
+excitation ``r`` enters at the plant input, ``u = r + K e`` with the set point 0,
+``e = -y``; the controller sees the measured ``y`` (noise included); any
+computation delay of the plant is the plant's own (``plant.delay_s``), the
+controller's own is ``controller.delay_samples``. Every run starts at rest and
+is reproducible from its ``rng``. The loop runs in :func:`workbench.sim.closed_loop`.
 
 Two ways to simulate a closed loop, picked by ``method="auto"``:
 
@@ -24,7 +25,8 @@ Two ways to simulate a closed loop, picked by ``method="auto"``:
   noise ``v = plant.simulate(0)``: a 6x6 wafer stage, 10,000 samples, takes
   a few tens of milliseconds.
 - ``"step"``: otherwise, ``plant.step`` and ``controller.step`` sample by
-  sample (needs ``controller.delay_samples >= 1``).
+  sample (needs a controller without direct feedthrough, such as
+  ``delay_samples >= 1``).
 
 Multi-experiment multisines: ``run_multisine`` applies realization r,
 experiment e (r-major order) one after the other in a single run, ``n_periods``
@@ -35,12 +37,13 @@ is dropped by the estimator (``frf_estimation.frf_multisine(n_transient=1)``).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 
 from controllers.pid import DecentralizedController, tune_pid
-from workbench import lti
+from controllers.protocol import Controller
+from workbench import sim
 from workbench.errors import InputError
 from workbench.formats import TimeData
 from workbench.signals import Multisine, as_rng, multisine, step_signal, white_noise
@@ -152,67 +155,9 @@ def _check_input(plant, x, name: str) -> np.ndarray:
     return x
 
 
-def _discrete_plant(plant) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """ZOH model of the plant's linear part with its input delay, input u[k] (no noise)."""
-    A, B, C, D, _ = lti.as_matrices(plant.linear_model())
-    Ad, B0, B1, m = lti.c2d_zoh(A, B, 1.0 / plant.fs, delay_s=plant.delay_s)
-    n, n_u = B.shape
-    L = m + 1  # stored past inputs d_i = u[k-i], i = 1..L
-    N = n + L * n_u
-    Aa = np.zeros((N, N))
-    Ba = np.zeros((N, n_u))
-    Ca = np.zeros((C.shape[0], N))
-    Da = np.zeros((C.shape[0], n_u))
-    Aa[:n, :n] = Ad
-    Ca[:, :n] = C
-
-    def blk(i):  # columns of d_i
-        return slice(n + (i - 1) * n_u, n + i * n_u)
-
-    if m == 0:
-        Ba[:n] = B0
-        Da[:] = D
-    else:
-        Aa[:n, blk(m)] = B0
-        Ca[:, blk(m)] = D
-    Aa[:n, blk(m + 1)] += B1
-    Ba[blk(1)] = np.eye(n_u)
-    for i in range(2, L + 1):
-        Aa[blk(i), blk(i - 1)] = np.eye(n_u)
-    return Aa, Ba, Ca, Da
-
-
-def _closed_loop_matrices(plant, controller: DecentralizedController):
-    """Discrete closed loop, inputs [r; v] (v: noise on y), outputs [u; y_measured]."""
-    Ap, Bp, Cp, Dp = _discrete_plant(plant)
-    Ac, Bc, Cc, Dc = controller.matrices
-    n_p, n_c = Ap.shape[0], Ac.shape[0]
-    n_u, n_y = Bp.shape[1], Cp.shape[0]
-    M = np.linalg.inv(np.eye(n_u) - Dc @ Dp)
-    # u = M (r + Cc xc + Dc Cp xi + Dc v)
-    Ux = np.hstack([M @ Dc @ Cp, M @ Cc])
-    Uw = np.hstack([M, M @ Dc])
-    # y = Cp xi + Dp u + v
-    Yx = np.hstack([Cp, np.zeros((n_y, n_c))]) + Dp @ Ux
-    Yw = Dp @ Uw + np.hstack([np.zeros((n_y, n_u)), np.eye(n_y)])
-    A = np.block([[Ap, np.zeros((n_p, n_c))], [np.zeros((n_c, n_p)), Ac]])
-    A = A + np.vstack([Bp @ Ux, Bc @ Yx])
-    B = np.vstack([Bp @ Uw, Bc @ Yw])
-    return A, B, np.vstack([Ux, Yx]), np.vstack([Uw, Yw])
-
-
-def _is_linear_additive(plant, u_probe: np.ndarray) -> bool:
-    seed = 20240601  # any fixed seed: the same noise in both runs cancels
-    y1 = np.asarray(plant.simulate(u_probe, rng=np.random.default_rng(seed)), float)
-    y0 = np.asarray(plant.simulate(np.zeros_like(u_probe), rng=np.random.default_rng(seed)), float)
-    y_lin = lti.simulate_zoh(plant.linear_model(), u_probe, plant.fs, delay_s=plant.delay_s)
-    scale = np.linalg.norm(y_lin)
-    return bool(scale > 0 and np.linalg.norm(y1 - y0 - y_lin) <= 1e-6 * scale)
-
-
 def simulate_closed_loop(
     plant,
-    controller: DecentralizedController,
+    controller: Controller,
     r: np.ndarray,
     *,
     rng: np.random.Generator | int,
@@ -220,11 +165,14 @@ def simulate_closed_loop(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Closed-loop response to the excitation ``r`` at the plant input, from rest.
 
+    The loop itself is :func:`workbench.sim.closed_loop` (set point 0, so the
+    controller sees e = -y; ``r`` here is its excitation ``d``).
+
     Parameters
     ----------
     plant : Plant
-    controller : DecentralizedController
-        Maps the plant's n_y outputs to its n_u inputs, at the plant's fs.
+    controller : Controller
+        Maps the control error (n_y) to the plant's n_u inputs, at the plant's fs.
     r : (N, n_u) array
         Excitation added at the plant input, N.
     rng : Generator or int
@@ -239,50 +187,8 @@ def simulate_closed_loop(
     y : (N, n_y) array
         Measured output, m.
     """
-    rng = as_rng(rng)
     r = _check_input(plant, r, "r")
-    if controller.n_u != plant.n_u or controller.n_y != plant.n_y:
-        raise InputError(
-            f"controller: expected {plant.n_y} inputs and {plant.n_u} outputs to match the plant, "
-            f"got {controller.n_y} and {controller.n_u}"
-        )
-    if abs(controller.fs - plant.fs) > 1e-9 * plant.fs:
-        raise InputError(
-            f"controller: expected fs = {plant.fs:g} Hz like the plant, got {controller.fs:g}"
-        )
-    if method == "auto":
-        method = "linear" if _is_linear_additive(plant, r[: min(r.shape[0], 512)]) else "step"
-    if method == "linear":
-        A, B, C, D = _closed_loop_matrices(plant, controller)
-        rho = np.max(np.abs(np.linalg.eigvals(A))) if A.size else 0.0
-        if rho >= 1:
-            raise InputError(
-                f"controller: the closed loop is unstable (spectral radius {rho:.4f} >= 1); "
-                "lower the crossover or add a notch"
-            )
-        v = np.asarray(plant.simulate(np.zeros_like(r), rng=rng), float)
-        import control
-
-        sys = control.ss(A, B, C, D, 1.0 / plant.fs)
-        out = lti.simulate_zoh(sys, np.hstack([r, v]), plant.fs)
-        return out[:, : plant.n_u], out[:, plant.n_u :]
-    if method == "step":
-        if controller.delay_samples < 1:
-            raise InputError(
-                "controller: stepping a nonlinear plant needs delay_samples >= 1 (u[k] must not "
-                "depend on y[k])"
-            )
-        N = r.shape[0]
-        u = np.empty_like(r)
-        y = np.empty((N, plant.n_y))
-        ps: Any = plant.init(rng)
-        cs = controller.init()
-        for k in range(N):
-            u[k] = r[k] + controller.output(cs)
-            y[k], ps = plant.step(ps, u[k])
-            _, cs = controller.step(cs, y[k])
-        return u, y
-    raise InputError(f"method: expected 'auto', 'linear' or 'step', got {method!r}")
+    return sim.closed_loop(plant, controller, d=r, rng=as_rng(rng), method=method)
 
 
 def _run(plant, r, controller, rng, method):
@@ -302,7 +208,7 @@ def run_multisine(
     design: Multisine,
     *,
     n_periods: int,
-    controller: DecentralizedController | None = None,
+    controller: Controller | None = None,
     rng: np.random.Generator | int,
     method: Literal["auto", "linear", "step"] = "auto",
 ) -> MultisineExperiment:
@@ -315,7 +221,7 @@ def run_multisine(
         With ``n_ch == plant.n_u`` and ``fs == plant.fs``.
     n_periods : int
         Periods per block (the first is the transient, dropped by the estimator).
-    controller : DecentralizedController, optional
+    controller : Controller, optional
         Closed loop when given.
     rng : Generator or int
     method : {"auto", "linear", "step"}
@@ -352,7 +258,7 @@ def run_noise(
     n_samples: int,
     rms: float | np.ndarray,
     band_hz: tuple[float, float] | None = None,
-    controller: DecentralizedController | None = None,
+    controller: Controller | None = None,
     rng: np.random.Generator | int,
     method: Literal["auto", "linear", "step"] = "auto",
 ) -> TimeData:
@@ -372,7 +278,7 @@ def run_step(
     n_samples: int,
     amplitude: float | np.ndarray,
     start_sample: int = 0,
-    controller: DecentralizedController | None = None,
+    controller: Controller | None = None,
     rng: np.random.Generator | int,
     method: Literal["auto", "linear", "step"] = "auto",
 ) -> TimeData:
@@ -419,7 +325,7 @@ def wafer_stage_closed_loop_record(
     plant,
     *,
     rng: np.random.Generator | int,
-    controller: DecentralizedController | None = None,
+    controller: Controller | None = None,
     crossover_hz: float = 100.0,
     accel_rms: float = 0.3,
     band_hz: tuple[float, float] = (7.5, 1500.0),
