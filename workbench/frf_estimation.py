@@ -32,12 +32,12 @@ one. ``zoh="none"`` returns the discrete-time FRF.
 
 **Multisines.** The record of a multisine experiment is a sequence of blocks,
 each a number of identical periods of one excitation (one experiment of one
-realization); a file concatenates them with ``period`` set. Blocks are found
-from the reference: a period starts a new block when it differs from the
-previous one by more than 10 % (relative norm). In every block the first
-``n_transient`` periods are dropped, the DFT of each remaining period taken,
-and the periods averaged. The excited lines are the bins where the reference
-carries power (more than 1e-4 of the strongest bin) unless given.
+realization); a file concatenates them with ``period`` set. Blocks, dropped
+transient periods, period averages and excited lines are those of
+:func:`workbench.periodic.periodic_record` (one rule for the whole workbench):
+in every block the first ``n_transient`` periods are dropped and the DFT of
+the mean period taken; the excited lines are the bins where the reference
+carries power (:data:`workbench.periodic.EXCITED_REL_POWER`) unless given.
 
 ``G_var`` (per element, ``E|G_hat - G|^2``) comes from the spread over periods
 (``variance="noise"``, default): per block, the residual ``e_p = Y_p - G U_p`` of
@@ -59,11 +59,11 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-import scipy.fft
 
 from workbench import lti
 from workbench.errors import DataWarning, InputError
 from workbench.formats import FrfData, TimeData
+from workbench.periodic import periodic_record
 
 __all__ = [
     "FrfEstimate",
@@ -71,14 +71,9 @@ __all__ = [
     "estimate_frf",
     "frf_multisine",
     "frf_h1",
-    "split_blocks",
 ]
 
 EXCITED, ODD_FREE, EVEN_FREE = 0, 1, 2
-_EXCITED_REL_POWER = (
-    1e-4  # a bin is excited when its reference power exceeds this share of the peak
-)
-_BLOCK_REL_CHANGE = 0.1  # a period starts a new block when it differs by this relative norm
 _COND_LIMIT = 1e12  # refuse an input matrix (U R^H) more ill-conditioned than this (rank lost)
 _COND_WARN = 1e6  # warn above this: random-phase designs now and then give such lines
 
@@ -182,6 +177,7 @@ def _inverse(B: np.ndarray, what: str) -> np.ndarray:
     Bs = Bs / np.where(cols > 0, cols, 1.0)
     # Frobenius-norm condition ||Bs|| ||Bs^-1||: within a factor n_u of the 2-norm one, and
     # free once the inverse is formed
+    Binv_s = None
     with np.errstate(all="ignore"):
         try:
             Binv_s = np.linalg.inv(Bs)
@@ -206,36 +202,12 @@ def _inverse(B: np.ndarray, what: str) -> np.ndarray:
             DataWarning,
             stacklevel=3,
         )
-    return np.linalg.inv(B)
-
-
-def split_blocks(x: np.ndarray, period: int) -> list[tuple[int, int]]:
-    """Blocks of identical periods in an excitation record.
-
-    Parameters
-    ----------
-    x : (N, n_ch) array
-        The excitation (``r``, or ``u`` in open loop), N a multiple of ``period``.
-    period : int
-        Samples per period.
-
-    Returns
-    -------
-    list of (first_period, n_periods)
-        Periods whose excitation is zero are skipped.
-    """
-    per = x.reshape(-1, period, x.shape[1])
-    norm = np.linalg.norm(per, axis=(1, 2))
-    diff = np.linalg.norm(np.diff(per, axis=0), axis=(1, 2))
-    scale = np.maximum(norm[1:], norm[:-1])
-    new = np.concatenate([[True], diff > _BLOCK_REL_CHANGE * np.where(scale > 0, scale, 1.0)])
-    starts = list(np.flatnonzero(new)) + [per.shape[0]]
-    peak = norm.max() if norm.size else 0.0
-    blocks = []
-    for a, b in zip(starts[:-1], starts[1:]):
-        if norm[a] > 1e-12 * peak:
-            blocks.append((int(a), int(b - a)))
-    return blocks
+    if Binv_s is None:
+        return np.linalg.inv(B)
+    # B = diag(rows) Bs diag(cols), so B^-1 = diag(1/cols) Bs^-1 diag(1/rows): no second inverse
+    r = np.where(rows > 0, rows, 1.0)  # (n_f, n_u, 1)
+    c = np.where(cols > 0, cols, 1.0)  # (n_f, 1, n_u)
+    return Binv_s / np.swapaxes(c, 1, 2) / np.swapaxes(r, 1, 2)
 
 
 # ----------------------------------------------------------------- multisine
@@ -277,91 +249,39 @@ def frf_multisine(
     from workbench.experiments import MultisineExperiment
 
     if isinstance(data, MultisineExperiment):
-        fs, period = data.fs, data.period
-        n_u, n_y = data.u.shape[-1], data.y.shape[-1]
-        Y = data.y.reshape((-1,) + data.y.shape[2:])
-        U = data.u.reshape((-1,) + data.u.shape[2:])
-        Rr = None if data.r is None else data.r.reshape((-1,) + data.r.shape[2:])
-        names = dict(input_names=data.input_names, output_names=data.output_names)
         if lines is None:
             lines = data.design.lines
-        blocks_y, blocks_u = [Y], [U]
-        blocks_r = None if Rr is None else [Rr]
     elif isinstance(data, TimeData):
         if data.period is None:
             raise InputError(
                 "data: key 'period': expected a periodic (multisine) record with 'period' set; "
                 "use frf_h1 (method 'h1') for a non-periodic record"
             )
-        fs, period, n_u, n_y = data.fs, data.period, data.n_u, data.n_y
-        names = dict(input_names=data.input_names, output_names=data.output_names)
-        x = data.r if data.r is not None else data.u
-        found = split_blocks(x, period)
-        if not found:
-            raise InputError("data: the excitation is zero in every period")
-        # blocks of equal length are stacked into one array; unequal ones kept apart
-        order = sorted(found)
-        lengths = {n for _, n in order}
-
-        def stack(sig):
-            if sig is None:
-                return None
-            per = sig.reshape(-1, period, sig.shape[1])
-            if len(lengths) == 1:
-                n = order[0][1]
-                idx = np.array([a for a, _ in order])[:, None] + np.arange(n)[None, :]
-                return [per[idx]]
-            return [per[a : a + n][None] for a, n in order]
-
-        blocks_y, blocks_u, blocks_r = stack(data.y), stack(data.u), stack(data.r)
     else:
         raise InputError(
             f"data: expected a MultisineExperiment or TimeData, got {type(data).__name__}"
         )
-    if reference not in ("auto", "r", "u"):
-        raise InputError(f"reference: expected 'auto', 'r' or 'u', got {reference!r}")
-    if reference == "r" and blocks_r is None:
-        raise InputError("reference: 'r' asked for, but the data has no excitation 'r'")
-    use_r = blocks_r is not None and reference != "u"
-    n_transient = int(n_transient)
-    if n_transient < 0:
-        raise InputError(f"n_transient: expected an integer >= 0, got {n_transient}")
-    min_periods = min(b.shape[1] for b in blocks_y)
-    if min_periods <= n_transient:
+    rec = periodic_record(data, n_transient=n_transient, reference=reference, workers=workers)
+    if np.any(rec.n_dropped < int(n_transient)):
         raise InputError(
-            f"n_transient: every block must keep a period after dropping {n_transient}; "
-            f"the shortest block has {min_periods} period(s)"
+            f"n_transient: every block must keep a period after dropping {int(n_transient)}; "
+            f"the shortest block has {int(np.min(rec.n_kept + rec.n_dropped))} period(s)"
         )
+    fs, period = rec.fs, rec.period
+    n_u, n_y = rec.u.shape[1], rec.y.shape[1]
+    names = dict(input_names=data.input_names, output_names=data.output_names)
+    use_r = rec.R is not None and reference != "u"
 
-    # ---- DFT per period, averaged per block
+    # ---- period-averaged DFTs per block (the record's), as sine amplitudes
     scale = 2.0 / period  # DFT -> sine amplitude
-    # The DFT is linear: the block mean is the DFT of the mean period, and the spread over
-    # periods the DFT of the deviations from it (no cancellation, and no DFT at all of an
-    # input that repeats exactly, as an open-loop generator's does).
-    Ym, Um, Rm, dYs, dUs = [], [], [], [], []
-    for i in range(len(blocks_y)):
-        yb = blocks_y[i][:, n_transient:]  # (b, P', period, n_y)
-        ub = blocks_u[i][:, n_transient:]
-        ym, um = yb.mean(axis=1), ub.mean(axis=1)
-        Ym.append(scipy.fft.rfft(ym, axis=1, workers=workers) * scale)
-        Um.append(scipy.fft.rfft(um, axis=1, workers=workers) * scale)
-        if yb.shape[1] >= 2:
-            dYs.append(scipy.fft.rfft(yb - ym[:, None], axis=2, workers=workers))
-            du = ub - um[:, None]
-            dUs.append(scipy.fft.rfft(du, axis=2, workers=workers) if np.any(du) else None)
-        if use_r:
-            Rm.append(scipy.fft.rfft(blocks_r[i][:, n_transient:].mean(axis=1), axis=1) * scale)
-    Ym = np.concatenate(Ym)  # (n_b, n_bins, n_y)
-    Um = np.concatenate(Um)
-    Rm = np.concatenate(Rm) if use_r else Um
-    n_b = Ym.shape[0]
-    n_bins = Ym.shape[1]
-    n_per = [b.shape[1] - n_transient for b in blocks_y]
+    Ym, Um = rec.Y * scale, rec.U * scale  # (n_b, n_bins, n_y), (n_b, n_bins, n_u)
+    Rm = rec.R * scale if use_r else Um
+    n_b, n_bins = rec.n_blocks, rec.n_bins
+    n_per = rec.n_kept.tolist()
 
     # ---- excited lines
     if lines is None:
-        p = np.sum(np.abs(Rm[:, 1 : period // 2 + (period % 2)]) ** 2, axis=(0, 2))
-        lines = 1 + np.flatnonzero(p > _EXCITED_REL_POWER * p.max())
+        lines = rec.lines
     lines = np.asarray(lines, int)
     if lines.size == 0 or lines.min() < 1 or lines.max() >= n_bins or np.any(np.diff(lines) <= 0):
         raise InputError(
@@ -383,35 +303,32 @@ def frf_multisine(
     G = Yl @ W  # (n_l, n_y, n_u)
 
     # ---- variance from the spread over periods
-    var_e = np.empty((lines.size, n_y, n_b))
     have_periods = min(n_per) >= 2
     noise_bins = np.full((n_bins, n_y), np.nan)
-    k = 0
     if have_periods:
         noise_acc = np.zeros((n_bins, n_y))
-        n_l = lines.size
-        contiguous = lines[-1] - lines[0] + 1 == n_l
-        at_lines = slice(lines[0], lines[-1] + 1) if contiguous else lines
-        GT = np.swapaxes(G, 1, 2) / scale  # residual in unscaled DFT units
-        for i in range(len(dYs)):
-            nb_i, P = dYs[i].shape[:2]
-            norm = scale**2 / (P * (P - 1))  # variance of the mean of P periods
-            # output noise at every bin
-            v = dYs[i].view(np.float64)  # re/im interleaved: (b, P, n_bins, 2 n_y)
-            sq = np.einsum("bpfc,bpfc->fc", v, v).reshape(n_bins, n_y, 2).sum(axis=2)
+        var_e = np.empty((lines.size, n_y, n_b))
+        for i in range(n_b):
+            norm = scale**2 / (n_per[i] * (n_per[i] - 1))  # variance of the mean of the periods
+            dY = rec.deviation_spectra("y", i, workers=workers)  # (P, n_bins, n_y) or None
+            dU = rec.deviation_spectra("u", i, workers=workers)
+            if dY is None:  # noise-free record
+                dY = np.zeros((n_per[i], n_bins, n_y), complex)
+            v = dY.view(np.float64)  # re/im interleaved: (P, n_bins, 2 n_y)
+            sq = np.einsum("pfc,pfc->fc", v, v).reshape(n_bins, n_y, 2).sum(axis=2)
             noise_acc += sq * norm
-            # residual of each period around its block mean, e_p = dY_p - G dU_p, at the lines
-            e = np.moveaxis(dYs[i][:, :, at_lines], 2, 0).reshape(n_l, nb_i * P, n_y)
-            if dUs[i] is not None:
-                dU = np.moveaxis(dUs[i][:, :, at_lines], 2, 0).reshape(n_l, nb_i * P, n_u)
-                e = e - (dU * scale) @ GT
-            ev = e.view(np.float64).reshape(n_l, nb_i, P, n_y, 2)
-            var_e[:, :, k : k + nb_i] = np.swapaxes(
-                np.einsum("lbpyc,lbpyc->lby", ev, ev) * norm, 1, 2
-            )
-            k += nb_i
+            if dU is None:
+                # the input repeats exactly (open-loop generator): the residual e_p of each
+                # period around the block mean is the output's deviation, already summed
+                var_e[:, :, i] = sq[lines] * norm
+            else:
+                # residual of each period around its block mean, e_p = dY_p - G dU_p
+                GT = np.swapaxes(G, 1, 2)  # (n_l, n_u, n_y)
+                e = dY[:, lines] - np.swapaxes(np.swapaxes(dU[:, lines], 0, 1) @ GT, 0, 1)
+                ev = e.view(np.float64).reshape(e.shape[0], lines.size, n_y, 2)
+                var_e[:, :, i] = np.einsum("plyc,plyc->ly", ev, ev) * norm
         noise_bins = noise_acc / n_b
-        G_var_noise = np.einsum("lyb,lbu->lyu", var_e, np.abs(W) ** 2)
+        G_var_noise = var_e @ (W.real**2 + W.imag**2)  # (n_l, n_y, n_b) @ (n_l, n_b, n_u)
     else:
         G_var_noise = None
 
