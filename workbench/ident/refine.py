@@ -164,7 +164,7 @@ def periodic_spectra(data: TimeData, *, n_transient: int = 1) -> PeriodicSpectra
     InputError
         Not periodic, or no block with a steady-state period.
     """
-    from workbench.frf_estimation import split_blocks
+    from workbench.periodic import periodic_record
 
     if not isinstance(data, TimeData):
         raise InputError(f"data: expected periodic TimeData, got {type(data).__name__}")
@@ -177,34 +177,27 @@ def periodic_spectra(data: TimeData, *, n_transient: int = 1) -> PeriodicSpectra
     n_transient = int(n_transient)
     if n_transient < 0:
         raise InputError(f"n_transient: expected an integer >= 0, got {n_transient}")
-    ref = data.r if data.r is not None else data.u
     f_all, U_all, Y_all, n_all, dl_all, dU_all, dY_all = [], [], [], [], [], [], []
     n_l = 0
-    for first, n_per in split_blocks(ref, P):
-        skip = min(n_transient, n_per - 1)
-        n = n_per - skip
-        if n < 1:
-            continue
-        sl = slice((first + skip) * P, (first + n_per) * P)
-        R = np.fft.rfft(ref[sl].reshape(n, P, -1), axis=1).mean(axis=0)
-        power = np.sum(np.abs(R) ** 2, axis=1)
-        power[0] = 0.0
-        if P % 2 == 0:
-            power[-1] = 0.0
-        lines = np.flatnonzero(power > 1e-10 * power.max()) if power.max() > 0 else []
+    try:
+        rec = periodic_record(data, n_transient=n_transient, min_periods=1)
+    except InputError:
+        rec = None  # no excitation at all: refused below, with this function's message
+    for b in range(0 if rec is None else rec.n_blocks):
+        lines = np.flatnonzero(rec.excited[b])
         if len(lines) == 0:
             continue
-        Uper = np.fft.rfft(data.u[sl].reshape(n, P, -1), axis=1)[:, lines]  # (n, n_k, n_u)
-        Yper = np.fft.rfft(data.y[sl].reshape(n, P, -1), axis=1)[:, lines]
-        Um, Ym = Uper.mean(axis=0), Yper.mean(axis=0)
+        n = int(rec.n_kept[b])
         f_all.append(lines * data.fs / P)
-        U_all.append(Um)
-        Y_all.append(Ym)
+        U_all.append(rec.U[b, lines])
+        Y_all.append(rec.Y[b, lines])
         n_all.append(np.full(len(lines), n))
         if n > 1:
             dl_all.append(np.tile(n_l + np.arange(len(lines)), n))
-            dU_all.append((Uper - Um).reshape(-1, data.n_u))
-            dY_all.append((Yper - Ym).reshape(-1, data.n_y))
+            for dev, x, width in ((dU_all, "u", data.n_u), (dY_all, "y", data.n_y)):
+                D = rec.deviation_spectra(x, b)
+                D = np.zeros((n, len(lines), width), complex) if D is None else D[:, lines]
+                dev.append(D.reshape(-1, width))
         n_l += len(lines)
     if not f_all:
         raise InputError(
