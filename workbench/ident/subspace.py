@@ -472,29 +472,20 @@ def _periodic_factor(data, *, input_delay, su, sy, i, cva, chunk, n_transient=1)
     lines. The projected signals are periodic and noise-reduced; their
     circular block-Hankel Gram is block-Toeplitz, ``G[a, b] = F_{b-a}``.
     """
-    from workbench.frf_estimation import split_blocks
+    from workbench.periodic import periodic_record
 
     P = int(data.period)
     # A record may hold several experiments (blocks of identical periods, each
     # its own r): each block is projected onto its own r's lines, and the
     # circular Grams of the blocks add up.
+    rec = periodic_record(data, n_transient=n_transient, min_periods=1, reference="r")
+    # y[k + d] with u[k] in the periodic steady state: a circular shift, exp(+j 2 pi k d / P)
+    shift = np.exp(2j * np.pi * np.arange(rec.n_bins) * input_delay / P)[:, None]
     blocks = []
-    for first, n_per in split_blocks(data.r, P):
-        skip = min(n_transient, n_per - 1)
-        if n_per - skip < 1:
-            continue
-        sl = slice((first + skip) * P, (first + n_per) * P)
-
-        def mean_period(x, sl=sl, n=n_per - skip):
-            return x[sl].reshape(n, P, x.shape[1]).mean(axis=0)
-
-        ub, yb, rb = mean_period(data.u), mean_period(data.y), mean_period(data.r)
-        if input_delay:
-            yb = np.roll(yb, -input_delay, axis=0)  # y[k + d] with u[k], periodic steady state
-        power = np.sum(np.abs(np.fft.rfft(rb, axis=0)) ** 2, axis=1)
-        mask = (power > 1e-10 * power.max())[:, None]
-        uh = np.fft.irfft(np.fft.rfft(ub, axis=0) * mask, n=P, axis=0) / su
-        yh = np.fft.irfft(np.fft.rfft(yb, axis=0) * mask, n=P, axis=0) / sy
+    for b in range(rec.n_blocks):
+        mask = rec.excited[b][:, None]
+        uh = np.fft.irfft(rec.U[b] * mask, n=P, axis=0) / su
+        yh = np.fft.irfft(rec.Y[b] * shift * mask, n=P, axis=0) / sy
         blocks.append(np.hstack([uh, yh]))
     n_u, n_y = data.n_u, data.n_y
     m, k = n_u + n_y, 2 * i
