@@ -1,7 +1,7 @@
 """Sampled simulation of a :class:`~plants.modal.LinearChain`: fast linear path and nonlinear path.
 
 Linear path: exact zero-order-hold discretization with the (fractional) input
-delay (:func:`workbench.lti.c2d_zoh`), then the recursion
+delay (:func:`workbench.sim.c2d_zoh`), then the recursion
 x[k+1] = Ad x[k] + B0 u[k-m] + B1 u[k-m-1] is run block by block: Ad is block
 lower triangular (actuator lags, then 2 x 2 mode blocks, then sensor lags), so
 every block is a first- or second-order recursion driven by the blocks before
@@ -9,10 +9,14 @@ it, which :func:`scipy.signal.lfilter` runs in compiled code. The result equals
 the plain state recursion to rounding (tested), at a fraction of its cost.
 
 Nonlinear path (friction, cubic spring, saturation): a per-sample loop with
-``substeps`` substeps; over each substep the linear part is propagated exactly
-(matrix exponential, with the input switching at the fractional delay) and the
-nonlinear port force is held at its value at the start of the substep
-(explicit, first order in the substep). The smooth Coulomb friction is
+``substeps`` substeps of :func:`workbench.sim.substep_zoh` (the linear part
+propagated exactly, the input switching at the fractional delay, the nonlinear
+port force held at its value at the start of the substep: explicit, first order
+in the substep); this module only supplies the port-force law.
+
+The block recursion of the linear path is kept here rather than in
+``workbench.sim`` because it needs the chain's block-triangular layout; the
+generic :func:`workbench.sim.dlsim` gives the same output (tested). The smooth Coulomb friction is
 F = -F_c tanh(v / v0); keep v0 so that F_c / v0 times the port mobility times
 the substep stays well below 1.
 """
@@ -23,10 +27,9 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
-import scipy.linalg
 import scipy.signal
 
-from workbench import lti
+from workbench import sim
 
 from .modal import LinearChain
 
@@ -34,23 +37,6 @@ __all__ = ["DiscreteChain"]
 
 #: Modes whose drive is formed at once in the fast linear path (bounds memory to N x 2 x this).
 _CHUNK_MODES = 24
-
-
-def _phi_gamma(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """(e^{Ah}, int_0^h e^{As} ds B)."""
-    n, m = B.shape
-    M = np.zeros((n + m, n + m))
-    M[:n, :n] = A * h
-    M[:n, n:] = B * h
-    E = scipy.linalg.expm(M)
-    return E[:n, :n], E[:n, n:]
-
-
-def _delayed(u: np.ndarray, m: int) -> np.ndarray:
-    out = np.zeros_like(u)
-    if m < u.shape[0]:
-        out[m:] = u[: u.shape[0] - m]
-    return out
 
 
 @dataclass(frozen=True)
@@ -74,9 +60,9 @@ class DiscreteChain:
 
     @cached_property
     def zoh(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-        """(Ad, B0, B1, m) of :func:`workbench.lti.c2d_zoh`."""
+        """(Ad, B0, B1, m) of :func:`workbench.sim.c2d_zoh`."""
         mats = self.chain.matrices
-        return lti.c2d_zoh(mats["A"], mats["B"], 1.0 / self.fs, delay_s=self.delay_s)
+        return sim.c2d_zoh(mats["A"], mats["B"], 1.0 / self.fs, delay_s=self.delay_s)
 
     # -- nonlinear port model ------------------------------------------------------------
     @cached_property
@@ -113,27 +99,17 @@ class DiscreteChain:
         return np.clip(u, -sat, sat) if np.any(np.isfinite(sat)) else u
 
     @cached_property
-    def substep(self) -> dict[str, np.ndarray]:
-        """Per-substep propagation: Phi, Gp (port force), G_old[j], G_new[j] (delayed input)."""
+    def substep(self) -> sim.SubstepZoh:
+        """Per-substep propagation (:func:`workbench.sim.substep_zoh`) with the port forces."""
         mats = self.chain.matrices
-        A, B, Bp = mats["A"], mats["B"], mats["Bp"]
-        n_sub = int(self.chain.effects.substeps)
-        T = 1.0 / self.fs
-        h = T / n_sub
-        m = int(np.floor(self.delay_s / T + 1e-12))
-        tau = self.delay_s - m * T
-        if tau < 1e-12 * T:
-            tau = 0.0
-        Phi, Gp = _phi_gamma(A, Bp, h)
-        G_old, G_new = [], []
-        for j in range(n_sub):
-            t0, t1 = j * h, (j + 1) * h
-            ts = min(max(tau, t0), t1)
-            P1, Gn = _phi_gamma(A, B, t1 - ts)  # new input over [ts, t1]
-            _, Go = _phi_gamma(A, B, ts - t0)  # old input over [t0, ts]
-            G_old.append(P1 @ Go)
-            G_new.append(Gn)
-        return {"Phi": Phi, "Gp": Gp, "G_old": np.array(G_old), "G_new": np.array(G_new), "m": m}
+        return sim.substep_zoh(
+            mats["A"],
+            mats["B"],
+            mats["Bp"],
+            1.0 / self.fs,
+            self.chain.effects.substeps,
+            delay_s=self.delay_s,
+        )
 
     def port_force(self, x: np.ndarray) -> np.ndarray:
         """Friction and cubic-spring force at the ports, (n_u,), for state x (n_x,)."""
@@ -148,11 +124,7 @@ class DiscreteChain:
 
     def advance_nonlinear(self, x: np.ndarray, u_new: np.ndarray, u_old: np.ndarray) -> np.ndarray:
         """State after one sample; ``u_new`` = u[k-m], ``u_old`` = u[k-m-1], both saturated."""
-        sub = self.substep
-        Phi, Gp, G_old, G_new = sub["Phi"], sub["Gp"], sub["G_old"], sub["G_new"]
-        for j in range(G_old.shape[0]):
-            x = Phi @ x + G_old[j] @ u_old + G_new[j] @ u_new + Gp @ self.port_force(x)
-        return x
+        return self.substep.advance(x, u_new, u_old, self.port_force)
 
     # -- simulation ----------------------------------------------------------------------
     def simulate(self, u: np.ndarray) -> np.ndarray:
@@ -163,9 +135,9 @@ class DiscreteChain:
 
     def _simulate_nonlinear(self, u: np.ndarray) -> np.ndarray:
         C = self.chain.matrices["C"]
-        m = self.substep["m"]
+        m = self.substep.m
         us = self.saturate(u)
-        um, um1 = _delayed(us, m), _delayed(us, m + 1)
+        um, um1 = sim.delayed(us, m), sim.delayed(us, m + 1)
         N = u.shape[0]
         X = np.zeros((N, C.shape[1]))
         x = np.zeros(C.shape[1])
@@ -180,7 +152,7 @@ class DiscreteChain:
         C, D = mats["C"], mats["D"]
         n_a, n_m2, n_s = self.chain.layout[2]
         N = u.shape[0]
-        um, um1 = _delayed(u, m), _delayed(u, m + 1)
+        um, um1 = sim.delayed(u, m), sim.delayed(u, m + 1)
         has_b1 = bool(np.any(B1))
 
         def drive(rows):

@@ -12,7 +12,8 @@ coordinates of a stage):
 with p the port displacement (the collocated output) and v its velocity.
 Over each of ``substeps`` substeps per sample the linear part is propagated
 exactly (zero-order hold) and the port force is held (explicit, first order
-in the substep).
+in the substep): :func:`workbench.sim.substep_zoh`, the propagation the plants
+use too; this module supplies the port law (with its friction clamp).
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import scipy.optimize
 
-from workbench import lti
+from workbench import lti, sim
 from workbench.errors import InputError
 
 __all__ = ["PortNonlinearity", "simulate_nonlinear", "fit_friction"]
@@ -76,13 +77,15 @@ def simulate_nonlinear(
     """
     A, B, C, D = _ports(sys)
     n = A.shape[0]
-    h = 1.0 / (fs * nl.substeps)
-    Ad, Bd, _, _ = lti.c2d_zoh(A, B, h)
+    # the held input enters at the ports like the port forces: one force input
+    # f = u[k-m] - friction - k3 p^3 through B (no separate delayed-input path)
+    no_input = np.zeros((n, 0))
+    prop = sim.substep_zoh(A, no_input, B, 1.0 / fs, nl.substeps)
+    Bd = prop.Gp
     m = int(round(delay_s * fs))
     u = np.asarray(u, float)
     N, n_u = u.shape
-    ud = np.zeros_like(u)
-    ud[m:] = u[: N - m]
+    ud = sim.delayed(u, m)
     if nl.saturation is not None:
         sat = np.broadcast_to(np.asarray(nl.saturation, float), (n_u,))
         ud = np.clip(ud, -sat, sat)
@@ -98,15 +101,18 @@ def simulate_nonlinear(
     # limited to the force that stops the port within the substep, so the explicit
     # scheme cannot make friction reverse the motion (stable for any F_c and v0)
     mobility = np.maximum(np.abs(np.diag(CA @ Bd)), 1e-300)
+    empty = np.zeros(0)
     x = np.zeros(n)
     y = np.empty((N, C.shape[0]))
     for k in range(N):
         y[k] = C @ x + D @ ud[k]
-        for _ in range(nl.substeps):
+
+        def force(x, uk=ud[k]):
             v = CA @ x
             friction = np.minimum(Fc * np.abs(np.tanh(v / v0)), np.abs(v) / mobility)
-            f = ud[k] - np.sign(v) * friction - k3 * (C @ x) ** 3
-            x = Ad @ x + Bd @ f
+            return uk - np.sign(v) * friction - k3 * (C @ x) ** 3
+
+        x = prop.advance(x, empty, empty, force)
     return y
 
 

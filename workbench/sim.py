@@ -337,6 +337,10 @@ class SubstepZoh:
     ) -> np.ndarray:
         """State after one sample; ``u_new`` = u[k-m], ``u_old`` = u[k-m-1]; ``force(x)`` (n_p,)."""
         Phi, Gp, G_old, G_new = self.Phi, self.Gp, self.G_old, self.G_new
+        if G_new.shape[2] == 0:  # every input enters as a port force
+            for _ in range(G_old.shape[0]):
+                x = Phi @ x + Gp @ force(x)
+            return x
         for j in range(G_old.shape[0]):
             x = Phi @ x + G_old[j] @ u_old + G_new[j] @ u_new + Gp @ force(x)
         return x
