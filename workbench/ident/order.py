@@ -6,7 +6,24 @@ import os
 
 import numpy as np
 
-__all__ = ["suggest_order", "plot_singular_values", "format_singular_values"]
+__all__ = [
+    "suggest_order",
+    "gap_verdict",
+    "plot_singular_values",
+    "format_singular_values",
+    "format_order_scan",
+    "plot_order_scan",
+    "order_where_fit_stops_paying",
+    "runner_up_gap",
+]
+
+# Gap ratios s[n-1]/s[n]: at or above CLEAR_GAP the singular values decide the
+# order (the simulator's records give 20-100); below WEAK_GAP they do not (a
+# real record with coloured noise and unmodelled dynamics decays smoothly: the
+# CD-player arm gives 1.75) and the order is a modelling choice for the
+# validation fit.
+CLEAR_GAP = 10.0
+WEAK_GAP = 3.0
 
 
 def suggest_order(singular_values, *, max_order: int) -> tuple[int, float]:
@@ -49,8 +66,49 @@ def suggest_order(singular_values, *, max_order: int) -> tuple[int, float]:
     return n, float(10 ** gaps[n - 1])
 
 
+def gap_verdict(gap: float, *, runner_up: float | None = None) -> str:
+    """Plain words on how far a gap ratio decides the order.
+
+    ``runner_up``: the second-largest gap ratio among the orders considered;
+    a gap that barely beats it is no decision either.
+    """
+    gap = float(gap)
+    close = runner_up is not None and np.isfinite(gap) and runner_up > gap ** (2.0 / 3.0)
+    if gap >= CLEAR_GAP and not close:
+        return f"clear gap (ratio {gap:.3g} >= {CLEAR_GAP:g}): the singular values decide the order"
+    if gap >= WEAK_GAP:
+        return (
+            f"moderate gap (ratio {gap:.3g}"
+            + (f", next largest {runner_up:.3g}" if runner_up is not None else "")
+            + "): plausible order; confirm it by validation fit (--orders A:B)"
+        )
+    return (
+        f"NO clear gap (ratio {gap:.3g} < {WEAK_GAP:g}"
+        + (f", next largest {runner_up:.3g}" if runner_up is not None else "")
+        + "): the singular values do not decide the order here; choose it by validation fit "
+        "(--validate FRACTION --orders A:B)"
+    )
+
+
+def runner_up_gap(s: np.ndarray, suggested: int, n_max: int) -> float | None:
+    s = np.asarray(s, float)[: n_max + 1]
+    if s.size < 3:
+        return None
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratios = s[:-1] / s[1:]
+    ratios = np.delete(ratios, suggested - 1)
+    ratios = ratios[np.isfinite(ratios)]
+    return float(ratios.max()) if ratios.size else None
+
+
 def format_singular_values(
-    singular_values, *, order: int, suggested: int, gap: float, n_show: int = 40
+    singular_values,
+    *,
+    order: int,
+    suggested: int,
+    gap: float,
+    n_show: int = 40,
+    max_order: int | None = None,
 ) -> str:
     """Text table of the leading singular values, the suggestion and the chosen order."""
     s = np.asarray(singular_values, float)
@@ -67,6 +125,8 @@ def format_singular_values(
         f"suggested order {suggested} (gap s[{suggested}]/s[{suggested + 1}] = {gap:.4g}); "
         f"order used {order}"
     )
+    n_max = max_order if max_order is not None else s.size - 1
+    lines.append(gap_verdict(gap, runner_up=runner_up_gap(s, suggested, n_max)))
     return "\n".join(lines)
 
 
@@ -91,6 +151,63 @@ def plot_singular_values(
     ax.set_title(title or "Subspace singular values")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=110)
+
+
+def order_where_fit_stops_paying(orders, mean_fits, *, tolerance: float = 1.0) -> int:
+    """Smallest order whose mean validation fit is within ``tolerance`` points of the best."""
+    orders = np.asarray(orders, int)
+    f = np.asarray(mean_fits, float)
+    best = np.nanmax(f)
+    return int(orders[np.flatnonzero(f >= best - tolerance)[0]])
+
+
+def format_order_scan(orders, fits, *, output_names, tolerance: float = 1.0) -> str:
+    """Table of the validation fit per order (``fits``: :class:`~workbench.ident.validate.Fit`)."""
+    names = list(output_names)
+    head = "  n  " + " ".join(f"{n[:10]:>10s}" for n in names) + "   mean fit (%)"
+    lines = [head]
+    means = [f.mean for f in fits]
+    best = int(orders[int(np.nanargmax(means))])
+    pay = order_where_fit_stops_paying(orders, means, tolerance=tolerance)
+    for n, f in zip(orders, fits):
+        mark = ("  <- best" if n == best else "") + (
+            f"  <- within {tolerance:g} point of the best" if n == pay and n != best else ""
+        )
+        lines.append(
+            f"{n:3d}  " + " ".join(f"{v:10.1f}" for v in f.fit) + f"   {f.mean:10.1f}{mark}"
+        )
+    lines.append(
+        f"validation fit (initial state by least squares): best {max(means):.1f} % at order "
+        f"{best}; more states stop paying at order {pay} (within {tolerance:g} point of the best)"
+    )
+    return "\n".join(lines)
+
+
+def plot_order_scan(
+    orders, fits, path: str | os.PathLike, *, output_names, title: str = ""
+) -> None:
+    """Save the validation fit against the order, per output and mean (PNG)."""
+    from matplotlib.figure import Figure
+
+    from workbench.atomic import atomic_path
+
+    orders = np.asarray(orders, int)
+    F = np.array([f.fit for f in fits])
+    fig = Figure(figsize=(6.4, 3.6))
+    ax = fig.subplots()
+    for k, name in enumerate(output_names):
+        ax.plot(orders, F[:, k], "o-", ms=3, alpha=0.6, label=str(name))
+    ax.plot(orders, F.mean(axis=1), "ks-", ms=4, lw=2, label="mean")
+    ax.set_xlabel("model order n")
+    ax.set_ylabel("validation fit (%)")
+    lo = max(np.nanmin(F), np.nanmax(F) - 40.0)  # a diverging order must not flatten the rest
+    ax.set_ylim(lo - 2.0, min(100.0, np.nanmax(F) + 2.0))
+    ax.set_title(title or "Validation fit by order (initial state by least squares)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", dpi=110)

@@ -337,11 +337,17 @@ def remove_offsets(data: TimeData, mode: str) -> tuple[TimeData, Offsets]:
     return off.apply(data), off
 
 
-def offset_warning(data: TimeData, *, threshold: float = 0.1) -> str | None:
-    """One line naming the channels whose mean or linear trend exceeds ``threshold`` x their rms.
+def offset_warning(
+    data: TimeData, *, mean_threshold: float = 0.1, trend_threshold: float = 0.25
+) -> str | None:
+    """One line naming the channels whose mean or linear trend is large against their rms.
 
     The size of a trend is its change over the record (``|b| T``); the rms is
-    that of the channel with its line removed. None when no channel exceeds.
+    that of the channel with its line removed. A mean above
+    ``mean_threshold`` x rms or a trend above ``trend_threshold`` x rms is
+    reported (a coloured stationary signal fits a line of a few tenths of its
+    rms over a short record by chance, hence the larger trend threshold).
+    None when no channel exceeds.
     """
     found = []
     for key, x in (("u", data.u), ("y", data.y)):
@@ -353,9 +359,9 @@ def offset_warning(data: TimeData, *, threshold: float = 0.1) -> str | None:
         mean = np.abs(x.mean(axis=0))
         for k in range(x.shape[1]):
             what = []
-            if mean[k] > threshold * rms[k]:
+            if mean[k] > mean_threshold * rms[k]:
                 what.append(f"mean {x[:, k].mean():.3g}")
-            if span[k] > threshold * rms[k]:
+            if span[k] > trend_threshold * rms[k]:
                 what.append(f"trend {span[k]:.3g} over the record")
             if what:
                 found.append(f"{key}{k} ({', '.join(what)}; rms {rms[k]:.3g})")
