@@ -132,4 +132,4 @@ def test_augment_python_api_missing_mode():
     res = augment(case.nominal, case.data, "missing_mode")
     assert res.parameters["freq_hz"] == pytest.approx(1320.0, rel=0.01)
     assert res.error_after < 2 * case.noise_floor < res.error_before
-    assert res.model.nstates == case.nominal.nstates + 2  # a rank-one residue: 2 states
+    assert res.model.n_x == case.nominal.nstates + 2  # a rank-one residue: 2 states

@@ -5,15 +5,15 @@ effect: every structure of that effect is screened and fitted (for
 ``modal_mismatch`` each mode of the model in the band, for ``crosstalk`` both
 the output and the input side) and the best is kept.
 
-A delay is exact, exp(-s delay_s), on frequency responses; in state space it is
-kept apart (``delay_s``) and, for tools that need states, also given as a Pade
-approximation (:func:`pade_delay`).
+The model's delay travels with it: an :class:`~workbench.model.LTIModel` in
+(its ``delay_s`` is the delay the model already has), an ``LTIModel`` out, the
+delay exact, exp(-s delay_s); for tools that need states it is realized as Pade
+states on request (:meth:`~workbench.model.LTIModel.to_statespace`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -26,10 +26,11 @@ from workbench.diagnosis.problem import make_problem
 from workbench.errors import InputError
 from workbench.formats import FrfData, TimeData, check_model_matches
 from workbench.jsonutil import jsonable
-from workbench.lti import as_matrices
+from workbench.model import LTIModel, as_model, pade_delay, pade_order, with_pade
 from workbench.nonlinear import PortNonlinearity
 
-__all__ = ["EFFECTS", "Augmented", "augment", "pade_delay"]
+# pade_delay, pade_order, with_pade live in workbench.model; kept importable here
+__all__ = ["EFFECTS", "Augmented", "augment", "pade_delay", "pade_order", "with_pade"]
 
 #: what ``augment`` can add: every effect of the vocabulary but 'none'
 EFFECTS = LINEAR_EFFECTS + ("nonlinearity",)
@@ -41,10 +42,9 @@ class Augmented:
 
     Attributes
     ----------
-    model : control.StateSpace
-        Continuous linear part with the effect (the delay kept apart).
-    delay_s : float
-        Input-output delay, s (exact exp(-s delay_s)).
+    model : LTIModel
+        Continuous linear part with the effect, its input delay (exact,
+        exp(-s delay_s)) in ``model.delay_s``.
     effect : str
     parameters, parameters_std : dict
         Fitted physical parameters and standard deviations.
@@ -54,8 +54,7 @@ class Augmented:
         The modal representation (None for nonlinearity).
     """
 
-    model: Any
-    delay_s: float
+    model: LTIModel
     effect: str
     parameters: dict
     parameters_std: dict
@@ -64,6 +63,11 @@ class Augmented:
     extended: ExtendedModel | None = field(default=None, repr=False)
     note: str = ""
     nonlinear: PortNonlinearity | None = field(default=None, repr=False)
+
+    @property
+    def delay_s(self) -> float:
+        """The augmented model's input delay, s (``model.delay_s``)."""
+        return self.model.delay_s
 
     def to_json(self) -> dict:
         return {
@@ -77,45 +81,6 @@ class Augmented:
         }
 
 
-def pade_delay(delay_s: float, order: int):
-    """Pade approximation of exp(-s delay_s) as a SISO ``control.StateSpace`` (order states)."""
-    import control
-
-    num, den = control.pade(delay_s, order)
-    return control.ss(control.tf(num, den))
-
-
-def pade_order(delay_s: float, f_max_hz: float, *, max_phase_error_deg: float = 1.0) -> int:
-    """Smallest Pade order whose phase error stays below the limit up to ``f_max_hz``."""
-    import control
-
-    if delay_s <= 0:
-        return 0
-    w = 2 * np.pi * np.linspace(f_max_hz / 50, f_max_hz, 50)
-    for n in range(1, 11):
-        num, den = control.pade(delay_s, n)
-        h = np.polyval(num, 1j * w) / np.polyval(den, 1j * w)
-        err = np.degrees(np.abs(np.angle(h * np.exp(1j * w * delay_s))))
-        if err.max() < max_phase_error_deg:
-            return n
-    return 10
-
-
-def with_pade(sys, delay_s: float, order: int):
-    """``sys`` with a Pade delay of ``order`` states on every input (continuous)."""
-    import control
-
-    if order == 0 or delay_s <= 0:
-        return sys
-    n_u = sys.ninputs
-    d = pade_delay(delay_s, order)
-    A = np.kron(np.eye(n_u), d.A)
-    B = np.kron(np.eye(n_u), d.B)
-    C = np.kron(np.eye(n_u), d.C)
-    D = np.kron(np.eye(n_u), d.D)
-    return control.series(control.ss(A, B, C, D), sys)
-
-
 def augment(
     model, data: FrfData | TimeData, effect: str, *, blas_threads: int | None = 1
 ) -> Augmented:
@@ -123,8 +88,10 @@ def augment(
 
     Parameters
     ----------
-    model : control.StateSpace
-        Continuous or discrete (dt = 1/fs for time data) model.
+    model : LTIModel, control.StateSpace or model file path
+        Continuous or discrete (dt = 1/fs for time data) model; an LTIModel's
+        delay is the delay the model already has and is kept (refitted by
+        ``time_delay``).
     data : FrfData or TimeData
     effect : str
         One of :data:`EFFECTS`.
@@ -139,17 +106,23 @@ def augment(
 
     if effect not in EFFECTS:
         raise InputError(f"--effect: expected one of {', '.join(EFFECTS)}, got {effect!r}")
-    check_model_matches(model, data)
-    _, _, _, _, dt = as_matrices(model)
+    lti_model = as_model(model)
+    check_model_matches(lti_model, data)
+    dt, delay0 = lti_model.dt, lti_model.delay_s
     if isinstance(data, TimeData) and dt > 0 and abs(dt * data.fs - 1) > 1e-9:
         raise InputError(f"model: expected dt = 1/fs = {1 / data.fs:g} s, got dt = {dt:g} s")
+    model = lti_model.without_delay().to_statespace()
     with limited_blas(blas_threads):
         try:
             base = decompose(model)
+        except InputError:
+            raise
         except ValueError as exc:
             raise InputError(f"model: {exc}") from None
+        if delay0:
+            base = base.replace(delay_s=delay0)
         problem = make_problem(data)
-        error_before = _spec_error(model, data)
+        error_before = _spec_error(model, data, delay0)
         if effect == "nonlinearity":
             return _augment_nonlinearity(model, data, base, problem, error_before)
         structures = [s for s in candidate_structures(base, problem) if s.effect == effect]
@@ -168,7 +141,14 @@ def augment(
         sys, delay = best.model.to_statespace()
         note = "; ".join(base.notes)
         return Augmented(
-            sys, delay, effect, params, params_std, error_before, best.error, best.model, note
+            LTIModel.from_statespace(sys, delay_s=delay),
+            effect,
+            params,
+            params_std,
+            error_before,
+            best.error,
+            best.model,
+            note,
         )
 
 
@@ -198,8 +178,7 @@ def _augment_nonlinearity(model, data, base, problem, error_before) -> Augmented
     else:
         notes.append("reported only: friction is fitted on time records of square models")
     return Augmented(
-        sys,
-        delay,
+        LTIModel.from_statespace(sys, delay_s=delay),
         "nonlinearity",
         params,
         {},

@@ -631,12 +631,13 @@ def compare(
 
     Parameters
     ----------
-    model : control.StateSpace
-        Continuous (dt = 0) or discrete model, n_u inputs, n_y outputs.
+    model : LTIModel, control.StateSpace or model file path
+        Continuous (dt = 0) or discrete model, n_u inputs, n_y outputs; an
+        LTIModel's input delay is part of it.
     data : FrfData or TimeData
         The measurement (n_y x n_u like the model).
     delay_s : float
-        Input delay added to the model, s.
+        Input delay added to the model's own, s.
     window : int
         Lines in the running median of the per-line statistic (made odd).
     false_alarm : float
@@ -660,12 +661,18 @@ def compare(
     InputError
         When the model's input/output count does not match the data.
     """
-    check_model_matches(model, data, model_src=model_src, data_src=data_src)
+    from workbench.model import as_model
+
+    lti_model = as_model(model)
+    check_model_matches(lti_model, data, model_src=model_src, data_src=data_src)
     delay_s = float(delay_s)
     if not np.isfinite(delay_s) or delay_s < 0:
         from workbench.errors import InputError
 
         raise InputError(f"delay_s: expected a finite delay >= 0 s, got {delay_s:g}")
+    # the model's own delay travels with it; delay_s adds to it
+    delay_s += lti_model.delay_s
+    model = lti_model.without_delay().to_statespace()
     window = max(1, int(window)) | 1
     if isinstance(data, FrfData):
         return _compare_frf(

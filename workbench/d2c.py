@@ -62,9 +62,12 @@ def _fmt(z: np.ndarray) -> str:
 def d2c(sys, *, zero_tol: float = 1e-6):
     """Continuous-time model whose ZOH discretization is ``sys``.
 
+    The one discrete-to-continuous conversion of the workbench (modal
+    analysis, identification and diagnosis all use it).
+
     Parameters
     ----------
-    sys : control.StateSpace
+    sys : control.StateSpace or LTIModel
         Discrete model, ``dt > 0`` s; ``A`` (n, n), ``B`` (n, n_u),
         ``C`` (n_y, n), ``D`` (n_y, n_u).
     zero_tol : float
@@ -72,8 +75,9 @@ def d2c(sys, *, zero_tol: float = 1e-6):
 
     Returns
     -------
-    control.StateSpace
-        Continuous model (``dt = 0``), same state coordinates, same ``C`` and ``D``.
+    control.StateSpace or LTIModel
+        Continuous model (``dt = 0``) of the same kind as ``sys``, same state
+        coordinates, same ``C``, ``D``, names (and, for an LTIModel, delay).
 
     Raises
     ------
@@ -108,6 +112,10 @@ def d2c(sys, *, zero_tol: float = 1e-6):
             )
         L = L.real
     L = L / dt
+    from workbench.model import LTIModel
+
+    if isinstance(sys, LTIModel):
+        return sys.replace(A=L[:n, :n], B=L[:n, n:], dt=0.0)
     return control.ss(
         L[:n, :n],
         L[:n, n:],

@@ -8,8 +8,9 @@ data is read, so a truncated file or an absurd header is refused, not obeyed.
 
 The in-memory types are frozen dataclasses holding read-only copies:
 :class:`TimeData` (``kind = "time"``) and :class:`FrfData` (``kind = "frf"``).
-Models cross the boundary as python-control ``StateSpace`` objects, with the
-channel names as the system's input and output labels.
+Models are :class:`~workbench.model.LTIModel` (:func:`read_model`, with the
+exact delay of the ``delay_s`` key); :func:`load_model` gives the rational part
+as a python-control ``StateSpace`` with the channel names as its labels.
 """
 
 from __future__ import annotations
@@ -32,7 +33,9 @@ __all__ = [
     "load_measurement",
     "save_measurement",
     "load_model",
+    "read_model",
     "save_model",
+    "lti_model_from_arrays",
     "load_any",
     "model_names",
     "check_model_matches",
@@ -469,43 +472,20 @@ def save_measurement(path: str | os.PathLike, data: Measurement) -> None:
 
 
 # ---------------------------------------------------------------------- models
-def model_from_arrays(arrays: dict[str, Any], src: str = "model"):
-    """Build a python-control ``StateSpace`` from spec model arrays, validated."""
-    import control
+def lti_model_from_arrays(arrays: dict[str, Any], src: str = "model"):
+    """Build a :class:`~workbench.model.LTIModel` from spec model arrays, validated.
 
-    mats = {}
-    for key in "ABCD":
-        a = _array(_require(arrays, key, src, "state-space matrix"), src, key)
-        if a.ndim != 2:
-            raise InputError(f"{src}: key '{key}': expected a 2-D matrix, got {describe(a)}")
-        mats[key] = _real(a, src, key)
-    A, B, C, D = mats["A"], mats["B"], mats["C"], mats["D"]
-    n = A.shape[0]
-    if A.shape != (n, n):
-        raise InputError(f"{src}: key 'A': expected a square matrix, got shape {A.shape}")
-    if B.shape[0] != n:
-        raise InputError(
-            f"{src}: key 'B': expected {n} rows to match A {A.shape}, got shape {B.shape}"
-        )
-    if C.shape[1] != n:
-        raise InputError(
-            f"{src}: key 'C': expected {n} columns to match A {A.shape}, got shape {C.shape}"
-        )
-    if D.shape != (C.shape[0], B.shape[1]):
-        raise InputError(
-            f"{src}: key 'D': expected shape {(C.shape[0], B.shape[1])} (n_y from C, n_u from B), "
-            f"got {D.shape}"
-        )
+    The optional key ``delay_s`` (a scalar >= 0, s) is the model's exact input
+    delay; the matrices are the model without it.
+    """
+    from workbench.model import LTIModel
+
+    mats = {key: _require(arrays, key, src, "state-space matrix") for key in "ABCD"}
     dt_arr = np.asarray(
         _require(arrays, "dt", src, "0.0 for continuous time, else the sample time in s")
     )
     if dt_arr.ndim != 0 or not np.issubdtype(dt_arr.dtype, np.number) or np.iscomplexobj(dt_arr):
         raise InputError(f"{src}: key 'dt': expected a real scalar, got {describe(dt_arr)}")
-    dt = float(dt_arr)
-    if not np.isfinite(dt) or dt < 0:
-        raise InputError(
-            f"{src}: key 'dt': expected 0.0 (continuous) or a sample time > 0 s, got {dt:g}"
-        )
     get = arrays.get
     in_names = _string_list(
         None if get("input_names") is None else np.asarray(get("input_names")), src, "input_names"
@@ -515,52 +495,99 @@ def model_from_arrays(arrays: dict[str, Any], src: str = "model"):
         src,
         "output_names",
     )
-    in_names = _names(in_names, B.shape[1], "u", src, "input_names")
-    out_names = _names(out_names, C.shape[0], "y", src, "output_names")
-    return control.ss(A, B, C, D, dt, inputs=list(in_names), outputs=list(out_names))
+    delay = get("delay_s")
+    if delay is not None:
+        d = np.asarray(delay)
+        if d.size != 1 or d.dtype.kind not in "iuf" or not np.isfinite(d).all() or d.item() < 0:
+            raise InputError(
+                f"{src}: key 'delay_s': expected a scalar input delay >= 0 s, got {describe(d)}"
+                + (f" = {d.item()!r}" if d.size == 1 else "")
+            )
+    try:
+        return LTIModel(
+            mats["A"],
+            mats["B"],
+            mats["C"],
+            mats["D"],
+            dt=dt_arr,
+            delay_s=0.0 if delay is None else np.asarray(delay).item(),
+            input_names=in_names,
+            output_names=out_names,
+        )
+    except InputError as exc:
+        raise _with_src(exc, src, "model") from None
+
+
+def model_from_arrays(arrays: dict[str, Any], src: str = "model"):
+    """The rational part of a spec model as a python-control ``StateSpace``.
+
+    A ``StateSpace`` cannot hold the ``delay_s`` key: callers that need the
+    delay use :func:`lti_model_from_arrays` (or :func:`read_model`).
+    """
+    return lti_model_from_arrays(arrays, src).without_delay().to_statespace()
+
+
+def read_model(path: str | os.PathLike):
+    """Read a model file (spec 2, with its ``delay_s``) into an ``LTIModel``."""
+    return lti_model_from_arrays(read_npz(path), src=str(path))
 
 
 def load_model(path: str | os.PathLike):
-    """Read a model file (spec 2) into a python-control ``StateSpace``."""
+    """Read a model file's rational part into a python-control ``StateSpace``.
+
+    The delay (key ``delay_s``) is not part of it: :func:`read_model` keeps it.
+    """
     return model_from_arrays(read_npz(path), src=str(path))
 
 
 def model_names(sys) -> tuple[tuple[str, ...], tuple[str, ...]]:
-    """Input and output names of a ``StateSpace`` (python-control labels)."""
-    return tuple(sys.input_labels), tuple(sys.output_labels)
+    """Input and output names of a ``StateSpace`` (python-control labels) or an LTIModel."""
+    from workbench.model import as_model
+
+    m = as_model(sys)
+    return m.input_names, m.output_names
 
 
 def model_arrays(sys) -> dict[str, np.ndarray]:
-    """The spec arrays of a ``StateSpace``."""
-    dt = sys.dt
-    dt = 0.0 if dt in (None, 0, True) and dt is not True else (float(dt) if dt is not True else 1.0)
-    in_names, out_names = model_names(sys)
-    return {
-        "A": np.asarray(sys.A, float),
-        "B": np.asarray(sys.B, float),
-        "C": np.asarray(sys.C, float),
-        "D": np.asarray(sys.D, float),
-        "dt": np.array(dt),
-        "input_names": np.array(in_names),
-        "output_names": np.array(out_names),
+    """The spec arrays of a model (``LTIModel`` or ``StateSpace``); ``delay_s`` when > 0."""
+    from workbench.model import as_model
+
+    m = as_model(sys)
+    out = {
+        "A": np.asarray(m.A, float),
+        "B": np.asarray(m.B, float),
+        "C": np.asarray(m.C, float),
+        "D": np.asarray(m.D, float),
+        "dt": np.array(m.dt),
+        "input_names": np.array(m.input_names),
+        "output_names": np.array(m.output_names),
     }
+    if m.delay_s > 0:
+        out["delay_s"] = np.array(m.delay_s)
+    return out
 
 
 def save_model(path: str | os.PathLike, sys, **extra: np.ndarray) -> None:
-    """Write a ``StateSpace`` as a spec model file, atomically.
+    """Write a model (``LTIModel`` or ``StateSpace``) as a spec model file, atomically.
 
-    ``extra`` arrays (for example ``delay_s``) are stored beside the spec keys.
+    An ``LTIModel``'s delay goes exact into the key ``delay_s``. ``extra``
+    arrays are stored beside the spec keys; giving ``delay_s`` there as well
+    as in the model is refused.
     """
-    save_npz(path, **model_arrays(sys), **extra)
+    arrays = model_arrays(sys)
+    clash = sorted(set(arrays) & set(extra))
+    if clash:
+        raise InputError(f"{path}: key '{clash[0]}' given twice (in the model and as an extra)")
+    save_npz(path, **arrays, **extra)
 
 
 def load_any(path: str | os.PathLike):
-    """Read a measurement or a model file, told apart by its keys."""
+    """Read a measurement or a model file (an LTIModel), told apart by its keys."""
     arrays = read_npz(path)
     if "kind" in arrays:
         return measurement_from_arrays(arrays, src=str(path))
     if "A" in arrays:
-        return model_from_arrays(arrays, src=str(path))
+        return lti_model_from_arrays(arrays, src=str(path))
     have = ", ".join(sorted(arrays)) or "none"
     raise InputError(
         f"{path}: expected a measurement (key 'kind') or a model (keys A, B, C, D, dt), "
@@ -571,9 +598,13 @@ def load_any(path: str | os.PathLike):
 def check_model_matches(
     sys, data: Measurement, *, model_src: str = "model", data_src: str = "data"
 ) -> None:
-    """Refuse a model whose input/output count does not match the data."""
-    if sys.ninputs != data.n_u or sys.noutputs != data.n_y:
+    """Refuse a model (``LTIModel`` or ``StateSpace``) whose input/output count does not
+    match the data."""
+    from workbench.model import as_model
+
+    m = as_model(sys)
+    if m.n_u != data.n_u or m.n_y != data.n_y:
         raise InputError(
             f"{model_src}: expected a model with {data.n_u} inputs and {data.n_y} outputs to match "
-            f"{data_src}, got {sys.ninputs} inputs and {sys.noutputs} outputs"
+            f"{data_src}, got {m.n_u} inputs and {m.n_y} outputs"
         )

@@ -7,8 +7,6 @@ folder holds the error map and Bode overlays before and after side by side.
 
 from __future__ import annotations
 
-import numpy as np
-
 from workbench import formats
 from workbench.errors import InputError
 from workbench.pipeline import RunState, register_stage
@@ -27,11 +25,12 @@ def _loop_data(st: RunState, table: dict, where: str):
     return data
 
 
-def _compare_into(st: RunState, model, delay_s: float, data, name: str) -> dict:
-    from workbench.commands.compare import write_plots
+def _compare_into(st: RunState, model, data, name: str) -> dict:
+    """Compare ``model`` (an LTIModel: its delay is part of it) with ``data``; JSON and plots."""
     from workbench.compare import compare
+    from workbench.compare_plots import write_plots
 
-    res = compare(model, data, delay_s=delay_s)
+    res = compare(model, data)
     st.write_json(f"{name}.json", res.as_dict())
     for p in write_plots(res, st.out / name, []):
         st.files.append(str(p.relative_to(st.out)))
@@ -45,7 +44,7 @@ def _compare_into(st: RunState, model, delay_s: float, data, name: str) -> dict:
 def stage_compare(st: RunState, table: dict) -> None:
     data = _loop_data(st, table, "compare")
     refuse_leftovers(table, where="compare")
-    st.summary["compare"] = _compare_into(st, st.model, st.model_delay_s, data, "compare_before")
+    st.summary["compare"] = _compare_into(st, st.model, data, "compare_before")
 
 
 def stage_diagnose(st: RunState, table: dict) -> None:
@@ -68,7 +67,8 @@ def stage_diagnose(st: RunState, table: dict) -> None:
 
 def stage_augment(st: RunState, table: dict) -> None:
     """Add effects to the model: the diagnosis's findings (jointly fitted), or the named ones."""
-    from workbench.augment import augment, pade_order, with_pade
+    from workbench.augment import augment
+    from workbench.model import LTIModel
 
     data = _loop_data(st, table, "augment")
     effects = take(table, "effects", None, where="augment", kind=list)
@@ -82,17 +82,16 @@ def stage_augment(st: RunState, table: dict) -> None:
         if not found:
             st.summary["augment"] = {"steps": [], "note": "diagnose found nothing to add"}
             return
-        model, delay_s = found[-1].model.to_statespace()
+        sys, delay_s = found[-1].model.to_statespace()
+        model = LTIModel.from_statespace(sys, delay_s=delay_s)
         steps = [
             {"effect": f.effect, "parameters": f.parameters, "error_after": f.error_after}
             for f in found
         ]
-    else:  # one effect after the other; a delay found earlier rides along as Pade states
-        model, delay_s = st.model, st.model_delay_s
-        f_max = float(data.freq[-1]) if hasattr(data, "freq") else 0.5 * data.fs
+    else:  # one effect after the other; the model's delay rides along, exact
+        model = st.model
         for effect in effects:
-            carried = with_pade(model, delay_s, pade_order(delay_s, f_max)) if delay_s else model
-            out = augment(carried, data, effect)
+            out = augment(model, data, effect)
             steps.append(
                 {
                     "effect": effect,
@@ -101,9 +100,9 @@ def stage_augment(st: RunState, table: dict) -> None:
                     "error_after": out.error_after,
                 }
             )
-            model, delay_s = out.model, out.delay_s
-    formats.save_model(st.path("model_augmented.npz"), model, delay_s=np.array(delay_s))
-    after = _compare_into(st, model, delay_s, data, "compare_after")
+            model = out.model
+    formats.save_model(st.path("model_augmented.npz"), model)  # delay exact in 'delay_s'
+    after = _compare_into(st, model, data, "compare_after")
     st.write_json("augment.json", {"steps": steps, "compare_after": after})
     st.summary["augment"] = {"steps": steps, "compare_after": after}
 

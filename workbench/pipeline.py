@@ -48,8 +48,7 @@ class RunState:
     frf: Any = None  # FrfData
     ident: Any = None  # SubspaceResult
     modal: Any = None  # ModalModel
-    model: Any = None  # the user's model (StateSpace) for compare/diagnose
-    model_delay_s: float = 0.0
+    model: Any = None  # the user's model (LTIModel, with its delay) for compare/diagnose
     diagnosis: Any = None  # workbench.diagnosis.Diagnosis
     summary: dict[str, Any] = field(default_factory=dict)
     files: list[str] = field(default_factory=list)
@@ -249,6 +248,7 @@ def stage_minimality(st: RunState, table: dict) -> None:
 
 def stage_model(st: RunState, table: dict) -> None:
     from workbench import formats
+    from workbench.model import LTIModel
 
     source = take(table, "file", None, where="model", kind=str)
     nominal_of = take(table, "nominal_plant", None, where="model", kind=dict)
@@ -256,7 +256,7 @@ def stage_model(st: RunState, table: dict) -> None:
     if (source is None) == (nominal_of is None):
         raise InputError("[model]: give exactly one of 'file' (a model file) or 'nominal_plant'")
     if source is not None:
-        st.model = formats.load_model(st.scenario.resolve(source))
+        st.model = formats.read_model(st.scenario.resolve(source))  # with its delay_s
     else:
         # The engineer's model: the plant as designed, without the effects the
         # scenario hides in the true system. It is built from the nominal
@@ -267,8 +267,8 @@ def stage_model(st: RunState, table: dict) -> None:
         if name is None:
             raise InputError("[model] key 'nominal_plant': missing key 'name'")
         nominal = plants.get_plant(name, **nominal_of)
-        st.model, st.model_delay_s = nominal.linear_model(), float(nominal.delay_s)
-    formats.save_model(st.path("model_nominal.npz"), st.model, delay_s=np.array(st.model_delay_s))
+        st.model = LTIModel.from_statespace(nominal.linear_model(), delay_s=nominal.delay_s)
+    formats.save_model(st.path("model_nominal.npz"), st.model)  # delay exact in 'delay_s'
 
 
 # ---------------------------------------------------------------- plotting

@@ -13,8 +13,7 @@ import json
 import numpy as np
 
 from workbench.atomic import check_not_input, write_text
-from workbench.errors import InputError
-from workbench.formats import load_measurement, model_arrays, save_model
+from workbench.formats import load_measurement, model_arrays, read_model, save_model
 
 
 def register(subparsers) -> argparse.ArgumentParser:
@@ -39,19 +38,15 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 
 def run(args) -> int:
-    from workbench.augment import augment, pade_order, with_pade
-    from workbench.commands.diagnose import load_model_with_delay
+    from workbench.augment import augment
+    from workbench.model import pade_order
 
     for out in (args.out, args.json, args.plots):
         if out:
             check_not_input(out, [args.model, args.data])
-    sys, delay0 = load_model_with_delay(args.model)
-    if delay0:
-        raise InputError(
-            f"{args.model}: augment of a model with 'delay_s' is not supported; use diagnose"
-        )
+    model = read_model(args.model)  # the file's delay_s travels with the model
     data = load_measurement(args.data)
-    res = augment(sys, data, args.effect)
+    res = augment(model, data, args.effect)
     params = {k: v for k, v in res.parameters.items() if k not in ("matrix", "residue_matrix")}
     print(f"effect: {res.effect}")
     for k, v in params.items():
@@ -67,12 +62,11 @@ def run(args) -> int:
     if res.note:
         print(f"note: {res.note}")
     if args.out:
-        extra = {"delay_s": np.array(res.delay_s)}
+        extra = {}
         if res.delay_s > 0:
             f_max = float(data.freq[-1]) if data.kind == "frf" else data.fs / 2
             n = pade_order(res.delay_s, f_max)
-            pade = with_pade(res.model, res.delay_s, n)
-            arr = model_arrays(pade)
+            arr = model_arrays(res.model.to_statespace(pade_order=n))
             extra.update({f"{k}_pade": arr[k] for k in ("A", "B", "C", "D")})
             extra["pade_order"] = np.array(n)
             print(
@@ -81,8 +75,8 @@ def run(args) -> int:
                 f"Pade order {n} per input in keys A_pade..D_pade (phase error < 1 deg up to "
                 f"{f_max:.4g} Hz)"
             )
-        save_model(args.out, res.model, **extra)
-        print(f"augmented model: {args.out} ({res.model.nstates} states, continuous)")
+        save_model(args.out, res.model, **extra)  # the delay exact in 'delay_s' when > 0
+        print(f"augmented model: {args.out} ({res.model.n_x} states, continuous)")
     if args.json:
         from workbench.jsonutil import jsonable
 
@@ -91,8 +85,7 @@ def run(args) -> int:
         from workbench.diagnosis.modal import decompose
         from workbench.diagnosis.plots import write_plots
 
-        paths = write_plots(
-            args.plots, data, decompose(sys), res.extended, title=f"augment {res.effect}"
-        )
+        before = decompose(model.without_delay().to_statespace()).replace(delay_s=model.delay_s)
+        paths = write_plots(args.plots, data, before, res.extended, title=f"augment {res.effect}")
         print("plots: " + ", ".join(str(p) for p in paths))
     return 0

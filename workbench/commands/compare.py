@@ -15,8 +15,9 @@ import numpy as np
 
 from workbench.atomic import check_not_input, write_text
 from workbench.compare import Comparison, compare
+from workbench.compare_plots import write_plots
 from workbench.errors import InputError
-from workbench.formats import load_measurement, read_npz
+from workbench.formats import load_measurement, lti_model_from_arrays, read_npz
 from workbench.quality import check_measurement
 
 _MAX_PRINTED_BANDS = 40
@@ -100,94 +101,27 @@ def format_text(res: Comparison, model_src: str, data_src: str) -> str:
     return "\n".join(lines)
 
 
-def write_plots(res: Comparison, folder: Path, inputs) -> list[Path]:
-    """The figures of a comparison, into ``folder``; returns the paths written."""
-    from workbench import plotting
-
-    folder.mkdir(parents=True, exist_ok=True)
-    written = []
-
-    def target(name):
-        p = folder / name
-        check_not_input(p, inputs)
-        written.append(p)
-        return p
-
-    if res.kind == "frf":
-        labels = [f"{y}/{u}" for y in res.output_names for u in res.input_names]
-        stat = res.error_map.reshape(res.error_map.shape[0], -1)
-        f = res.frf
-        plotting.save_bode_overlay(
-            target("bode_overlay.png"),
-            f.freq_hz,
-            f.G_meas,
-            f.G_model,
-            f.G_var,
-            input_names=res.input_names,
-            output_names=res.output_names,
-        )
-    else:
-        labels = list(res.output_names)
-        stat = res.error_map
-        t = res.time
-        tt = np.arange(t.y.shape[0]) / t.fs
-        plotting.save_time_overlay(
-            target("time_overlay.png"), tt, t.y, t.y_model, output_names=res.output_names
-        )
-        plotting.save_residual_spectra(
-            target("residual_spectra.png"),
-            t.psd_freq_hz,
-            t.psd_residual,
-            t.psd_output,
-            output_names=res.output_names,
-        )
-        plotting.save_xcorr(
-            target("residual_xcorr.png"),
-            t.xcorr_lags,
-            t.xcorr,
-            t.xcorr_bound,
-            input_names=res.input_names,
-            output_names=res.output_names,
-            against=t.xcorr_against,
-        )
-    plotting.save_error_map(
-        target("error_map.png"),
-        res.map_freq_hz,
-        stat,
-        channel_labels=labels,
-        threshold=res.threshold,
-        title=res.map_label,
-    )
-    return written
-
-
 def run(args) -> int:
     inputs = [args.model, args.data]
     if args.json:
         check_not_input(args.json, inputs)
     model_arrays = read_npz(args.model)
-    from workbench.formats import model_from_arrays
-
     if "A" not in model_arrays:
         raise InputError(
             f"{args.model}: expected a model file (keys A, B, C, D, dt), got a measurement"
         )
-    model = model_from_arrays(model_arrays, src=str(args.model))
+    model = lti_model_from_arrays(model_arrays, src=str(args.model))  # with its delay_s
     data = load_measurement(args.data)
-    delay_s = args.delay_s
-    if delay_s is None:
-        delay_s = 0.0
-        if "delay_s" in model_arrays:
-            d = np.asarray(model_arrays["delay_s"])
-            if d.size != 1 or d.dtype.kind not in "iuf":
-                raise InputError(
-                    f"{args.model}: key 'delay_s': expected a real scalar, s, got shape {d.shape}"
-                )
-            delay_s = float(d.reshape(()))
+    if args.delay_s is not None:
+        if not np.isfinite(args.delay_s) or args.delay_s < 0:
+            raise InputError(
+                f"--delay-s: expected a finite delay >= 0 s (it replaces the model file's "
+                f"delay_s), got {args.delay_s:g}"
+            )
+        model = model.replace(delay_s=args.delay_s)
     res = compare(
         model,
         data,
-        delay_s=delay_s,
         window=args.window,
         false_alarm=args.false_alarm,
         model_src=str(args.model),

@@ -10,11 +10,9 @@ from __future__ import annotations
 import argparse
 import json
 
-import numpy as np
-
 from workbench.atomic import check_not_input, write_text
 from workbench.errors import InputError
-from workbench.formats import load_measurement, model_from_arrays, read_npz
+from workbench.formats import load_measurement, read_model
 
 
 def register(subparsers) -> argparse.ArgumentParser:
@@ -38,19 +36,6 @@ def register(subparsers) -> argparse.ArgumentParser:
         "--max-effects", type=int, default=3, help="effects looked for in turn (default 3)"
     )
     return p
-
-
-def load_model_with_delay(path):
-    """Model file -> (StateSpace, delay_s from an optional 'delay_s' key)."""
-    arrays = read_npz(path)
-    sys = model_from_arrays(arrays, src=str(path))
-    delay = 0.0
-    if "delay_s" in arrays:
-        d = np.asarray(arrays["delay_s"])
-        if d.size != 1 or not np.isfinite(float(d.reshape(-1)[0])) or float(d.reshape(-1)[0]) < 0:
-            raise InputError(f"{path}: key 'delay_s': expected a scalar >= 0 s, got {d!r}")
-        delay = float(d.reshape(-1)[0])
-    return sys, delay
 
 
 def summary(result) -> str:
@@ -87,9 +72,9 @@ def run(args) -> int:
             check_not_input(out, [args.model, args.data])
     if args.max_effects < 1:
         raise InputError(f"--max-effects: expected an integer >= 1, got {args.max_effects}")
-    sys, delay = load_model_with_delay(args.model)
+    model = read_model(args.model)  # the file's delay_s travels with the model
     data = load_measurement(args.data)
-    result = diagnose(sys, data, max_effects=args.max_effects, delay_s=delay)
+    result = diagnose(model, data, max_effects=args.max_effects)
     print(summary(result))
     if args.json:
         write_text(args.json, json.dumps(result.to_json(), indent=2) + "\n")
@@ -97,7 +82,7 @@ def run(args) -> int:
         from workbench.diagnosis.modal import decompose
         from workbench.diagnosis.plots import write_plots
 
-        before = decompose(sys).replace(delay_s=delay)
+        before = decompose(model.without_delay().to_statespace()).replace(delay_s=model.delay_s)
         paths = write_plots(
             args.plots, data, before, result.model, title="diagnose: before / after"
         )

@@ -17,11 +17,11 @@ import numpy as np
 from workbench.formats import (
     FrfData,
     TimeData,
+    lti_model_from_arrays,
     measurement_from_arrays,
-    model_from_arrays,
     read_npz,
 )
-from workbench.lti import as_matrices
+from workbench.model import LTIModel, dc_gain, pole_summary
 from workbench.quality import check_measurement
 
 _SPEC_MODEL_KEYS = {"A", "B", "C", "D", "dt", "input_names", "output_names"}
@@ -44,86 +44,24 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 
 # ------------------------------------------------------------------ summaries
-def pole_summary(sys, *, rigid_tol: float = 1e-6) -> dict:
-    """Poles of a model in continuous-time terms.
-
-    Parameters
-    ----------
-    sys : control.StateSpace
-        Continuous or discrete model (discrete poles are mapped by s = ln(z) / dt).
-    rigid_tol : float
-        A pole with |s| below ``rigid_tol * max(1, max |s|)`` rad/s counts as a
-        rigid-body (integrating) pole.
-
-    Returns
-    -------
-    dict
-        ``n_rigid_body_poles``; ``flexible_modes``: list of ``{"freq_hz",
-        "damping"}`` for complex pairs (natural frequency |s| / 2 pi, damping
-        -Re(s) / |s|), sorted by frequency; ``real_poles_hz``: |s| / 2 pi of
-        the other real poles; ``n_unstable``.
-    """
-    A, _, _, _, dt = as_matrices(sys)
-    if A.shape[0] == 0:
-        return {"n_rigid_body_poles": 0, "flexible_modes": [], "real_poles_hz": [], "n_unstable": 0}
-    lam = np.linalg.eigvals(A).astype(complex)
-    s = np.log(lam + 0j) / dt if dt > 0 else lam
-    s = np.where(np.isfinite(s), s, -np.inf)  # z = 0 poles: infinitely fast
-    scale = max(1.0, float(np.max(np.abs(s[np.isfinite(s)]), initial=1.0)))
-    # a defective (Jordan) zero pole splits numerically into a pair of size
-    # ~sqrt(eps * ||A||); the tolerance covers that too
-    tol = max(rigid_tol * scale, 10 * np.sqrt(np.finfo(float).eps * np.linalg.norm(A, 1)))
-    if dt > 0:
-        tol = max(rigid_tol * scale, 10 * np.sqrt(np.finfo(float).eps) / dt)
-    rigid = np.abs(s) < tol
-    complex_pair = (~rigid) & (s.imag > tol)
-    real = (~rigid) & (np.abs(s.imag) <= tol)
-    modes = [
-        {"freq_hz": float(abs(p) / (2 * np.pi)), "damping": float(-p.real / abs(p))}
-        for p in sorted(s[complex_pair], key=abs)
-    ]
-    return {
-        "n_rigid_body_poles": int(rigid.sum()),
-        "flexible_modes": modes,
-        "real_poles_hz": sorted(float(abs(p) / (2 * np.pi)) for p in s[real] if np.isfinite(p)),
-        "n_unstable": int(np.sum((~rigid) & (s.real > tol))),
-    }
-
-
-def dc_gain(sys, *, poles: dict | None = None) -> np.ndarray | None:
-    """Static gain (n_y, n_u), or None when the model integrates (rigid-body poles)."""
-    A, B, C, D, dt = as_matrices(sys)
-    poles = pole_summary(sys) if poles is None else poles
-    if poles["n_rigid_body_poles"]:
-        return None
-    n = A.shape[0]
-    M = (np.eye(n) - A) if dt > 0 else -A
-    try:
-        X = np.linalg.solve(M, B)
-    except np.linalg.LinAlgError:
-        return None
-    return C @ X + D
-
-
-def describe_model(sys, arrays: dict) -> dict:
-    """Summary of a model, JSON-ready."""
-    _, _, _, _, dt = as_matrices(sys)
-    poles = pole_summary(sys)
-    gain = dc_gain(sys, poles=poles)
+def describe_model(model: LTIModel, arrays: dict) -> dict:
+    """Summary of a model, JSON-ready (``arrays``: the file's keys, for the extra ones)."""
+    poles = pole_summary(model)
+    gain = dc_gain(model, poles=poles)
     out = {
         "kind": "model",
-        "time": "continuous" if dt == 0 else "discrete",
-        "dt": dt,
-        "n_states": int(sys.nstates),
-        "n_u": int(sys.ninputs),
-        "n_y": int(sys.noutputs),
-        "input_names": list(sys.input_labels),
-        "output_names": list(sys.output_labels),
+        "time": "continuous" if model.dt == 0 else "discrete",
+        "dt": model.dt,
+        "n_states": model.n_x,
+        "n_u": model.n_u,
+        "n_y": model.n_y,
+        "input_names": list(model.input_names),
+        "output_names": list(model.output_names),
         "poles": poles,
         "dc_gain": None if gain is None else gain.tolist(),
     }
     if "delay_s" in arrays:
-        out["delay_s"] = float(np.asarray(arrays["delay_s"]).reshape(-1)[0])
+        out["delay_s"] = model.delay_s
     extra = sorted(set(arrays) - _SPEC_MODEL_KEYS)
     if extra:
         out["extra_keys"] = extra
@@ -251,7 +189,7 @@ def run(args) -> int:
         info = {"file": src, **describe_measurement(data)}
         info["warnings"] = check_measurement(data, src=src)
     elif "A" in arrays:
-        info = {"file": src, **describe_model(model_from_arrays(arrays, src=src), arrays)}
+        info = {"file": src, **describe_model(lti_model_from_arrays(arrays, src=src), arrays)}
     else:
         # load_any's refusal, with its one-line message
         from workbench.formats import load_any

@@ -25,9 +25,10 @@ import numpy as np
 import scipy.linalg
 import scipy.signal
 
+from workbench.d2c import d2c
 from workbench.lti import as_matrices, c2d_zoh
 
-__all__ = ["Term", "ExtendedModel", "decompose", "d2c_zoh"]
+__all__ = ["Term", "ExtendedModel", "decompose"]
 
 
 @dataclass(frozen=True)
@@ -363,24 +364,15 @@ def zoh_filter(num, den, u: np.ndarray, dt: float, delay_s: float = 0.0) -> np.n
     return y
 
 
-def d2c_zoh(A: np.ndarray, B: np.ndarray, dt: float):
-    """Continuous (A, B) whose exact ZOH discretization at ``dt`` is the given discrete pair."""
-    n, m = B.shape
-    M = np.zeros((n + m, n + m))
-    M[:n, :n] = A
-    M[:n, n:] = B
-    M[n:, n:] = np.eye(m)
-    L = scipy.linalg.logm(M) / dt
-    return np.real(L[:n, :n]), np.real(L[:n, n:])
-
-
 def decompose(sys) -> ExtendedModel:
     """Write a state-space model as a sum of modal terms.
 
     Parameters
     ----------
     sys : control.StateSpace
-        Continuous, or discrete (converted by the exact ZOH inverse).
+        Continuous, or discrete (converted by the exact ZOH inverse,
+        :func:`workbench.d2c.d2c`, which refuses poles at z = 0 and on the
+        negative real axis with an InputError).
 
     Returns
     -------
@@ -398,7 +390,8 @@ def decompose(sys) -> ExtendedModel:
     A, B, C, D, dt = as_matrices(sys)
     notes = []
     if dt > 0:
-        A, B = d2c_zoh(A, B, dt)
+        # the one d2c: refuses poles at z = 0 and on the negative real axis (no real log)
+        A, B, _, _, _ = as_matrices(d2c(sys))
         notes.append(
             f"discrete model (dt = {dt:g} s) converted to continuous time by the exact ZOH inverse"
         )
