@@ -243,3 +243,14 @@ def test_gap_verdict_and_where_more_states_stop_paying():
     assert gap_verdict(5.0).startswith("moderate gap")
     assert gap_verdict(1.75).startswith("NO clear gap")
     assert order_where_fit_stops_paying([2, 3, 4, 5, 6], [50.0, 70.0, 75.5, 76.0, 75.8]) == 4
+
+
+def test_compare_on_time_data_reports_the_same_fit(cd_split):
+    from workbench.compare import compare
+
+    ident, val = cd_split
+    res = identify_subspace(ident, method="moesp", block_rows=15, order=4)
+    f = simulation_fit(res.model, val)
+    notes = [n for n in compare(res.model, val).notes if n.startswith("identification fit")]
+    assert notes == ["identification " + f.describe(list(val.output_names))]
+    assert f"fit {f.mean:.1f} %" in notes[0]

@@ -513,6 +513,26 @@ def _periodic_z(data: TimeData, resid: np.ndarray):
     return freq, z, 2 * (M - 1)
 
 
+def _fit_note(model, data: TimeData, delay_s: float) -> str:
+    """The identification fit (x0 by least squares) of ``workbench identify --validate``."""
+    import control
+
+    from workbench.ident.validate import simulation_fit
+
+    d = delay_s * data.fs
+    if abs(d - round(d)) > 1e-9:
+        return "fit with estimated initial state: not computed for a fractional-sample delay"
+    A, B, C, D, dt = lti.as_matrices(model)
+    if not dt:
+        Ad, Bd, _, _ = lti.c2d_zoh(A, B, 1.0 / data.fs)
+        model = control.ss(Ad, Bd, C, D, 1.0 / data.fs)
+    try:
+        f = simulation_fit(model, data, input_delay=int(round(d)))
+    except (np.linalg.LinAlgError, ValueError) as exc:
+        return f"fit with estimated initial state: failed ({exc})"
+    return "identification " + f.describe(list(data.output_names))
+
+
 def _compare_time(model, data: TimeData, *, delay_s, window, false_alarm, gap, max_lag, noise):
     notes = [
         "simulation from rest (zero initial state) with the recorded u, as the spec measure",
@@ -522,6 +542,7 @@ def _compare_time(model, data: TimeData, *, delay_s, window, false_alarm, gap, m
     y = data.y
     ym = lti.simulate_zoh(model, data.u, data.fs, delay_s=delay_s)
     err = lti.relative_error_time(y, ym)
+    notes.append(_fit_note(model, data, delay_s))
     resid = y - ym
     ny = np.linalg.norm(y, axis=0)
     sim_err = np.linalg.norm(resid, axis=0) / np.where(ny > 0, ny, np.inf)
