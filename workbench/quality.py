@@ -11,7 +11,8 @@ Checks, time data:
 - a constant input channel (it excites nothing);
 - rank-deficient MIMO excitation: two excitation channels identical or
   linearly dependent over the record; for periodic data whose periods differ
-  (multi-experiment data), the excitation matrix across periods per line;
+  (multi-experiment data), the excitation matrix across the experiment blocks
+  (:mod:`workbench.periodic`) per line;
 - closed-loop data without the reference ``r``;
 - a clipped sensor (many samples at exactly the channel's max or min);
 - a gap in the excitation: lines inside the excited band of ``r`` (or ``u``)
@@ -32,6 +33,7 @@ import numpy as np
 
 from workbench.errors import DataWarning
 from workbench.formats import FrfData, TimeData
+from workbench.periodic import EXCITED_REL_POWER
 
 __all__ = ["check_measurement", "runs"]
 
@@ -127,38 +129,45 @@ def _dependent_excitation(data: TimeData) -> list[str]:
     return out
 
 
+def _record(data: TimeData):
+    """The record's experiment blocks, all periods kept (None if not periodic or no excitation)."""
+    from workbench.errors import InputError
+    from workbench.periodic import periodic_record
+
+    if data.period is None:
+        return None
+    try:
+        return periodic_record(data, n_transient=0)
+    except InputError:
+        return None
+
+
 def _per_line_rank(data: TimeData, key: str, e: np.ndarray) -> list[str]:
-    """Multi-experiment periodic data: the excitation matrix across periods, per line.
+    """Multi-experiment periodic data: the excitation matrix across experiments, per line.
 
     With identical periods (one periodic experiment) each line sees one input
     direction only, by design; that is not checked here (``info`` states it).
-    When the periods differ, the record is taken as one experiment per period
-    and at each excited line the (n_periods, n_u) matrix of input spectra must
-    have full column rank for a per-line MIMO estimate.
+    When the record holds several experiments (blocks of identical periods,
+    :mod:`workbench.periodic`), at each excited line the (n_blocks, n_u) matrix
+    of their input spectra must have full column rank for a per-line MIMO estimate.
     """
-    P = data.period
-    if P is None or data.n_samples // P < 2:
+    rec = _record(data)
+    if rec is None or rec.n_blocks < 2:
         return []
-    M = data.n_samples // P
-    blocks = e.reshape(M, P, -1)
-    scale = np.abs(blocks).max()
-    if scale == 0 or np.abs(np.diff(blocks, axis=0)).max() <= 1e-9 * scale:
-        return []
-    E = np.fft.rfft(blocks, axis=1)  # (M, n_lines, n_u)
-    power = np.sum(np.abs(E) ** 2, axis=(0, 2))
-    excited = np.flatnonzero(power > 1e-10 * power.max())
+    E = rec.R if data.r is not None else rec.U  # (n_b, n_bins, n_u), the excitation's
+    excited = rec.lines
     n_u = e.shape[1]
-    s = np.linalg.svd(np.moveaxis(E[:, excited, :], 1, 0), compute_uv=False)  # (n_ex, min(M,n_u))
+    s = np.linalg.svd(np.moveaxis(E[:, excited, :], 1, 0), compute_uv=False)  # (n_ex, min(b,u))
     rank = np.sum(s > _DEPENDENT_TOL * s[:, :1], axis=1)
     bad = np.zeros(E.shape[1], bool)
     bad[excited[rank < n_u]] = True
     if not bad.any():
         return []
-    freq = np.arange(E.shape[1]) * data.fs / P
     spans = runs(bad, gap=max(1, int(np.median(np.diff(excited))) if excited.size > 1 else 1))
     return [
-        f"excitation '{key}': per-line excitation matrix over the {M} periods has rank "
-        f"{int(rank.min())} < {n_u} inputs at {int(bad.sum())} lines ({_band_text(freq, spans)}): "
+        f"excitation '{key}': per-line excitation matrix over the {rec.n_blocks} experiments "
+        f"(blocks of identical periods) has rank {int(rank.min())} < {n_u} inputs at "
+        f"{int(bad.sum())} lines ({_band_text(rec.freq_hz, spans)}): "
         "the inputs cannot be separated there"
     ]
 
@@ -198,13 +207,10 @@ def _excitation_spectrum(data: TimeData) -> tuple[np.ndarray, np.ndarray, bool]:
     """
     e, _ = _excitation(data)
     e = e - e.mean(axis=0)
-    if data.period is not None and data.period >= 8:
-        P = data.period
-        M = data.n_samples // P
-        # mean power over periods (multi-experiment periods differ in phase)
-        E = np.fft.rfft(e.reshape(M, P, -1), axis=1)
-        power = np.mean(np.sum(np.abs(E[:, 1:]) ** 2, axis=2), axis=0)
-        return power, np.arange(1, E.shape[1]) * data.fs / P, True
+    rec = _record(data) if data.period is not None and data.period >= 8 else None
+    if rec is not None:
+        # mean power over the experiment blocks (multi-experiment blocks differ in phase)
+        return rec.ref_power.mean(axis=0)[1:], rec.freq_hz[1:], True
     import scipy.signal
 
     nper = int(min(data.n_samples, max(64, 2 ** int(np.log2(max(data.n_samples // 8, 1))))))
@@ -223,7 +229,7 @@ def _excitation_gaps(data: TimeData) -> list[str]:
     lo, hi = strong[0], strong[-1]
     # periodic: the excited lines (exact zeros elsewhere); Welch: every line in the band
     if periodic:
-        lines = np.flatnonzero(power > 1e-10 * power.max())
+        lines = np.flatnonzero(power > EXCITED_REL_POWER * power.max())
         lines = lines[(lines >= lo) & (lines <= hi)]
     else:
         lines = np.arange(lo, hi + 1)

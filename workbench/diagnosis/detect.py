@@ -128,8 +128,11 @@ def nonlinearity(data: TimeData, y_model: np.ndarray | None = None) -> Nonlinear
 
     Notes
     -----
-    The first period is dropped (transient from rest). The excited lines are
-    those where the excitation (r, or u in open loop) has power. On the other
+    In every experiment block (:mod:`workbench.periodic`) the first period is
+    dropped (transient from rest or from the switch), and periods of different
+    blocks are never averaged together; the statistics below are pooled over
+    blocks. The excited lines are those where the excitation (r, or u in open
+    loop) has power in some block. On the other
     lines inside the excited band, a linear time-invariant plant driven by a
     periodic excitation gives no periodic output: the mean over periods there
     holds noise only, with variance sigma^2/P. Power beyond that is
@@ -138,57 +141,73 @@ def nonlinearity(data: TimeData, y_model: np.ndarray | None = None) -> Nonlinear
     Schoukens, System Identification, 2nd ed., ch. 3: detection of
     nonlinear distortions with random-phase multisines).
     """
-    P = data.period
-    N = data.n_samples
-    if not P or N // P < 3:
+    rec = _record(data)
+    if rec is None:
         return None
-    n_per = N // P - 1
     y_all = data.y if y_model is None else data.y - y_model
-    y = _detrend(y_all[P:].reshape(n_per, P, data.n_y))
-    y_tot = np.fft.rfft(data.y[P:].reshape(n_per, P, data.n_y), axis=1).mean(axis=0)
-    x = (data.r if data.r is not None else data.u)[P:].reshape(n_per, P, data.n_u)
-    Y = np.fft.rfft(y, axis=1)  # (n_per, n_lines, n_y)
-    X = np.fft.rfft(x, axis=1)
-    Xm = np.abs(X.mean(axis=0)) ** 2
-    px = Xm.sum(axis=1)
-    excited = px > 1e-8 * px.max()
-    lines = np.flatnonzero(excited)
-    lines = lines[lines > 0]
+    lines = rec.lines
     if lines.size < 3:
         return None
+    excited = np.zeros(rec.n_bins, bool)
+    excited[lines] = True
     lo, hi = lines[0], lines[-1]
-    k = np.arange(Y.shape[1])
+    k = np.arange(rec.n_bins)
     # the lowest octave is left out: a transient or drift from rest leaks into it
     unexc = (~excited) & (k >= 2 * lo) & (k <= hi) & (k > 0)
     if unexc.sum() < 10:
         return None
-    Ym = Y.mean(axis=0)
-    noise = Y.var(axis=0, ddof=1) / n_per  # variance of the mean, per line and output
+    # per experiment block: mean over its periods and the noise variance of that mean (periods
+    # of different experiments are never averaged together); pooled over blocks below
+    pw_b, nz_b, p_first, p_last = [], [], 0.0, 0.0
+    for yb in rec.periods(y_all):
+        Y = np.fft.rfft(_detrend(yb), axis=1)  # (n_per, n_bins, n_y)
+        pw_b.append(np.abs(Y.mean(axis=0)) ** 2)
+        nz_b.append(Y.var(axis=0, ddof=1) / yb.shape[0])  # variance of the mean
+        # distortion is stationary; a transient from rest that has not settled decays
+        p_first += np.sum(np.abs(Y[0, unexc]) ** 2)
+        p_last += np.sum(np.abs(Y[-1, unexc]) ** 2)
+    Ym2, noise = sum(pw_b), sum(nz_b)  # (n_bins, n_y), summed over blocks
     # odd- and even-order distortion fall on odd and even lines: test each parity apart
     # (pooled power over pooled noise variance of the mean, about 1 for a linear plant)
     band = (k >= lo) & (k <= hi)
-    p_total = np.sum(np.abs(y_tot[band]) ** 2)
+    p_total = np.sum(np.abs(rec.Y[:, band]) ** 2)
     f_stat = 0.0
     distortion = 0.0
     for parity in (0, 1):
         sel = unexc & (k % 2 == parity)
         if sel.sum() < 5:
             continue
-        pw = np.sum(np.abs(Ym[sel]) ** 2, axis=1)
+        pw = np.sum(Ym2[sel], axis=1)
         nz = np.maximum(np.sum(noise[sel], axis=1), 1e-300)
         f_stat = max(f_stat, float(pw.sum() / nz.sum()))
         excess = max(pw.sum() - nz.sum(), 0.0)
         distortion += excess * np.sum(band & (k % 2 == parity)) / sel.sum()
-    f = np.fft.rfftfreq(P, 1 / data.fs)
-    # distortion is stationary; a transient from rest that has not settled decays over periods
-    p_per = np.sum(np.abs(Y[:, unexc]) ** 2, axis=(1, 2))
+    f = rec.freq_hz
     return NonlinearityEvidence(
         level=float(min(distortion / max(p_total, 1e-300), 1.0)),
         f_stat=f_stat,
         n_lines=int(unexc.sum()),
         band_hz=(float(f[lo]), float(f[hi])),
-        stationarity=float(p_per[-1] / max(p_per[0], 1e-300)),
+        stationarity=float(p_last / max(p_first, 1e-300)),
     )
+
+
+def _record(data: TimeData):
+    """The periodic record of the detectors: in every block the first period dropped.
+
+    None when ``data`` is not periodic or a block has fewer than 3 periods (2
+    must stay for a noise estimate).
+    """
+    from workbench.errors import InputError
+    from workbench.periodic import periodic_record
+
+    if not data.period:
+        return None
+    try:
+        rec = periodic_record(data, n_transient=1, min_periods=2)
+    except InputError:
+        return None
+    return rec if np.all(rec.n_dropped == 1) else None
 
 
 def _detrend(x: np.ndarray) -> np.ndarray:
@@ -216,18 +235,17 @@ def periodic_misfit(data: TimeData, y_model: np.ndarray) -> float | None:
     Returns
     -------
     F = ||mean residual period||^2 / (sum of its noise variances), or None when
-    the record is not periodic. The first period (transient from rest) is
-    dropped; the noise variance of the mean comes from the spread over periods.
+    the record is not periodic. The first period of every experiment block
+    (transient) is dropped; the noise variance of the mean comes from the spread
+    over the periods of each block, pooled over blocks.
     """
-    P = data.period
-    N = data.n_samples
-    if not P or N // P < 3:
+    rec = _record(data)
+    if rec is None:
         return None
-    n_per = N // P - 1
-    e = (data.y - y_model)[P:].reshape(n_per, P, data.n_y)
-    e = e - e.mean(
-        axis=1, keepdims=True
-    )  # offsets and slow drift are not the linear model's concern
-    mean = e.mean(axis=0)
-    var_mean = e.var(axis=0, ddof=1).sum() / n_per
-    return float(np.sum(mean**2) / max(var_mean, 1e-300))
+    power, var_mean = 0.0, 0.0
+    for e in rec.periods(data.y - y_model):
+        # offsets and slow drift are not the linear model's concern
+        e = e - e.mean(axis=1, keepdims=True)
+        power += np.sum(e.mean(axis=0) ** 2)
+        var_mean += e.var(axis=0, ddof=1).sum() / e.shape[0]
+    return float(power / max(var_mean, 1e-300))
