@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any, Literal
 
 import numpy as np
@@ -446,7 +447,7 @@ class _ModelPlant:
         A, *_ = self.abcd
         return np.zeros(A.shape[0])
 
-    @property
+    @cached_property
     def abcd(self):
         return discretize(self.sys, self.fs)
 
@@ -535,6 +536,7 @@ def closed_loop(
     model = not _is_plant_object(plant)
     if model:
         plant = _ModelPlant(plant, float(controller.fs))
+        plant.abcd  # noqa: B018 - discretize now: a wrong dt is refused before any work
     elif rng is None or not isinstance(rng, np.random.Generator):
         raise InputError(
             f"rng: expected a numpy.random.Generator for the plant's noise, got {rng!r}"

@@ -1,0 +1,218 @@
+"""workbench.sim (ZOH, delay, linear/nonlinear/closed-loop simulation) and the Controller protocol.
+
+Oracles are independent of the code under test: closed forms for the ZOH of a
+mass, the continuous-time response of a mass to a held input with a
+fractional delay, scipy.signal.dlsim / control.forced_response for the linear
+recursion, control.feedback / control.sample_system for the closed loop.
+"""
+
+from __future__ import annotations
+
+import control
+import numpy as np
+import pytest
+import scipy.signal
+
+from controllers import Controller, StateSpaceController, StrictlyProper, tune_pid
+from plants.base import LinearPlant
+from workbench import sim
+from workbench.errors import InputError
+
+FS = 5000.0  # Hz, the wafer stage's sampling rate
+T = 1.0 / FS
+
+
+def _mass(m: float = 2.0) -> control.StateSpace:
+    """Free mass m (kg): force (N) -> position (m)."""
+    return control.ss([[0.0, 1.0], [0.0, 0.0]], [[0.0], [1.0 / m]], [[1.0, 0.0]], [[0.0]])
+
+
+def _random_stable(rng, n=7, n_u=2, n_y=3, *, dt=T, feedthrough=True) -> control.StateSpace:
+    """Random stable discrete system: poles inside radius 0.95 by scaling a random A."""
+    A = rng.standard_normal((n, n))
+    A *= 0.95 / np.max(np.abs(np.linalg.eigvals(A)))
+    D = rng.standard_normal((n_y, n_u)) if feedthrough else np.zeros((n_y, n_u))
+    return control.ss(A, rng.standard_normal((n, n_u)), rng.standard_normal((n_y, n)), D, dt)
+
+
+def _response(sys, u: np.ndarray) -> np.ndarray:
+    """python-control's forced response from rest as (N, n_y), never squeezed."""
+    out = control.forced_response(sys, U=u.T, squeeze=False).outputs
+    return np.asarray(out).reshape(-1, u.shape[0]).T
+
+
+# ------------------------------------------------------------------ discretization
+@pytest.mark.parametrize("tau_frac", [0.0, 0.37])
+def test_zoh_of_a_mass_matches_the_closed_form(tau_frac):
+    m = 2.0
+    tau = tau_frac * T
+    delay = 3 * T + tau
+    Ad, B0, B1, k = sim.c2d_zoh(_mass(m).A, _mass(m).B, T, delay_s=delay)
+    h = T - tau  # the new input acts over [tau, T), the old one over [0, tau)
+    assert k == 3
+    np.testing.assert_allclose(Ad, [[1.0, T], [0.0, 1.0]], rtol=1e-14, atol=1e-18)
+    np.testing.assert_allclose(B0[:, 0], [h**2 / (2 * m), h / m], rtol=1e-12)
+    B1_exact = [tau**2 / (2 * m) + h * tau / m, tau / m]
+    np.testing.assert_allclose(B1[:, 0], B1_exact, rtol=1e-12, atol=1e-20)
+
+
+def test_fractional_delay_equals_the_continuous_response_of_a_mass():
+    """x(t) of a mass under a held, delayed input is a sum of delayed parabolas (closed form)."""
+    m, delay = 2.0, 2.6 * T
+    rng = np.random.default_rng(0)
+    u = rng.standard_normal((400, 1))
+    y = sim.simulate_zoh(_mass(m), u, FS, delay_s=delay)[:, 0]
+    t = np.arange(400) * T
+    du = np.diff(np.concatenate([[0.0], u[:, 0]]))  # steps of the held input at k T + delay
+    ramp = np.maximum(t[:, None] - (np.arange(400) * T + delay)[None, :], 0.0)
+    y_exact = (ramp**2 / (2 * m)) @ du
+    np.testing.assert_allclose(y, y_exact, rtol=1e-9, atol=1e-9 * np.abs(y_exact).max())
+
+
+def test_first_order_lag_step_with_fractional_delay():
+    tau_c = 7 * T  # time constant, s
+    delay = 1.3 * T
+    lag = control.ss(control.tf([1.0], [tau_c, 1.0]))
+    y = sim.simulate_zoh(lag, np.ones((60, 1)), FS, delay_s=delay)[:, 0]
+    t = np.arange(60) * T
+    exact = np.where(t >= delay, 1.0 - np.exp(-(t - delay) / tau_c), 0.0)
+    np.testing.assert_allclose(y, exact, atol=1e-13)
+
+
+def test_split_delay_refuses_negative_delays():
+    assert sim.split_delay(2 * T, T) == (2, 0.0)
+    with pytest.raises(InputError, match="delay_s"):
+        sim.split_delay(-1e-6, T)
+
+
+# ------------------------------------------------------------------ linear simulation
+@pytest.mark.parametrize("N", [40, 3001])  # plain recursion (short) and lifted blocks (long)
+def test_dlsim_equals_scipy_and_python_control(N):
+    rng = np.random.default_rng(N)
+    G = _random_stable(rng)
+    u = rng.standard_normal((N, 2))
+    x0 = rng.standard_normal(7)
+    y = sim.dlsim(G.A, G.B, G.C, G.D, u, x0=x0)
+    _, y_sp, _ = scipy.signal.dlsim((G.A, G.B, G.C, G.D, T), u, x0=x0)
+    np.testing.assert_allclose(y, y_sp, rtol=1e-10, atol=1e-10 * np.abs(y_sp).max())
+    resp = control.forced_response(G, U=u.T, X0=x0)
+    np.testing.assert_allclose(y, resp.outputs.T, rtol=1e-10, atol=1e-10 * np.abs(y_sp).max())
+
+
+def test_simulate_zoh_equals_python_control_sampled_system():
+    rng = np.random.default_rng(3)
+    Gd = _random_stable(rng, dt=T)
+    Gc = control.ss(*(np.asarray(a) for a in (Gd.A, Gd.B, Gd.C, Gd.D)))
+    Gc = control.ss(Gc.A - 50 * np.eye(7), Gc.B, Gc.C, Gc.D)  # continuous, stable
+    u = rng.standard_normal((2000, 2))
+    y = sim.simulate_zoh(Gc, u, FS, delay_s=2 * T)
+    z = control.tf([1.0], [1.0, 0.0, 0.0], T)  # two whole samples of delay
+    ref = control.forced_response(control.sample_system(Gc, T, method="zoh") * z, U=u.T)
+    np.testing.assert_allclose(y, ref.outputs.T, atol=1e-10 * np.abs(y).max())
+
+
+def test_substep_propagation_without_port_force_is_the_delayed_zoh():
+    rng = np.random.default_rng(4)
+    A = rng.standard_normal((5, 5)) - 3 * np.eye(5)
+    B = rng.standard_normal((5, 2))
+    delay = 1.45 * T
+    prop = sim.substep_zoh(A, B, np.zeros((5, 1)), T, 6, delay_s=delay)
+    Ad, B0, B1, m = sim.c2d_zoh(A, B, T, delay_s=delay)
+    x, un, uo = rng.standard_normal(5), rng.standard_normal(2), rng.standard_normal(2)
+    x1 = prop.advance(x, un, uo, lambda x: np.zeros(1))
+    assert prop.m == m == 1
+    np.testing.assert_allclose(x1, Ad @ x + B0 @ un + B1 @ uo, rtol=1e-12)
+
+
+# ------------------------------------------------------------------ controller protocol
+def test_pid_is_a_controller_and_its_statespace_is_its_step():
+    K = tune_pid([20.0, 0.4], crossover_hz=100.0, fs=FS)
+    assert isinstance(K, Controller) and isinstance(K, StrictlyProper) and K.linear
+    ss = K.statespace()
+    assert ss.dt == pytest.approx(T) and (ss.ninputs, ss.noutputs) == (K.n_y, K.n_u)
+    e = np.random.default_rng(5).standard_normal((300, 2))
+    state = K.init()
+    u = np.empty((300, 2))
+    for k in range(300):
+        u[k], state = K.step(state, e[k])
+    ref = control.forced_response(ss, U=e.T).outputs.T
+    np.testing.assert_allclose(u, ref, rtol=1e-9, atol=1e-9 * np.abs(ref).max())
+
+
+def test_pid_sign_convention_positive_gain_on_the_error():
+    """u = K e: a positive error pushes the plant input up (spec 5); |K| = m w^2 at crossover."""
+    K = tune_pid([2.0], crossover_hz=50.0, fs=FS)
+    G = K.frf(np.array([50.0]))[0, 0, 0]
+    assert abs(abs(G) - 2.0 * (2 * np.pi * 50.0) ** 2) < 0.05 * 2.0 * (2 * np.pi * 50.0) ** 2
+    dc = K.frf(np.array([0.01]))[0, 0, 0]
+    assert dc.real > 0  # integral action with positive sign
+
+
+def test_state_space_controller_from_spec_arrays_and_refusals():
+    rng = np.random.default_rng(6)
+    Kss = _random_stable(rng, n=3, n_u=2, n_y=2)
+    arrays = dict(A=Kss.A, B=Kss.B, C=Kss.C, D=Kss.D, dt=np.array(T), role=np.array("controller"))
+    K = StateSpaceController.from_arrays(arrays)
+    assert isinstance(K, Controller) and K.fs == pytest.approx(FS) and (K.n_u, K.n_y) == (2, 2)
+    np.testing.assert_array_equal(K.statespace().A, Kss.A)
+    with pytest.raises(InputError, match="role"):
+        StateSpaceController.from_arrays({**arrays, "role": np.array("plant")})
+    with pytest.raises(InputError, match="discrete"):
+        StateSpaceController.from_arrays({**arrays, "dt": np.array(0.0)})
+    with pytest.raises(InputError, match="direct feedthrough"):
+        K.output(K.init())
+
+
+# ------------------------------------------------------------------ closed loop
+def _plant_and_controller(rng):
+    G = control.ss(_mass(2.0).A - np.diag([0.0, 5.0]), _mass(2.0).B, _mass(2.0).C, 0)  # damped
+    K = tune_pid([2.0], crossover_hz=60.0, fs=FS, delay_samples=0)
+    return G, StateSpaceController.from_statespace(K.statespace())
+
+
+@pytest.mark.parametrize("delay_samples", [0, 2])
+def test_closed_loop_equals_control_feedback(delay_samples):
+    rng = np.random.default_rng(7)
+    G, K = _plant_and_controller(rng)
+    r = rng.standard_normal((3000, 1)) * 1e-6
+    u, y = sim.closed_loop(G, K, r=r, delay_samples=delay_samples, method="linear")
+    Gd = control.sample_system(G, T, method="zoh")
+    z_d = control.tf([1.0], [1.0] + [0.0] * delay_samples, T)
+    L = Gd * z_d * K.statespace()
+    ref = _response(control.feedback(L, 1), r)
+    np.testing.assert_allclose(y, ref, atol=1e-9 * np.abs(ref).max())
+    # u is the controller's output on e = r - y, delayed
+    e_to_u = _response(K.statespace() * z_d, r - y)
+    np.testing.assert_allclose(u, e_to_u, atol=1e-9 * np.abs(u).max())
+
+
+def test_closed_loop_step_path_equals_linear_path_on_a_noisy_plant():
+    rng = np.random.default_rng(8)
+    G, K = _plant_and_controller(rng)
+    plant = LinearPlant(sys=G, fs=FS, delay_s=0.4 * T, noise_std=1e-9)
+    d = rng.standard_normal((1500, 1))
+    r = rng.standard_normal((1500, 1)) * 1e-6
+    kw = dict(r=r, d=d, delay_samples=1)
+    u1, y1 = sim.closed_loop(plant, K, rng=np.random.default_rng(1), method="linear", **kw)
+    u2, y2 = sim.closed_loop(plant, K, rng=np.random.default_rng(1), method="step", **kw)
+    np.testing.assert_allclose(y1, y2, atol=1e-9 * np.abs(y1).max())
+    np.testing.assert_allclose(u1, u2, atol=1e-9 * np.abs(u1).max())
+    assert np.all(u1[0] == d[0])  # one sample of loop delay: nothing fed back at k = 0
+
+
+def test_closed_loop_refusals():
+    rng = np.random.default_rng(9)
+    G, K = _plant_and_controller(rng)
+    plant = LinearPlant(sys=G, fs=FS)
+    with pytest.raises(InputError, match="direct feedthrough"):  # D != 0: u[k] needs y[k]
+        sim.closed_loop(plant, K, d=np.ones((10, 1)), rng=rng, method="step")
+    slow = tune_pid([2.0], crossover_hz=50.0, fs=1000.0)
+    with pytest.raises(InputError, match="fs = 5000 Hz like the plant"):
+        sim.closed_loop(plant, slow, d=np.ones((10, 1)), rng=rng)
+    with pytest.raises(InputError, match="dt = 0.001 s"):
+        sim.closed_loop(control.sample_system(G, T), slow, r=np.ones((10, 1)))
+    with pytest.raises(InputError, match="r: expected shape"):
+        sim.closed_loop(G, K, r=np.ones((10, 2)))
+    hot = tune_pid([2.0], crossover_hz=700.0, fs=FS)  # 3 samples of delay: no phase left
+    with pytest.raises(InputError, match="unstable"):
+        sim.closed_loop(G, hot, r=np.ones((10, 1)), delay_samples=3, method="linear")
