@@ -483,34 +483,39 @@ def _xcorr(e: np.ndarray, x: np.ndarray, max_lag: int) -> np.ndarray:
 def _periodic_z(data: TimeData, resid: np.ndarray):
     """Per-line noise test of the residual of periodic data.
 
-    Returns (freq (n_l,), z (n_l, n_y), dof2) or None. The first period is
-    dropped when at least 3 remain (transients); over the M remaining periods
-    the mean residual spectrum is compared with its period-to-period scatter:
-    z = |mean E|^2 / (s^2 / M) ~ F(2, 2(M-1)) when the residual is noise.
-    Only lines excited by r (or u) are kept: that is where model errors show.
+    Returns (freq (n_l,), z (n_l, n_y), dof1, dof2) or None. Blocks and
+    transient are those of :func:`workbench.periodic.periodic_record`: in each
+    experiment block the first period is dropped while at least 3 remain
+    (transients). Per block b of M_b kept periods, the mean residual spectrum
+    is compared with the period-to-period scatter, pooled over blocks:
+    z = sum_b M_b |mean_b E|^2 / s^2 / n_b ~ F(2 n_b, 2 sum_b (M_b - 1)) when
+    the residual is noise (for one block z = |mean E|^2 / (s^2 / M) ~ F(2, 2(M-1))).
+    Periods of different experiments are never averaged together: their
+    residuals differ when the model is wrong. Only lines excited by r (or u)
+    in some block are kept: that is where model errors show.
     """
-    P = data.period
-    if P is None:
+    from workbench.errors import InputError
+    from workbench.periodic import periodic_record
+
+    if data.period is None:
         return None
-    M = data.n_samples // P
-    skip = 1 if M >= 4 else 0
-    M -= skip
-    if M < 2:
-        return None
-    E = np.fft.rfft(resid[skip * P :].reshape(M, P, -1), axis=1)[:, 1:]  # (M, n_l, n_y)
-    exc = data.r if data.r is not None else data.u
-    X = np.fft.rfft(exc[skip * P :].reshape(M, P, -1), axis=1)[:, 1:]
-    power = np.mean(np.sum(np.abs(X) ** 2, axis=2), axis=0)
-    lines = np.flatnonzero(power > 1e-8 * power.max())
+    try:
+        rec = periodic_record(data, n_transient=1, min_periods=3)
+    except InputError:
+        try:  # a block of 2 periods: keep both
+            rec = periodic_record(data, n_transient=0, min_periods=2)
+        except InputError:
+            return None
+    lines = rec.lines
     if lines.size == 0:
         return None
-    E = E[:, lines]
-    mean = E.mean(axis=0)
-    s2 = np.sum(np.abs(E - mean) ** 2, axis=0) / (M - 1)
-    s2 = np.maximum(s2, 1e-300)
-    z = np.abs(mean) ** 2 / (s2 / M)
-    freq = (lines + 1) * data.fs / P
-    return freq, z, 2 * (M - 1)
+    M = rec.n_kept
+    mean = rec.mean_spectrum(resid)[:, lines]  # (n_b, n_l, n_y)
+    spread = sum(rec.spread_power(resid, b)[lines] for b in range(rec.n_blocks))
+    s2 = np.maximum(spread / np.sum(M - 1), 1e-300)
+    z = np.einsum("b,bly->ly", M.astype(float), np.abs(mean) ** 2) / s2 / rec.n_blocks
+    freq = lines * data.fs / data.period
+    return freq, z, 2 * rec.n_blocks, 2 * int(np.sum(M - 1))
 
 
 def _fit_note(model, data: TimeData, delay_s: float) -> str:
@@ -566,16 +571,17 @@ def _compare_time(model, data: TimeData, *, delay_s, window, false_alarm, gap, m
     exceeds = np.abs(xc).max(axis=0) > bound
     per = _periodic_z(data, resid)
     if per is not None:
-        freq, z, dof2 = per
+        freq, z, dof1, dof2 = per
         w = min(window, freq.size) | 1
         stat = _running_median(z, w)
         n_windows = int(np.ceil(z.size / w))
-        thr = band_threshold(w, false_alarm, n_windows, lambda q: scipy.stats.f.isf(q, 2, dof2))
-        M = dof2 // 2 + 1
+        thr = band_threshold(w, false_alarm, n_windows, lambda q: scipy.stats.f.isf(q, dof1, dof2))
+        n_b = dof1 // 2
+        M = f"{dof2 // 2 + 1}" if n_b == 1 else f"M_b, pooled over {n_b} experiment blocks"
         criterion = (
             f"periodic data: per excited line and output, z = |mean residual spectrum|^2 / "
-            f"(period-to-period variance / {M}) ~ F(2, {dof2}) when the residual is noise; band "
-            f"where the running median over {w} lines exceeds {thr:.3g} (probability "
+            f"(period-to-period variance / {M}) ~ F({dof1}, {dof2}) when the residual is noise; "
+            f"band where the running median over {w} lines exceeds {thr:.3g} (probability "
             f"{false_alarm:g} of any band for a right model; binomial tail, Bonferroni over "
             f"{n_windows} windows); runs merged over gaps of {gap} lines"
         )
@@ -585,7 +591,7 @@ def _compare_time(model, data: TimeData, *, delay_s, window, false_alarm, gap, m
         label = f"running median of z over {w} lines"
         # F(2, d) has mean d / (d - 2), not 1
         if dof2 > 2:
-            notes.append(f"z ~ F(2, {dof2}): mean {dof2 / (dof2 - 2):.3g} for a right model")
+            notes.append(f"z ~ F({dof1}, {dof2}): mean {dof2 / (dof2 - 2):.3g} for a right model")
     else:
         freq = f_w[1:]
         stat = p_e[1:] / np.where(p_y[1:] > 0, p_y[1:], np.inf)
