@@ -69,7 +69,7 @@ def _nonneg_scalar(value, key: str, expected: str) -> float:
     return v
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # == of array fields is ambiguous: identity equality
 class LTIModel:
     """A linear time-invariant state-space model with an exact input delay.
 
