@@ -26,7 +26,8 @@ import scipy.linalg
 import scipy.signal
 
 from workbench.d2c import d2c
-from workbench.lti import as_matrices, c2d_zoh
+from workbench.lti import as_matrices
+from workbench.sim import c2d_zoh, split_delay
 
 __all__ = ["Term", "ExtendedModel", "decompose"]
 
@@ -323,10 +324,7 @@ def zoh_filter(num, den, u: np.ndarray, dt: float, delay_s: float = 0.0) -> np.n
     n = den.size - 1
     num = np.concatenate([np.zeros(n + 1 - num.size), num])
     d = num[0]
-    m_int = int(np.floor(delay_s / dt + 1e-12))
-    frac = delay_s - m_int * dt
-    if frac < 1e-12 * dt:
-        frac = 0.0
+    m_int, frac = split_delay(delay_s, dt)
     u = np.asarray(u, float)
     N = u.shape[0]
     y = np.zeros(u.shape)
