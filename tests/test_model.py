@@ -116,6 +116,8 @@ def test_as_model_accepts_model_statespace_and_path(tmp_path):
 def test_frf_with_delay_is_the_closed_form_times_exp(dt):
     f = np.geomspace(1.0, 2000.0, 60)
     G = msd(dt, TAU).frf(f)
+    # lti.frf, given the model itself, applies the model's own delay too
+    np.testing.assert_array_equal(lti.frf(msd(dt, TAU), f), G)
     exact = msd_frf(f) * np.exp(-2j * np.pi * f * TAU)[:, None, None]
     if dt:  # a ZOH-discretized model at 100 kHz: the hold's half-sample lag and sinc
         exact = exact * lti.zoh_frf(f, 1.0 / dt)[:, None, None]

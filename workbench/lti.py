@@ -39,12 +39,13 @@ def frf(sys, freq_hz, *, delay_s: float = 0.0) -> np.ndarray:
 
     Parameters
     ----------
-    sys : control.StateSpace
-        Continuous (dt = 0) or discrete model.
+    sys : control.StateSpace or workbench.model.LTIModel
+        Continuous (dt = 0) or discrete model; an LTIModel's own delay is applied.
     freq_hz : (n_f,) array
         Frequencies, Hz.
     delay_s : float
-        Input delay, s, applied as the exact factor exp(-j w delay_s).
+        Input delay added to the model's own, s, applied as the exact factor
+        exp(-j w delay_s).
 
     Returns
     -------
@@ -58,6 +59,7 @@ def frf(sys, freq_hz, *, delay_s: float = 0.0) -> np.ndarray:
     of lines (exact for defective A such as rigid-body double integrators).
     """
     A, B, C, D, dt = as_matrices(sys)
+    delay_s = float(delay_s) + float(getattr(sys, "delay_s", 0.0))  # the model's delay travels
     f = np.atleast_1d(np.asarray(freq_hz, float))
     w = 2 * np.pi * f
     s = np.exp(1j * w * dt) if dt > 0 else 1j * w

@@ -282,7 +282,7 @@ class LTIModel:
         """Frequency response with the delay, shape (n_f, n_y, n_u), at ``freq_hz`` (Hz)."""
         from workbench.lti import frf
 
-        return frf(self, freq_hz, delay_s=self.delay_s)
+        return frf(self, freq_hz)  # lti.frf applies the model's own delay
 
     def poles(self) -> np.ndarray:
         """Eigenvalues of A: rad/s for a continuous model, z-plane for a discrete one."""
