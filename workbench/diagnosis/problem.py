@@ -323,7 +323,8 @@ class TimeProblem:
         e = self.y - self.predict(model)
         P = self.data.period
         N = self.y.shape[0]
-        if P and N // P >= 2:
+        rec = _periodic(self.data)
+        if rec is not None:
             seg_e, seg_u, L = e[N - P :], self.u[N - P :], P
         else:
             win = np.hanning(N)[:, None]
@@ -331,7 +332,13 @@ class TimeProblem:
         E = np.sum(np.abs(np.fft.rfft(seg_e, axis=0)) ** 2, axis=1)
         U = np.sum(np.abs(np.fft.rfft(seg_u, axis=0)) ** 2, axis=1)
         f = np.fft.rfftfreq(L, 1 / self.fs)
-        ok = (U > 1e-6 * U.max()) & (f >= self.band_hz[0]) & (f <= self.band_hz[1])
+        if rec is not None:  # the lines the excitation drives (workbench.periodic's rule)
+            excited = np.zeros(f.size, bool)
+            excited[rec.lines] = True
+            excited &= U > 0
+        else:
+            excited = U > 1e-6 * U.max()
+        ok = excited & (f >= self.band_hz[0]) & (f <= self.band_hz[1])
         if not ok.any():
             return []
         return _peaks(f[ok], E[ok] / U[ok], n)
@@ -341,20 +348,35 @@ class TimeProblem:
         return model.frf(f)
 
 
+def _periodic(data: TimeData):
+    """The record's :class:`workbench.periodic.PeriodicRecord` (all periods), or None.
+
+    None when the record is not periodic, has fewer than 2 periods, or no excitation.
+    """
+    from workbench.errors import InputError
+    from workbench.periodic import periodic_record
+
+    if not data.period or data.n_samples // data.period < 2:
+        return None
+    try:
+        return periodic_record(data, n_transient=0)
+    except InputError:
+        return None
+
+
 def _time_band(data: TimeData) -> tuple[float, float]:
     """Excited band of a time record, Hz (from the periodic excitation if there is one)."""
     N = data.n_samples
-    x = data.r if data.r is not None else data.u
-    P = data.period or N
-    if data.period and N // P >= 2:
-        seg = x[N - P :]
+    rec = _periodic(data)
+    if rec is not None:  # the excited lines of workbench.periodic, over all experiment blocks
+        f, lines = rec.freq_hz, rec.lines
     else:
-        seg = x
-    X = np.fft.rfft(seg - seg.mean(0), axis=0)
-    pw = np.sum(np.abs(X) ** 2, axis=1)
-    f = np.fft.rfftfreq(seg.shape[0], 1 / data.fs)
-    lines = np.flatnonzero(pw > 1e-6 * pw.max())
-    lines = lines[lines > 0]
+        x = data.r if data.r is not None else data.u
+        X = np.fft.rfft(x - x.mean(0), axis=0)
+        pw = np.sum(np.abs(X) ** 2, axis=1)
+        f = np.fft.rfftfreq(N, 1 / data.fs)
+        lines = np.flatnonzero(pw > 1e-6 * pw.max())
+        lines = lines[lines > 0]
     if lines.size == 0:
         return float(data.fs / N), float(data.fs / 2)
     return float(f[lines[0]]), float(min(f[lines[-1]], 0.5 * data.fs))
