@@ -303,6 +303,16 @@ MODEL_CASES = [
         lambda a: {**a, "output_names": np.array(["a"])},
         ["key 'output_names'", "expected 3 names", "got 1"],
     ),
+    (
+        "delay-vector",
+        lambda a: {**a, "delay_s": np.array([1e-4, 2e-4])},
+        ["key 'delay_s'", "expected a scalar input delay >= 0 s", "(2,)"],
+    ),
+    (
+        "delay-negative",
+        lambda a: {**a, "delay_s": np.array(-1e-4)},
+        ["key 'delay_s'", "expected a scalar input delay >= 0 s", "-0.0001"],
+    ),
 ]
 
 
