@@ -170,18 +170,26 @@ def _zoh_divisor(freq: np.ndarray, fs: float, zoh: str) -> np.ndarray:
 
 def _inverse(B: np.ndarray, what: str) -> np.ndarray:
     """Inverse of a stack (n_f, n_u, n_u) of input matrices U R^H; refuses singular ones."""
-    # condition of the equilibrated matrix: channels in N and N m differ in scale, not in rank
-    rows = np.linalg.norm(B, axis=2, keepdims=True)
-    Bs = B / np.where(rows > 0, rows, 1.0)
-    cols = np.linalg.norm(Bs, axis=1, keepdims=True)
-    Bs = Bs / np.where(cols > 0, cols, 1.0)
+    # condition of the equilibrated matrix: channels in N and N m differ in scale, not in rank.
+    # Rows scaled to unit norm, then columns: Bs = diag(1/r) B diag(1/c), from |B|^2 alone
+    Bv = np.ascontiguousarray(B, dtype=complex).view(np.float64).reshape(B.shape + (2,))
+    A2 = np.einsum("fijc,fijc->fij", Bv, Bv)
+    r2 = A2.sum(axis=2)  # (n_f, n_u), squared row norms
+    r2 = np.where(r2 > 0, r2, 1.0)
+    c2 = np.einsum("fij,fi->fj", A2, 1.0 / r2)  # squared column norms after the row scaling
+    c2 = np.where(c2 > 0, c2, 1.0)
+    r, c = np.sqrt(r2), np.sqrt(c2)
+    Bs = B * (1.0 / (r[:, :, None] * c[:, None, :]))
     # Frobenius-norm condition ||Bs|| ||Bs^-1||: within a factor n_u of the 2-norm one, and
-    # free once the inverse is formed
+    # free once the inverse is formed (||Bs|| = sqrt(n_u) for unit columns)
     Binv_s = None
     with np.errstate(all="ignore"):
         try:
             Binv_s = np.linalg.inv(Bs)
-            cond = np.linalg.norm(Bs, axis=(1, 2)) * np.linalg.norm(Binv_s, axis=(1, 2))
+            v = Binv_s.view(np.float64)
+            ninv = np.sqrt(np.einsum("fij,fij->f", v, v))
+            cond = np.sqrt(np.einsum("fij,fij->f", A2, 1.0 / (r2[:, :, None] * c2[:, None, :])))
+            cond = cond * ninv
         except np.linalg.LinAlgError:
             cond = np.linalg.cond(Bs)
     bad = ~np.isfinite(cond) | (cond > _COND_LIMIT)
@@ -204,10 +212,8 @@ def _inverse(B: np.ndarray, what: str) -> np.ndarray:
         )
     if Binv_s is None:
         return np.linalg.inv(B)
-    # B = diag(rows) Bs diag(cols), so B^-1 = diag(1/cols) Bs^-1 diag(1/rows): no second inverse
-    r = np.where(rows > 0, rows, 1.0)  # (n_f, n_u, 1)
-    c = np.where(cols > 0, cols, 1.0)  # (n_f, 1, n_u)
-    return Binv_s / np.swapaxes(c, 1, 2) / np.swapaxes(r, 1, 2)
+    # B = diag(r) Bs diag(c), so B^-1 = diag(1/c) Bs^-1 diag(1/r): no second inverse
+    return Binv_s * (1.0 / (c[:, :, None] * r[:, None, :]))
 
 
 # ----------------------------------------------------------------- multisine
