@@ -172,8 +172,7 @@ def _inverse(B: np.ndarray, what: str) -> np.ndarray:
     """Inverse of a stack (n_f, n_u, n_u) of input matrices U R^H; refuses singular ones."""
     # condition of the equilibrated matrix: channels in N and N m differ in scale, not in rank.
     # Rows scaled to unit norm, then columns: Bs = diag(1/r) B diag(1/c), from |B|^2 alone
-    Bv = np.ascontiguousarray(B, dtype=complex).view(np.float64).reshape(B.shape + (2,))
-    A2 = np.einsum("fijc,fijc->fij", Bv, Bv)
+    A2 = B.real**2 + B.imag**2
     r2 = A2.sum(axis=2)  # (n_f, n_u), squared row norms
     r2 = np.where(r2 > 0, r2, 1.0)
     c2 = np.einsum("fij,fi->fj", A2, 1.0 / r2)  # squared column norms after the row scaling
