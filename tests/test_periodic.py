@@ -60,6 +60,21 @@ def test_weak_designed_line_is_excited_rounding_is_not():
     assert 1e-6 > EXCITED_REL_POWER
 
 
+def test_measured_noisy_reference_keeps_only_the_designed_lines():
+    # u measured with 1 % noise (open loop, no r): every bin carries noise far above
+    # EXCITED_REL_POWER of the peak; only the designed lines stand out of it
+    P, bins = 256, [4, 9, 30, 31, 77]
+    rng = np.random.default_rng(11)
+    u = cosines(P, 9, bins, [1.0] * 5, [0.0, 1.0, 2.0, 3.0, 4.0])
+    u_meas = u + 0.01 * rng.standard_normal(u.shape)
+    rec = periodic_record(TimeData(fs=FS, u=u_meas, y=u, period=P))
+    assert not rec.repeats["u"][0]
+    noise_bins = np.setdiff1d(np.arange(1, P // 2), bins)
+    above = rec.ref_power[0, noise_bins] > EXCITED_REL_POWER * rec.ref_power.max()
+    assert above.mean() > 0.9  # noise power ~ Exp(P sigma^2 / n), about 20x the threshold
+    np.testing.assert_array_equal(rec.lines, bins)
+
+
 def test_noise_variance_of_white_noise_matches_its_known_variance():
     P, n_per, sigma = 256, 41, 0.2
     rng = np.random.default_rng(7)

@@ -32,8 +32,10 @@ what is computed (one FFT per channel and block).
 
 **Excited lines.** Per block, the bins where the reference's mean-period power
 (summed over channels) exceeds :data:`EXCITED_REL_POWER` times that block's
-strongest bin; DC and the Nyquist bin are never excited lines (their DFT is
-real, the noise there is not circular).
+strongest bin and, when the reference varies from period to period (a
+measured ``u``), :data:`EXCITED_SNR` times the variance of its mean; DC and the
+Nyquist bin are never excited lines (their DFT is real, the noise there is not
+circular).
 
 **Noise.** Per block of ``n >= 2`` kept periods, the DFT ``D_p`` of each
 period's deviation from the block mean gives the variance of the block-mean
@@ -54,6 +56,7 @@ from workbench.formats import TimeData
 
 __all__ = [
     "EXCITED_REL_POWER",
+    "EXCITED_SNR",
     "BLOCK_REL_CHANGE",
     "PeriodicRecord",
     "periodic_record",
@@ -71,7 +74,21 @@ compensated) span far less than 40 dB in amplitude, so no designed line falls
 below it. It replaces the five private thresholds of before (1e-4, 1e-6,
 1e-8, 1e-10) with the one that is both far above rounding and far below any
 designed line. A measured (noisy) ``u`` as reference carries noise at every
-bin: use ``r`` then, or pass the lines explicitly where a consumer accepts them.
+bin: :data:`EXCITED_SNR` keeps that noise out.
+"""
+
+EXCITED_SNR = 100.0
+"""A reference that varies over periods: a line must also exceed this times its noise variance.
+
+20 dB. At a bin without excitation the reference's mean-period power over
+the estimated variance of that mean is F-distributed with mean about 1; for
+one channel and d = 2 (n_kept - 1) degrees of freedom it exceeds 100 with
+probability (1 + 200 / d)^(-d / 2): 1 % with 2 kept periods, 4e-4 with 3,
+4e-11 with 11 (less with more channels). A designed line measured 20 dB above
+its noise is kept.
+Without it a measured (noisy) ``u`` as reference would make every bin an
+excited line. A reference that repeats bit for bit (a generator's ``r`` or
+open-loop ``u``) has no noise and only :data:`EXCITED_REL_POWER` applies.
 """
 
 BLOCK_REL_CHANGE = 0.1
@@ -155,7 +172,8 @@ class PeriodicRecord:
         Power of the reference's (``R``, else ``U``) mean DFT summed over channels,
         DC and Nyquist set to 0, N^2.
     excited : (n_b, n_bins) bool array
-        ``ref_power > EXCITED_REL_POWER * max`` per block.
+        ``ref_power > EXCITED_REL_POWER * max`` per block, and, for a reference
+        that varies over periods, ``ref_power > EXCITED_SNR * (its noise variance)``.
     u_mean, y_mean, r_mean : (n_b, period, n_u), (n_b, period, n_y), (n_b, period, n_u) arrays
         Mean kept period of each block, N and m (``r_mean`` None without ``r``).
     repeats : dict of str to (n_b,) bool array
@@ -442,6 +460,16 @@ def periodic_record(
         power[:, -1] = 0.0
     peak = power.max(axis=1, keepdims=True)
     excited = (power > EXCITED_REL_POWER * peak) & (peak > 0)
+    # a reference that varies from period to period (a measured u) carries noise at every
+    # bin: a line must also stand out of its own noise (variance of the mean, from the spread)
+    ref_name, ref_sig, ref_mean = ("r", r, r_mean) if use_r else ("u", u, u_mean)
+    per = ref_sig.reshape(-1, P, ref_sig.shape[1])
+    for b, (a, n) in enumerate(zip(first.tolist(), n_kept.tolist())):
+        if repeats[ref_name][b] or n < 2:
+            continue
+        D = scipy.fft.rfft(per[a : a + n] - ref_mean[b], axis=1, workers=workers)
+        var = np.sum(D.real**2 + D.imag**2, axis=(0, 2)) / (n * (n - 1))
+        excited[b] &= power[b] > EXCITED_SNR * var
     for a in (first, n_kept, drop, U, Y, R, power, excited, u_mean, y_mean, r_mean):
         if a is not None:
             a.setflags(write=False)
