@@ -254,3 +254,13 @@ def test_compare_on_time_data_reports_the_same_fit(cd_split):
     notes = [n for n in compare(res.model, val).notes if n.startswith("identification fit")]
     assert notes == ["identification " + f.describe(list(val.output_names))]
     assert f"fit {f.mean:.1f} %" in notes[0]
+
+
+def test_an_unstable_model_scores_minus_infinity_with_a_reason():
+    import control
+
+    A, B, C, D, x0, u, y = known_system(seed=5)
+    unstable = control.ss(1.2 * A / np.max(np.abs(np.linalg.eigvals(A))), B, C, D, 1.0)
+    f = simulation_fit(unstable, TimeData(fs=1.0, u=u, y=y))
+    assert f.mean == -np.inf and "unstable" in f.note and "unstable" in f.describe()
+    assert f.as_dict()["note"] == f.note

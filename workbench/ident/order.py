@@ -170,12 +170,16 @@ def format_order_scan(orders, fits, *, output_names, tolerance: float = 1.0) -> 
     head = "  n  " + " ".join(f"{n[:10]:>10s}" for n in names) + "   mean fit (%)"
     lines = [head]
     means = [f.mean for f in fits]
+    if not np.any(np.isfinite(means)):
+        return "\n".join([head, "every order diverges on the validation part (unstable models)"])
     best = int(orders[int(np.nanargmax(means))])
     pay = order_where_fit_stops_paying(orders, means, tolerance=tolerance)
     for n, f in zip(orders, fits):
         mark = ("  <- best" if n == best else "") + (
             f"  <- within {tolerance:g} point of the best" if n == pay and n != best else ""
         )
+        if f.note:
+            mark += f"  ({f.note})"
         lines.append(
             f"{n:3d}  " + " ".join(f"{v:10.1f}" for v in f.fit) + f"   {f.mean:10.1f}{mark}"
         )
@@ -195,7 +199,8 @@ def plot_order_scan(
     from workbench.atomic import atomic_path
 
     orders = np.asarray(orders, int)
-    F = np.array([f.fit for f in fits])
+    F = np.array([f.fit for f in fits], float)
+    F[~np.isfinite(F)] = np.nan  # a diverging (unstable) model: a gap in the curve
     fig = Figure(figsize=(6.4, 3.6))
     ax = fig.subplots()
     for k, name in enumerate(output_names):
@@ -203,8 +208,10 @@ def plot_order_scan(
     ax.plot(orders, F.mean(axis=1), "ks-", ms=4, lw=2, label="mean")
     ax.set_xlabel("model order n")
     ax.set_ylabel("validation fit (%)")
-    lo = max(np.nanmin(F), np.nanmax(F) - 40.0)  # a diverging order must not flatten the rest
-    ax.set_ylim(lo - 2.0, min(100.0, np.nanmax(F) + 2.0))
+    if np.any(np.isfinite(F)):
+        # a very poor order must not flatten the rest
+        lo = max(np.nanmin(F), np.nanmax(F) - 40.0)
+        ax.set_ylim(lo - 2.0, min(100.0, np.nanmax(F)) + 2.0)
     ax.set_title(title or "Validation fit by order (initial state by least squares)")
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=8)

@@ -345,12 +345,19 @@ def _realize(dec: _Decomposition, n: int) -> SubspaceResult:
     A = np.linalg.lstsq(Gamma[:-n_y], Gamma[n_y:], rcond=None)[0]
     use_ls = dec.bd == "least-squares" or (dec.bd == "auto" and not dec.closed)
     x0 = None
+    notes = []
     if use_ls:
-        from workbench.ident.validate import least_squares_bd_x0
+        from workbench.ident.validate import DivergentModel, least_squares_bd_x0
 
-        B, D, x0 = least_squares_bd_x0(
-            A, C, dec.u, dec.y, su=dec.su, sy=dec.sy, feedthrough=dec.feedthrough
-        )
+        try:
+            B, D, x0 = least_squares_bd_x0(
+                A, C, dec.u, dec.y, su=dec.su, sy=dec.sy, feedthrough=dec.feedthrough
+            )
+        except DivergentModel as exc:
+            # an unstable A: the output-error least squares is ill-posed; keep a model
+            use_ls = False
+            notes.append(f"{exc}; B, D from the projected data instead of least squares")
+    if use_ls:
         bd_route = "least squares on the simulated output (B, D, x0 jointly)"
     else:
         B, D = _b_d(dec.L, A, C, r1=dec.r1, i=i, n_u=n_u, n_y=n_y, feedthrough=dec.feedthrough)
@@ -366,7 +373,6 @@ def _realize(dec: _Decomposition, n: int) -> SubspaceResult:
     model = control.ss(
         A, B, C, D, 1.0 / data.fs, inputs=list(data.input_names), outputs=list(data.output_names)
     )
-    notes = []
     if np.max(np.abs(np.linalg.eigvals(A))) >= 1.0:
         notes.append("the identified model has poles on or outside the unit circle")
     if dec.r1 < i * n_u:

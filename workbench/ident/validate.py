@@ -46,6 +46,8 @@ __all__ = [
     "remove_offsets",
     "offset_warning",
     "split_record",
+    "DivergentModel",
+    "check_growth",
 ]
 
 _ROWS_PER_CHUNK = 65_536  # regressor rows (samples x outputs) per chunk: ~10 MB at P = 148
@@ -90,6 +92,28 @@ def _regressor_chunks(A, C, u, *, su=None, with_x0=True, with_bd=True, feedthrou
         yield k0, np.concatenate(parts, axis=2)
 
 
+class DivergentModel(ValueError):
+    """The model's response grows beyond what the record's least squares can hold."""
+
+
+def check_growth(A: np.ndarray, n_samples: int, *, limit: float = 1e8) -> None:
+    """Raise :class:`DivergentModel` when ``rho(A)^N`` exceeds ``limit``.
+
+    An unstable A makes the x0 and B columns grow as ``rho^k``: beyond
+    ``1e8`` over the record the least squares loses the early samples to
+    rounding (and overflows for long records), and the simulation fit is
+    meaningless.
+    """
+    if A.size == 0:
+        return
+    rho = float(np.max(np.abs(np.linalg.eigvals(A))))
+    if rho > 1.0 and n_samples * np.log(rho) > np.log(limit):
+        raise DivergentModel(
+            f"the model is unstable (spectral radius {rho:.4g}): its response grows by "
+            f"{rho:.4g}^{n_samples} over the record"
+        )
+
+
 def _solve_chunked(chunks, target) -> np.ndarray:
     """Least-squares ``theta`` of ``Phi theta = target`` from regressor chunks (TSQR).
 
@@ -97,6 +121,8 @@ def _solve_chunked(chunks, target) -> np.ndarray:
     """
     R = None
     for k0, Phi in chunks:
+        if not np.all(np.isfinite(Phi)):
+            raise DivergentModel("the regressor overflows (an unstable model)")
         T, l, P = Phi.shape
         block = np.empty((T * l + (0 if R is None else R.shape[0]), P + 1))
         block[: T * l, :P] = Phi.reshape(T * l, P)
@@ -133,9 +159,15 @@ def least_squares_bd_x0(A, C, u, y, *, su=None, sy=None, feedthrough=True):
     Returns
     -------
     B : (n, m), D : (l, m), x0 : (n,)
+
+    Raises
+    ------
+    DivergentModel
+        A is so unstable that its response grows by more than 1e8 over the record.
     """
     n, l = A.shape[0], C.shape[0]
     m = u.shape[1]
+    check_growth(A, u.shape[0])
 
     def target(k0, T):
         yc = y[k0 : k0 + T]
@@ -178,6 +210,7 @@ def simulate(model, u: np.ndarray, x0=None) -> np.ndarray:
 def estimate_x0(model, u: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Initial state (n,) minimizing ``||y - y_sim(x0)||`` for a known model (least squares)."""
     A, _, C, _, _ = _matrices(model)
+    check_growth(A, u.shape[0])
     y_forced = simulate(model, u)
     if A.shape[0] == 0:
         return np.zeros(0)
@@ -214,6 +247,8 @@ class Fit:
     y_sim : (N, l) array
         Simulated output (delay-aligned: ``y_sim[k]`` pairs with ``y[k + delay]``).
     x0_estimated : bool
+    note : str
+        Why the fit is ``-inf`` (a diverging, unstable model), else empty.
     """
 
     fit: np.ndarray
@@ -221,6 +256,7 @@ class Fit:
     x0: np.ndarray
     y_sim: np.ndarray = field(repr=False)
     x0_estimated: bool = True
+    note: str = ""
 
     def __post_init__(self):
         for name in ("fit", "x0", "y_sim"):
@@ -233,10 +269,13 @@ class Fit:
             "initial_state": (
                 "estimated by least squares" if self.x0_estimated else "zero (from rest)"
             ),
+            **({"note": self.note} if self.note else {}),
         }
 
     def describe(self, names=None) -> str:
         names = names or [f"y{k}" for k in range(self.fit.size)]
+        if self.note:
+            return f"fit -inf ({self.note})"
         per = ", ".join(f"{n} {v:.1f} %" for n, v in zip(names, self.fit))
         how = "initial state by least squares" if self.x0_estimated else "from rest"
         return f"fit {self.mean:.1f} % (mean; {per}; {how})"
@@ -253,10 +292,25 @@ def simulation_fit(model, data: TimeData, *, input_delay: int = 0, estimate: boo
         raise InputError(f"input_delay: expected 0 <= delay < {data.n_samples}, got {d}")
     u = data.u[: data.n_samples - d]
     y = data.y[d:]
-    x0 = estimate_x0(model, u, y) if estimate else None
-    y_sim = simulate(model, u, x0)
+    A = _matrices(model)[0]
+    n = A.shape[0]
+    try:
+        check_growth(A, u.shape[0])
+        x0 = estimate_x0(model, u, y) if estimate else None
+        with np.errstate(over="ignore", invalid="ignore"):
+            y_sim = simulate(model, u, x0)
+        if not np.all(np.isfinite(y_sim)):
+            raise DivergentModel("the simulation overflows (an unstable model)")
+    except DivergentModel as exc:
+        return Fit(
+            fit=np.full(y.shape[1], -np.inf),
+            mean=-np.inf,
+            x0=np.zeros(n),
+            y_sim=np.full(y.shape, np.nan),
+            x0_estimated=False,
+            note=str(exc),
+        )
     f = fit_percent(y, y_sim)
-    n = np.asarray(model.A).shape[0]
     return Fit(
         fit=f,
         mean=float(np.mean(f)),
