@@ -6,11 +6,11 @@ F-test of ``compare``, the nonlinearity detector and the data-quality checks.
 
 Data flow::
 
-    TimeData (period set) --.
-                            +--> periodic_record(...) --> PeriodicRecord
-    arrays + known blocks --'       blocks, dropped transient periods,
-                                     mean-period DFTs U, Y, R per block,
-                                     excited lines, noise from the period spread
+    TimeData (period set) ---------------.
+                                         +--> periodic_record(...) --> PeriodicRecord:
+    MultisineExperiment (blocks known) --'    blocks, dropped transient periods,
+                                              mean-period DFTs U, Y, R per block,
+                                              excited lines, noise from the period spread
 
 **Blocks.** A record may hold several experiments one after the other (spec 1a
 concatenates them): a *block* is a run of identical periods of one excitation.
@@ -22,8 +22,9 @@ out. Periods of different blocks are never averaged together.
 **Transient.** In every block of ``n`` periods the first
 ``min(n_transient, max(n - min_periods, 0))`` periods are dropped: the
 transient from rest or from the switch to a new excitation, but never so many
-that fewer than ``min_periods`` stay (a consumer that needs all of
-``n_transient`` dropped checks :attr:`PeriodicRecord.n_dropped`).
+that fewer than ``min_periods`` stay; a block shorter than ``min_periods`` is
+refused (a consumer that needs all of ``n_transient`` dropped checks
+:attr:`PeriodicRecord.n_dropped`).
 
 **Spectra.** The DFT is numpy's unnormalized ``rfft`` of one period (multiply
 by ``2 / period`` for sine amplitudes). The DFT is linear, so the mean over the
@@ -181,7 +182,9 @@ class PeriodicRecord:
         bit for bit (a generator's signal; then the mean is the first period and
         the spread is exactly zero).
     u, y, r : (N, n_u), (N, n_y), (N, n_u) arrays
-        The record's signals (read-only views), for the period spread.
+        The record's signals, for the period spread: read-only views, not
+        copies (the record is on the FRF's hot path; TimeData's arrays are
+        read-only copies already).
     """
 
     fs: float
