@@ -216,3 +216,32 @@ def test_closed_loop_refusals():
     hot = tune_pid([2.0], crossover_hz=700.0, fs=FS)  # 3 samples of delay: no phase left
     with pytest.raises(InputError, match="unstable"):
         sim.closed_loop(G, hot, r=np.ones((10, 1)), delay_samples=3, method="linear")
+
+
+def test_simulate_zoh_applies_an_ltimodel_delay():
+    from workbench.model import LTIModel
+
+    m, delay = 2.0, 1.5 / FS
+    sys = _mass(m)
+    u = np.random.default_rng(5).standard_normal((200, 1))
+    ref = sim.simulate_zoh(sys, u, FS, delay_s=delay)
+    model = LTIModel.from_statespace(sys, delay_s=delay)
+    np.testing.assert_array_equal(sim.simulate_zoh(model, u, FS), ref)
+    # the argument adds to the model's own delay
+    np.testing.assert_allclose(
+        sim.simulate_zoh(model, u, FS, delay_s=delay),
+        sim.simulate_zoh(sys, u, FS, delay_s=2 * delay),
+        rtol=1e-12,
+        atol=1e-15,
+    )
+
+
+def test_discrete_model_delays_by_whole_samples_only():
+    sysd = control.c2d(_mass(1.0), 1 / FS, "zoh")
+    u = np.random.default_rng(6).standard_normal((100, 1))
+    y0 = sim.simulate_zoh(sysd, u, FS)
+    y3 = sim.simulate_zoh(sysd, u, FS, delay_s=3 / FS)
+    np.testing.assert_allclose(y3[3:], y0[:-3], rtol=1e-12, atol=1e-12 * np.abs(y0).max())
+    np.testing.assert_array_equal(y3[:3], 0.0)
+    with pytest.raises(InputError, match="whole samples"):
+        sim.simulate_zoh(sysd, u, FS, delay_s=0.5 / FS)

@@ -263,15 +263,16 @@ def simulate_zoh(sys, u: np.ndarray, fs: float, *, delay_s: float = 0.0, x0=None
 
     Parameters
     ----------
-    sys : control.StateSpace
+    sys : control.StateSpace or workbench.model.LTIModel
         Continuous model (discretized exactly with the ZOH at ``fs``) or a
-        discrete model whose dt equals 1/fs.
+        discrete model whose dt equals 1/fs. An LTIModel's own delay is applied.
     u : (N, n_u) array
         Input samples, held over each sample interval.
     fs : float
         Sampling frequency, Hz.
     delay_s : float
-        Input delay, s (any real value >= 0; fractional delays are exact).
+        Input delay added to the model's own, s (any real value >= 0 for a continuous
+        model, fractional delays exact; a whole number of samples for a discrete one).
     x0 : (n_x,) array, optional
         Initial state of the model (the delay line starts at rest).
 
@@ -280,15 +281,20 @@ def simulate_zoh(sys, u: np.ndarray, fs: float, *, delay_s: float = 0.0, x0=None
     (N, n_y) array, y[k] sampled at t = k / fs.
     """
     A, B, C, D, dt = as_matrices(sys)
+    delay_s = float(delay_s) + float(getattr(sys, "delay_s", 0.0))  # the model's delay travels
     u = np.asarray(u, float)
     if dt > 0:
         if abs(dt * fs - 1) > 1e-9:
-            raise ValueError(
-                f"sys: expected a discrete model with dt = {1 / fs:g} s, got dt = {dt:g} s"
+            raise InputError(
+                f"model: expected a discrete model with dt = {1 / fs:g} s, got dt = {dt:g} s"
             )
-        if delay_s:
-            raise ValueError("delay_s with a discrete model: add the delay to the model instead")
-        Ad, B0, B1, m = A, B, np.zeros_like(B), 0
+        m = int(round(delay_s * fs))
+        if abs(delay_s * fs - m) > 1e-6:
+            raise InputError(
+                f"delay_s: a discrete model delays by whole samples of {dt:g} s, got "
+                f"{delay_s:g} s ({delay_s * fs:.4g} samples)"
+            )
+        Ad, B0, B1 = A, B, np.zeros_like(B)
     else:
         Ad, B0, B1, m = c2d_zoh(A, B, 1.0 / fs, delay_s=delay_s)
     # delayed inputs u[k-m] and u[k-m-1] drive the state; the feedthrough sees
