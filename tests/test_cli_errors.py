@@ -88,3 +88,18 @@ def test_warning_is_one_line_and_exit_zero_in_subprocess(tmp_path):
     line = one_line(proc.stderr)
     assert line.startswith("warning: ") and "input 'u1' (channel 1) is constant" in line
     assert "kind: time" in proc.stdout
+
+
+def test_closed_pipe_is_not_an_internal_error():
+    """``workbench compare ... | head -1``: the reader leaves early; no 'internal error'."""
+    import subprocess
+    import sys
+
+    folder = require_shared(EXAMPLES / "example_stage_missing_frf")
+    cmd = [sys.executable, "-m", "workbench", "compare", "--model"]
+    cmd += [str(folder / "nominal_model.npz"), "--data", str(folder / "measurement.npz")]
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, bufsize=0)
+    p.stdout.close()  # the reader is gone before the first line: every write hits EPIPE
+    err = p.stderr.read().decode()
+    assert p.wait(timeout=120) in (0, 141)
+    assert "internal error" not in err and "Traceback" not in err

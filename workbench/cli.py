@@ -75,6 +75,12 @@ def main(argv: list[str] | None = None) -> int:
         except KeyboardInterrupt:
             print("interrupted", file=sys.stderr)
             return 130
+        except BrokenPipeError:
+            # the reader went away (``workbench compare ... | head``): not an error of ours;
+            # point stdout at devnull so the interpreter's final flush does not fail again
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())
+            return 141  # 128 + SIGPIPE, as a shell reports it
         except Exception as exc:  # an internal error: one line unless debugging
             if os.environ.get("WORKBENCH_DEBUG"):
                 raise
