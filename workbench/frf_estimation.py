@@ -315,23 +315,22 @@ def frf_multisine(
         var_e = np.empty((lines.size, n_y, n_b))
         for i in range(n_b):
             norm = scale**2 / (n_per[i] * (n_per[i] - 1))  # variance of the mean of the periods
-            dY = rec.deviation_spectra("y", i, workers=workers)  # (P, n_bins, n_y) or None
-            dU = rec.deviation_spectra("u", i, workers=workers)
-            if dY is None:  # noise-free record
-                dY = np.zeros((n_per[i], n_bins, n_y), complex)
-            v = dY.view(np.float64)  # re/im interleaved: (P, n_bins, 2 n_y)
-            sq = np.einsum("pfc,pfc->fc", v, v).reshape(n_bins, n_y, 2).sum(axis=2)
-            noise_acc += sq * norm
+            dU = rec.deviation_spectra("u", i, workers=workers)  # (P, n_bins, n_u) or None
             if dU is None:
                 # the input repeats exactly (open-loop generator): the residual e_p of each
-                # period around the block mean is the output's deviation, already summed
+                # period around the block mean is the output's deviation
+                sq = rec.spread_power("y", i, workers=workers)  # (n_bins, n_y)
                 var_e[:, :, i] = sq[lines] * norm
             else:
+                dY = rec.deviation_spectra("y", i, workers=workers)  # (P, n_bins, n_y)
+                if dY is None:  # noise-free output
+                    dY = np.zeros((n_per[i], n_bins, n_y), complex)
+                sq = np.sum(dY.real**2 + dY.imag**2, axis=0)
                 # residual of each period around its block mean, e_p = dY_p - G dU_p
                 GT = np.swapaxes(G, 1, 2)  # (n_l, n_u, n_y)
                 e = dY[:, lines] - np.swapaxes(np.swapaxes(dU[:, lines], 0, 1) @ GT, 0, 1)
-                ev = e.view(np.float64).reshape(e.shape[0], lines.size, n_y, 2)
-                var_e[:, :, i] = np.einsum("plyc,plyc->ly", ev, ev) * norm
+                var_e[:, :, i] = np.sum(e.real**2 + e.imag**2, axis=0) * norm
+            noise_acc += sq * norm
         noise_bins = noise_acc / n_b
         G_var_noise = var_e @ (W.real**2 + W.imag**2)  # (n_l, n_y, n_b) @ (n_l, n_b, n_u)
     else:
