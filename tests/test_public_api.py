@@ -27,3 +27,11 @@ def test_import_is_lazy():
     code = "import sys, workbench; print('control' in sys.modules, 'matplotlib' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["False", "False"]
+
+
+def test_every_scenario_stage_has_a_function_without_import_side_effects():
+    from workbench.pipeline import stage_functions
+    from workbench.scenario import STAGES
+
+    assert set(stage_functions()) == set(STAGES)
+    assert all(callable(f) for f in stage_functions().values())

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from workbench import formats
 from workbench.errors import InputError
-from workbench.pipeline import RunState, register_stage
+from workbench.pipeline import RunState
 from workbench.scenario import refuse_leftovers, take
 
 
@@ -107,7 +107,4 @@ def stage_augment(st: RunState, table: dict) -> None:
     st.summary["augment"] = {"steps": steps, "compare_after": after}
 
 
-register_stage("compare", stage_compare)
-register_stage("diagnose", stage_diagnose)
-register_stage("augment", stage_augment)
 __all__ = ["stage_compare", "stage_diagnose", "stage_augment"]

@@ -298,20 +298,27 @@ def _plot_frf_grid(path: Path, frf, *, mark_hz=(), title: str = "", G_model=None
     save_png(fig, path)
 
 
-STAGE_FUNCTIONS = {
-    "plant": stage_plant,
-    "experiment": stage_experiment,
-    "frf": stage_frf,
-    "identify": stage_identify,
-    "modes": stage_modes,
-    "minimality": stage_minimality,
-    "model": stage_model,
-}
+def stage_functions() -> dict:
+    """Every stage a scenario can name -> the function that runs it.
 
+    Built on each call, explicitly: no registry filled as a side effect of an import. The
+    model-versus-measurement stages live in :mod:`workbench.loop_stages`, which imports
+    :class:`RunState` from here, hence the import inside the function.
+    """
+    from workbench import loop_stages
 
-def register_stage(name: str, function) -> None:
-    """Add a stage implemented elsewhere (compare/diagnose/augment live in their modules)."""
-    STAGE_FUNCTIONS[name] = function
+    return {
+        "plant": stage_plant,
+        "experiment": stage_experiment,
+        "frf": stage_frf,
+        "identify": stage_identify,
+        "modes": stage_modes,
+        "minimality": stage_minimality,
+        "model": stage_model,
+        "compare": loop_stages.stage_compare,
+        "diagnose": loop_stages.stage_diagnose,
+        "augment": loop_stages.stage_augment,
+    }
 
 
 def run_scenario(scenario: Scenario, *, progress: bool = True) -> dict[str, Any]:
@@ -323,14 +330,12 @@ def run_scenario(scenario: Scenario, *, progress: bool = True) -> dict[str, Any]
     st = RunState(scenario=scenario, out=out, rng=np.random.default_rng(scenario.seed))
     stages = [s for s in STAGES if scenario.has(s)]
     timings = {}
-    _load_late_stages()
+    functions = stage_functions()
     for k, stage in enumerate(stages, 1):
-        if stage not in STAGE_FUNCTIONS:
-            raise InputError(f"[{stage}]: this stage is not available in this version")
         if progress:
             print(f"[{k}/{len(stages)}] {stage} ...", file=sys.stderr, flush=True)
         t0 = time.perf_counter()
-        STAGE_FUNCTIONS[stage](st, scenario.table(stage))
+        functions[stage](st, scenario.table(stage))
         timings[stage] = time.perf_counter() - t0
         if progress:
             print(f"[{k}/{len(stages)}] {stage} done in {timings[stage]:.2f} s", file=sys.stderr)
@@ -344,15 +349,3 @@ def run_scenario(scenario: Scenario, *, progress: bool = True) -> dict[str, Any]
     st.write_json("summary.json", st.summary)
     st.summary["files"] = sorted(set(st.files))
     return st.summary
-
-
-def _load_late_stages() -> None:
-    """Stages of the model-versus-measurement loop register themselves on import."""
-    import importlib
-
-    for module in ("workbench.loop_stages",):
-        try:
-            importlib.import_module(module)
-        except ModuleNotFoundError as exc:
-            if exc.name != module:
-                raise
