@@ -241,15 +241,10 @@ def _matrices(model):
 
 def simulate(model, u: np.ndarray, x0=None) -> np.ndarray:
     """Output (N, l) of a discrete model for the input ``u`` (N, m) from the state ``x0``."""
-    A, B, C, D, _ = _matrices(model)
-    u = np.asarray(u, float)
-    x = np.zeros(A.shape[0]) if x0 is None else np.asarray(x0, float)
-    drive = u @ B.T
-    X = np.empty((u.shape[0], A.shape[0]))
-    for k in range(u.shape[0]):
-        X[k] = x
-        x = A @ x + drive[k]
-    return X @ C.T + u @ D.T
+    from workbench.lti import simulate_zoh
+
+    _, _, _, _, dt = _matrices(model)
+    return simulate_zoh(model, np.asarray(u, float), 1.0 / dt, x0=x0)
 
 
 def estimate_x0(model, u: np.ndarray, y: np.ndarray) -> np.ndarray:
