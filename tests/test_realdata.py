@@ -264,3 +264,29 @@ def test_an_unstable_model_scores_minus_infinity_with_a_reason():
     f = simulation_fit(unstable, TimeData(fs=1.0, u=u, y=y))
     assert f.mean == -np.inf and "unstable" in f.note and "unstable" in f.describe()
     assert f.as_dict()["note"] == f.note
+
+
+def test_cli_separate_validation_record(tmp_path, capsys, cd_split):
+    from workbench.cli import main
+
+    ident, val = cd_split
+    a, b = tmp_path / "ident.npz", tmp_path / "val.npz"
+    save_measurement(a, ident)
+    save_measurement(b, val)
+    out = tmp_path / "m.npz"
+    args = ["identify", str(a), "--method", "moesp", "--block-rows", "15", "--order", "8"]
+    assert main(args + ["--validation", str(b), "--out", str(out)]) == 0
+    report = json.loads((tmp_path / "m.json").read_text())
+    # the same figure as the split inside one record
+    res = identify_subspace(ident, method="moesp", block_rows=15, order=8)
+    assert report["validation"]["mean_fit_percent"] == pytest.approx(
+        simulation_fit(res.model, val).mean, abs=1e-9
+    )
+    assert "val.npz" in report["validation"]["source"]
+    capsys.readouterr()
+    one_output = tmp_path / "one.npz"
+    save_measurement(one_output, TimeData(fs=1.0, u=val.u, y=val.y[:, :1]))
+    code = main(args + ["--validation", str(one_output), "--out", str(tmp_path / "x.npz")])
+    assert code == 2 and "expected 2 inputs and 2 outputs" in capsys.readouterr().err
+    code = main(args + ["--validate", "0.4", "--orders", "8-4", "--out", str(tmp_path / "y.npz")])
+    assert code == 2 and "--orders: expected A:B" in capsys.readouterr().err
