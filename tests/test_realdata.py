@@ -290,3 +290,15 @@ def test_cli_separate_validation_record(tmp_path, capsys, cd_split):
     assert code == 2 and "expected 2 inputs and 2 outputs" in capsys.readouterr().err
     code = main(args + ["--validate", "0.4", "--orders", "8-4", "--out", str(tmp_path / "y.npz")])
     assert code == 2 and "--orders: expected A:B" in capsys.readouterr().err
+
+
+def test_a_periodic_record_is_split_at_a_period_boundary():
+    rng = np.random.default_rng(7)
+    data = TimeData(
+        fs=1.0, u=rng.standard_normal((1000, 1)), y=rng.standard_normal((1000, 1)), period=200
+    )
+    ident, val = split_record(data, 0.3)
+    assert (ident.n_samples, val.n_samples) == (800, 200)
+    assert ident.period == val.period == 200
+    ident, val = split_record(TimeData(fs=1.0, u=data.u, y=data.y), 0.3)
+    assert (ident.n_samples, val.n_samples, ident.period) == (700, 300, None)

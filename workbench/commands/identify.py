@@ -161,9 +161,12 @@ def run(args) -> int:
     if args.validate is not None:
         data, val_data = split_record(data, args.validate)
         val_t0 = data.n_samples / data.fs
+        total = data.n_samples + val_data.n_samples
         val_source = (
-            f"last {100 * args.validate:g} % of {args.data} ({val_data.n_samples} samples; "
-            f"identification on the first {data.n_samples})"
+            f"last {100 * val_data.n_samples / total:.3g} % of {args.data} "
+            f"({val_data.n_samples} samples; identification on the first {data.n_samples}"
+            + (", cut at a period boundary" if data.period is not None else "")
+            + ")"
         )
     elif args.validation:
         val_data = _load_time(args.validation)

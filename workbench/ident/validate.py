@@ -469,7 +469,11 @@ def offset_warning(
 
 
 def split_record(data: TimeData, fraction: float) -> tuple[TimeData, TimeData]:
-    """First ``1 - fraction`` of the samples for identification, the rest for validation."""
+    """First ``1 - fraction`` of the samples for identification, the rest for validation.
+
+    A periodic record is cut at the period boundary nearest to the fraction, so
+    that both parts stay periodic.
+    """
     import dataclasses
 
     if not 0.0 < float(fraction) < 1.0:
@@ -481,13 +485,20 @@ def split_record(data: TimeData, fraction: float) -> tuple[TimeData, TimeData]:
             f"--validate {fraction}: expected at least 2 samples on each side, got {k} and {N - k}"
         )
 
+    P = data.period
+    if P is not None and k % P:
+        k_p = int(round(k / P)) * P  # keep whole periods on both sides when there are any
+        if P <= k_p <= N - P:
+            k = k_p
+    period = P if P is not None and k % P == 0 else None
+
     def part(sl):
         return dataclasses.replace(
             data,
             u=data.u[sl],
             y=data.y[sl],
             r=None if data.r is None else data.r[sl],
-            period=None,
+            period=period,
         )
 
     return part(slice(0, k)), part(slice(k, N))
