@@ -561,7 +561,7 @@ def _whiteners(C: np.ndarray) -> np.ndarray:
 
 def _local_noise(
     spec: PeriodicSpectra, G_lines: np.ndarray, n_window: int, level_dof: int = 24
-) -> np.ndarray | None:
+) -> tuple[np.ndarray, np.ndarray] | None:
     """Covariance (n_l, n_y, n_y) of one period's output error ``dY - G dU`` near each line.
 
     The sample covariance over the periods, pooled over the ``n_window``
@@ -572,6 +572,15 @@ def _local_noise(
     follow a noise level that changes with frequency: coloured noise in open
     loop, and the leakage of the noise-driven, non-periodic motion through the
     rigid-body modes at the lowest lines in closed loop.
+
+    Also returns ``kappa`` (n_l,), the bias of the estimate's inverse,
+    ``E[C_hat^-1] ~= kappa C^-1``: the pooled sample covariance is complex
+    Wishart with ``nu`` degrees of freedom (``E[W^-1] = Sigma^-1 / (nu - n_y)``,
+    so its inverse is biased by ``nu / (nu - n_y)`` in shape), and the level
+    is a mean of ``m = n_y dof`` unit exponentials (Gamma, ``E[1/level] =
+    m / (m - 1)``); ``kappa`` is their product. With 5 periods (4 steady, 3
+    degrees of freedom per line) it is about 1.06 on the stage, with 4 periods
+    about 1.10.
     """
     if spec.dev_line.size == 0:
         return None
@@ -592,7 +601,8 @@ def _local_noise(
     w = int(min(n_l, max(n_window, np.ceil(3 * n_y / max(per_line, 1e-12)))))
     lo = np.clip(np.arange(n_l) - w // 2, 0, n_l - w)
     hi = lo + w
-    C_sorted = (cS[hi] - cS[lo]) / np.maximum(cd[hi] - cd[lo], 1.0)[:, None, None]
+    nu = cd[hi] - cd[lo]  # complex degrees of freedom of each pooled covariance
+    C_sorted = (cS[hi] - cS[lo]) / np.maximum(nu, 1.0)[:, None, None]
     # the level of each line relative to its window's shape, over a few lines:
     # the noise rises steeply at the lowest lines, faster than a wide window follows
     Winv = _whiteners(C_sorted)
@@ -601,11 +611,15 @@ def _local_noise(
     v = int(min(n_l, max(1, np.ceil(level_dof / (n_y * max(per_line, 1e-12))))))
     lo = np.clip(np.arange(n_l) - v // 2, 0, n_l - v)
     hi = lo + v
-    level = (cq[hi] - cq[lo]) / np.maximum(n_y * (cd[hi] - cd[lo]), 1.0)
-    level = np.where(cd[hi] - cd[lo] > 0, level, 1.0)
+    m = n_y * (cd[hi] - cd[lo])  # unit exponentials behind each level
+    level = np.where(m > 0, (cq[hi] - cq[lo]) / np.maximum(m, 1.0), 1.0)
     C = np.empty_like(C_sorted)
     C[order] = C_sorted * np.maximum(level, 1e-12)[:, None, None]
-    return C
+    kappa = np.empty(n_l)
+    kappa[order] = np.where(nu > n_y + 1, nu / np.maximum(nu - n_y, 1.0), 1.0) * np.where(
+        m > 2, m / np.maximum(m - 1, 1.0), 1.0
+    )
+    return C, kappa
 
 
 def _frf_on(lay: _Layout, theta, z, T, delay, n_u) -> np.ndarray:
@@ -666,9 +680,9 @@ class RefineResult:
     start : ModalModel
         The model it started from.
     freq_std_hz : (n_modes,) array
-        Standard deviation of each mode's frequency from the inverse Fisher
-        information at the estimate with the estimated noise, Hz (NaN for
-        rigid modes).
+        Standard deviation of each mode's frequency, Hz (NaN for rigid
+        modes): the inverse Fisher information at the estimate with the
+        estimated noise, times ``variance_factor``.
     damping_std : (n_modes,) array
         Same for the damping ratio, - (NaN for rigid modes).
     misfit : float
@@ -681,7 +695,8 @@ class RefineResult:
         Noise covariance behind the weights of each line, as the per-sample
         covariance of a white noise of the same level (one period's DFT
         covariance / period), m^2; estimated from the period-to-period spread
-        unless given.
+        unless given (the sample estimate; the weights use ``kappa`` times it,
+        see :func:`refine_modal_model`).
     input_delay : int
         Samples of delay of the model.
     success : bool
@@ -691,6 +706,11 @@ class RefineResult:
     nfev : int
         Function evaluations.
     notes : tuple of str
+    variance_factor : float
+        What the inverse Fisher information was multiplied by for the
+        standard deviations: ``kappa max(1, misfit)``, ``kappa`` the bias of
+        the inverse of a noise covariance estimated from few periods
+        (1 for a given ``noise_cov``; see :func:`refine_modal_model`).
     """
 
     model: ModalModel
@@ -705,6 +725,7 @@ class RefineResult:
     message: str
     nfev: int
     notes: tuple[str, ...] = field(default=())
+    variance_factor: float = 1.0
 
     def __post_init__(self):
         object.__setattr__(self, "freq_std_hz", readonly(self.freq_std_hz, float))
@@ -785,6 +806,24 @@ def refine_modal_model(
     ``c_k, b_k``. The scale split between ``c_k`` and ``b_k`` is a null
     direction of the Jacobian; the result is normalized to ``|b_k| = |c_k|``.
 
+    Noise estimated from few periods (the default, no ``noise_cov``): the
+    sample covariance ``C_hat`` of ``M`` steady periods is unbiased, but its
+    inverse is not, ``E[C_hat^-1] = kappa C^-1`` with ``kappa > 1`` (complex
+    inverse Wishart; about 1.06 for the stage's 4 steady periods pooled over
+    61 lines, :func:`_local_noise`), and weights ``C_hat^-1`` made the
+    weighted misfit read about ``kappa`` and the inverse Fisher information
+    too small by ``1 / kappa``. The weights are ``(kappa C_hat)^-1``
+    (unbiased), and since the weights' own scatter costs efficiency (the
+    sample maximum likelihood estimator of Schoukens, Pintelon & Rolain 1997
+    loses efficiency with the periods' degrees of freedom; to first order by
+    the relative variance of the weights, which is again about ``kappa - 1``),
+    the reported variances are the inverse Fisher information times
+    ``kappa``, checked by Monte Carlo in ``tests/test_refine_coverage.py``
+    and ``benchmarks/bench_refine_mc.py``; times the misfit as well
+    when it exceeds 1 (residuals larger than the noise model, the
+    a-posteriori variance factor), so that the standard deviations are never
+    narrowed by it. ``RefineResult.variance_factor`` holds the product.
+
     Examples
     --------
     A 100 Hz mode measured over 5 periods (the first dropped), from a start
@@ -813,7 +852,14 @@ def refine_modal_model(
     R. Pintelon, J. Schoukens, System Identification: A Frequency Domain
     Approach, 2nd ed., Wiley-IEEE 2012, ch. 9-10 (ML on periodic data, the
     sample noise covariance). L. Ljung, System Identification, 2nd ed., 1999,
-    sec. 13.4 (the direct method in closed loop).
+    sec. 13.4 (the direct method in closed loop). J. Schoukens, R. Pintelon,
+    Y. Rolain, "Frequency domain system identification using non-parametric
+    noise models estimated from a small number of data sets", Automatica
+    33(6), 1997, pp. 1073-1086 (sample ML: the bias of the weighted cost and
+    the loss of efficiency with noise estimated from few periods).
+    D. Maiwald, D. Kraus, "Calculation of moments of complex Wishart and
+    complex inverse Wishart distributed matrices", IEE Proc. Radar, Sonar
+    Navig. 147(4), 2000 (``E[W^-1] = Sigma^-1 / (nu - p)``).
     """
     spec = _as_spectra(data, n_transient)
     _check_model(model, spec)
@@ -826,17 +872,18 @@ def refine_modal_model(
     sw = np.sqrt(spec.n_avg)[:, None]
     notes: list[str] = []
 
-    def noise(theta) -> np.ndarray:
+    def noise(theta) -> tuple[np.ndarray, np.ndarray]:
         if noise_cov is not None:
-            return np.broadcast_to(_line_cov(spec, noise_cov), (spec.n_lines, spec.n_y, spec.n_y))
+            C = _line_cov(spec, noise_cov)
+            return np.broadcast_to(C, (spec.n_lines, spec.n_y, spec.n_y)), np.ones(spec.n_lines)
         G = _frf_on(lay, theta, z, T, input_delay, spec.n_u)
-        C1 = _local_noise(spec, G, int(noise_lines))
-        if C1 is None:
+        est = _local_noise(spec, G, int(noise_lines))
+        if est is None:
             raise InputError(
                 "data: expected at least 2 steady-state periods to estimate the noise, "
                 "got 1; pass noise_cov"
             )
-        return C1
+        return est
 
     def fit(theta, Winv):
         cache = {}
@@ -873,21 +920,26 @@ def refine_modal_model(
             f"got {n_res} ({spec.n_lines} lines x {spec.n_y} outputs); use a richer excitation "
             "or fewer modes"
         )
-    C1 = noise(theta0)
+    C1, kappa = noise(theta0)
     theta = theta0
     for it in range(max(0, int(reweight)) + 1):
-        sol, (r, Jr) = fit(theta, _whiteners(C1))
+        # weights from kappa C_hat: an unbiased estimate of C^-1 (see _local_noise)
+        sol, (r, Jr) = fit(theta, _whiteners(kappa[:, None, None] * C1))
         theta = sol.x
         if it < reweight and noise_cov is None:
-            C1 = noise(theta)
+            C1, kappa = noise(theta)
         else:
             break
-    cov = _covariance(Jr)
+    dof = max(n_res / 2 - lay.n_par / 2, 1.0)
+    misfit = float(np.sum(r**2) / dof)
+    # the weights' own scatter costs efficiency: the variance exceeds the inverse
+    # Fisher information by about kappa (sample ML); and residuals larger than
+    # the noise model says (misfit > 1) widen it by the misfit, never narrow it
+    variance_factor = float(np.median(kappa)) * max(1.0, misfit)
+    cov = _covariance(Jr) * variance_factor
     f_std, z_std = _per_mode_std(lay, cov)
     perm = _mode_order(lay, theta)
     f_std, z_std = f_std[perm], z_std[perm]
-    dof = max(n_res / 2 - lay.n_par / 2, 1.0)
-    misfit = float(np.sum(r**2) / dof)
     refined = _to_model(lay, theta, model)
     if not sol.success:
         notes.append(f"the optimizer stopped without convergence: {sol.message}")
@@ -907,6 +959,7 @@ def refine_modal_model(
         message=str(sol.message),
         nfev=int(sol.nfev),
         notes=tuple(notes),
+        variance_factor=variance_factor,
     )
 
 
