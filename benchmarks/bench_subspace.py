@@ -586,7 +586,7 @@ def part_refine(args) -> None:
         f"refined {sorted(rigid['refined'])}"
     )
     print(
-        "refinement: mean predicted 2 sigma (inverse Fisher at the estimate) "
+        "refinement: mean predicted 2 sigma (inverse Fisher at the estimate x variance_factor) "
         + ", ".join(f"{2 * v:.4f} Hz" for v in np.mean(std_f, axis=0))
         + f"; weighted misfit {np.mean(misfit):.2f} (1 = noise level); "
         f"{1e3 * np.mean(t_ref):.0f} ms per refinement"
