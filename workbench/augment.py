@@ -159,6 +159,7 @@ def _augment_nonlinearity(model, data, base, problem, error_before) -> Augmented
     from workbench.nonlinear import fit_friction
 
     sys, delay = base.to_statespace()
+    lti_model = LTIModel.from_statespace(sys, delay_s=delay)
     nl = detect.nonlinearity(data, problem.predict(base)) if isinstance(data, TimeData) else None
     params: dict = {} if nl is None else {"level": nl.level, "f_stat": nl.f_stat}
     notes = []
@@ -166,7 +167,7 @@ def _augment_nonlinearity(model, data, base, problem, error_before) -> Augmented
         notes.append("the level needs a periodic time record with at least 3 periods")
     error_after, friction = error_before, None
     if isinstance(data, TimeData) and sys.ninputs == sys.noutputs:
-        friction, _, error_after = fit_friction(sys, data.u, data.y, data.fs, delay_s=delay)
+        friction, _, error_after = fit_friction(lti_model, data.u, data.y, data.fs)
         params["friction_force"] = [
             float(v) for v in np.broadcast_to(friction.friction_force, (sys.ninputs,))
         ]
@@ -178,7 +179,7 @@ def _augment_nonlinearity(model, data, base, problem, error_before) -> Augmented
     else:
         notes.append("reported only: friction is fitted on time records of square models")
     return Augmented(
-        LTIModel.from_statespace(sys, delay_s=delay),
+        lti_model,
         "nonlinearity",
         params,
         {},

@@ -72,10 +72,14 @@ def simulate_nonlinear(
 ) -> np.ndarray:
     """Response to the recorded input ``u`` (N, n_u), from rest; (N, n_y) outputs.
 
+    ``sys`` is a continuous square model (``StateSpace`` or ``LTIModel``); an
+    ``LTIModel``'s own delay is applied and ``delay_s`` (s) adds to it, as in
+    :func:`workbench.sim.simulate_zoh`; the total is rounded to whole samples.
     Without any nonlinearity this equals :func:`workbench.lti.simulate_zoh`
     for integer-sample delays.
     """
     A, B, C, D = _ports(sys)
+    delay_s = float(delay_s) + float(getattr(sys, "delay_s", 0.0))  # the model's delay travels
     n = A.shape[0]
     # the held input enters at the ports like the port forces: one force input
     # f = u[k-m] - friction - k3 p^3 through B (no separate delayed-input path)
@@ -122,7 +126,6 @@ def fit_friction(
     y: np.ndarray,
     fs: float,
     *,
-    delay_s: float = 0.0,
     friction_velocity: float | None = None,
     per_port: bool = False,
     substeps: int = 4,
@@ -132,8 +135,9 @@ def fit_friction(
 
     Parameters
     ----------
-    sys : control.StateSpace
-        Continuous, square model (ports collocated with the inputs).
+    sys : workbench.model.LTIModel or control.StateSpace
+        Continuous, square model (ports collocated with the inputs); an
+        ``LTIModel``'s input delay is part of it (a ``StateSpace`` has none).
     u, y : (N, n_u), (N, n_y) arrays
         Recorded input and output (time data of spec 1a).
     friction_velocity : float, optional
@@ -147,6 +151,9 @@ def fit_friction(
     (PortNonlinearity, error_before, error_after)
         The spec's time-domain relative error without and with the friction.
     """
+    from workbench.model import as_model
+
+    sys = as_model(sys)
     _ports(sys)
     u = np.asarray(u, float)
     y = np.asarray(y, float)
@@ -159,12 +166,12 @@ def fit_friction(
         nl = PortNonlinearity(
             friction_force=level, friction_velocity=friction_velocity, substeps=substeps
         )
-        return nl, simulate_nonlinear(sys, u, fs, nl, delay_s=delay_s)
+        return nl, simulate_nonlinear(sys, u, fs, nl)
 
     def residual(theta):
         return (model(theta)[1] - y).ravel() / np.linalg.norm(y)
 
-    before = lti.relative_error_time(y, lti.simulate_zoh(sys, u, fs, delay_s=delay_s))
+    before = lti.relative_error_time(y, lti.simulate_zoh(sys, u, fs))
     # coarse grid on the common level, 1 mN .. 10 N, then least squares
     grid = np.log(np.logspace(-3, 1, 9))
     costs = [np.sum(residual(np.full(1, g)) ** 2) for g in grid]

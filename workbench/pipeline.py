@@ -131,7 +131,6 @@ def stage_frf(st: RunState, table: dict) -> None:
 
 
 def stage_identify(st: RunState, table: dict) -> None:
-    from workbench import formats
     from workbench.ident.order import plot_singular_values
     from workbench.ident.subspace import identify_subspace
 
@@ -146,7 +145,7 @@ def stage_identify(st: RunState, table: dict) -> None:
         st.data, method=method, order=order, block_rows=block_rows, input_delay=input_delay
     )
     st.ident = res
-    formats.save_model(st.path("model_identified.npz"), res.model, delay_s=np.array(res.delay_s))
+    res.lti_model.write(st.path("model_identified.npz"))  # the delay exact in 'delay_s'
     plot_singular_values(
         res.singular_values,
         st.path("singular_values.png"),
@@ -167,8 +166,8 @@ def stage_identify(st: RunState, table: dict) -> None:
 
 
 def stage_modes(st: RunState, table: dict) -> None:
-    from workbench import formats
     from workbench.modal import ModalModel, plot_mode_superposition, plot_model_bode
+    from workbench.model import LTIModel
     from workbench.plotting import save_bode_overlay
 
     if st.ident is None:
@@ -184,8 +183,9 @@ def stage_modes(st: RunState, table: dict) -> None:
 
         refined = refine_modal_model(st.modal, st.data, input_delay=st.ident.input_delay)
         st.modal = refined.model
-    sys_c = st.modal.to_statespace()
-    formats.save_model(st.path("model_modal.npz"), sys_c, delay_s=np.array(st.ident.delay_s))
+    # the modal model is the identified model's rational part: it takes the same delay
+    modal_model = LTIModel.from_statespace(st.modal.to_statespace(), delay_s=st.ident.delay_s)
+    modal_model.write(st.path("model_modal.npz"))
     st.write_json("modes.json", json.loads(st.modal.to_json()))
     plot_model_bode(st.modal, st.path("modal_model_bode.png"), title="identified modal model")
     for out_idx, in_idx in superpose:
@@ -209,7 +209,7 @@ def stage_modes(st: RunState, table: dict) -> None:
             "success": refined.success,
         }
     if st.frf is not None:
-        G_model = lti.frf(sys_c, st.frf.freq, delay_s=st.ident.delay_s)
+        G_model = modal_model.frf(st.frf.freq)
         save_bode_overlay(
             st.path("frf_identified_vs_measured.png"),
             st.frf.freq,

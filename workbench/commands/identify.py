@@ -27,8 +27,9 @@ import numpy as np
 
 from workbench.atomic import check_not_input
 from workbench.errors import InputError
-from workbench.formats import TimeData, load_measurement, save_model
+from workbench.formats import TimeData, load_measurement
 from workbench.ident import METHODS, format_singular_values, identify_subspace, plot_singular_values
+from workbench.model import LTIModel
 
 
 def register(subparsers) -> argparse.ArgumentParser:
@@ -193,12 +194,12 @@ def run(args) -> int:
     if args.orders:
         orders = _parse_orders(args.orders, args.block_rows * data.n_y)
         results = identify_subspace(data, orders=orders, **kw)
-        fits = [simulation_fit(r.model, val_data, input_delay=r.input_delay) for r in results]
+        fits = [simulation_fit(r.lti_model, val_data) for r in results]
         scan = (orders, fits)
     res = identify_subspace(data, order=args.order, **kw)
     val_fit = None
     if val_data is not None:
-        val_fit = simulation_fit(res.model, val_data, input_delay=res.input_delay)
+        val_fit = simulation_fit(res.lti_model, val_data)
     modal = None
     if args.modal:
         from workbench.modal import ModalModel
@@ -212,10 +213,9 @@ def run(args) -> int:
             modal, data, input_delay=res.input_delay, feedthrough=not args.no_feedthrough
         )
         modal = refined.model
-    extra = {"delay_s": np.array(res.delay_s)} if res.input_delay else {}
-    save_model(args.out, res.model, **extra)
+    res.lti_model.write(args.out)  # the delay exact in key 'delay_s'
     if modal is not None:
-        save_model(args.modal, modal.to_statespace(), **extra)
+        LTIModel.from_statespace(modal.to_statespace(), delay_s=res.delay_s).write(args.modal)
     if args.sv_plot:
         plot_singular_values(
             res.singular_values,

@@ -44,7 +44,8 @@ class SubspaceResult:
     ----------
     model : control.StateSpace
         Discrete model, ``dt = 1 / fs``; input N (``u``), output m (``y``).
-        With ``input_delay > 0`` it maps ``u[k - input_delay]`` to ``y[k]``.
+        With ``input_delay > 0`` it maps ``u[k - input_delay]`` to ``y[k]``:
+        the rational part only; :attr:`lti_model` carries the delay.
     singular_values : (n_sv,) array
         Singular values of the weighted projection, largest first (scaled
         data, so dimensionless).
@@ -94,6 +95,18 @@ class SubspaceResult:
     def delay_s(self) -> float:
         """Input delay removed before identification, s."""
         return self.input_delay / self.fs
+
+    @property
+    def lti_model(self):
+        """The identified model with its delay: a :class:`~workbench.model.LTIModel`.
+
+        ``model`` is the rational part (a ``StateSpace`` cannot hold the delay);
+        this one carries ``delay_s = input_delay / fs`` exactly, so its FRF,
+        simulation and model file include the delay. Pass this one on.
+        """
+        from workbench.model import LTIModel
+
+        return LTIModel.from_statespace(self.model, delay_s=self.delay_s)
 
 
 def identify_subspace(

@@ -324,10 +324,23 @@ class Fit:
 def simulation_fit(model, data: TimeData, *, input_delay: int = 0, estimate: bool = True) -> Fit:
     """Fit of ``model`` on ``data``: simulate with ``x0`` by least squares, compare.
 
-    ``input_delay`` (samples) pairs ``y[k]`` with ``u[k - input_delay]`` as
-    in identification; the first ``input_delay`` outputs are not scored.
+    The model's own delay (an :class:`~workbench.model.LTIModel`'s ``delay_s``,
+    a whole number of samples) plus ``input_delay`` (samples) pairs ``y[k]``
+    with ``u[k - delay]`` as in identification; the first ``delay`` outputs
+    are not scored.
     """
-    d = int(input_delay)
+    from workbench.model import as_model
+
+    lti_model = as_model(model)
+    own = lti_model.delay_s / lti_model.dt if lti_model.dt else 0.0
+    if lti_model.delay_s and (not lti_model.dt or abs(own - round(own)) > 1e-6):
+        raise InputError(
+            f"model: expected a discrete model delayed by whole samples, got delay_s = "
+            f"{lti_model.delay_s:g} s with dt = {lti_model.dt:g} s"
+        )
+    if lti_model.delay_s:  # the delay is applied by trimming u and y, not in the simulation
+        model = lti_model.without_delay()
+    d = int(input_delay) + int(round(own))
     if d < 0 or d >= data.n_samples:
         raise InputError(f"input_delay: expected 0 <= delay < {data.n_samples}, got {d}")
     u = data.u[: data.n_samples - d]
