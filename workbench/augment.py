@@ -18,10 +18,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from workbench.diagnosis import LINEAR_EFFECTS, detect
-from workbench.diagnosis.diagnose import _spec_error
+from workbench.diagnosis.diagnose import _spec_error, base_model
 from workbench.diagnosis.effects import candidate_structures
 from workbench.diagnosis.fit import FitResult, fit, screen
-from workbench.diagnosis.modal import ExtendedModel, decompose
+from workbench.diagnosis.modal import ExtendedModel
 from workbench.diagnosis.problem import make_problem
 from workbench.errors import InputError
 from workbench.formats import FrfData, TimeData, check_model_matches
@@ -108,19 +108,10 @@ def augment(
         raise InputError(f"--effect: expected one of {', '.join(EFFECTS)}, got {effect!r}")
     lti_model = as_model(model)
     check_model_matches(lti_model, data)
-    dt, delay0 = lti_model.dt, lti_model.delay_s
-    if isinstance(data, TimeData) and dt > 0 and abs(dt * data.fs - 1) > 1e-9:
-        raise InputError(f"model: expected dt = 1/fs = {1 / data.fs:g} s, got dt = {dt:g} s")
+    delay0 = lti_model.delay_s
     model = lti_model.without_delay().to_statespace()
     with limited_blas(blas_threads):
-        try:
-            base = decompose(model)
-        except InputError:
-            raise
-        except ValueError as exc:
-            raise InputError(f"model: {exc}") from None
-        if delay0:
-            base = base.replace(delay_s=delay0)
+        base = base_model(model, data, delay0)
         problem = make_problem(data)
         error_before = _spec_error(model, data, delay0)
         if effect == "nonlinearity":

@@ -13,6 +13,7 @@ import json
 import numpy as np
 
 from workbench.atomic import check_not_input, write_text
+from workbench.commands import add_model_and_data, add_report_outputs
 from workbench.formats import load_measurement, model_arrays, read_model, save_model
 
 
@@ -28,12 +29,10 @@ def register(subparsers) -> argparse.ArgumentParser:
             "key 'delay_s' (A, B, C, D without it) and given as Pade states in A_pade.. keys."
         ),
     )
-    p.add_argument("--model", required=True, metavar="MODEL", help="model .npz (A, B, C, D, dt)")
-    p.add_argument("--data", required=True, metavar="DATA", help="measurement .npz")
+    add_model_and_data(p)
     p.add_argument("--effect", required=True, choices=EFFECTS, help="the effect to add")
     p.add_argument("--out", metavar="MODEL2", help="write the augmented model .npz")
-    p.add_argument("--json", metavar="OUT", help="write the fitted parameters as JSON")
-    p.add_argument("--plots", metavar="DIR", help="write PNG figures into DIR")
+    add_report_outputs(p, json_help="write the fitted parameters as JSON")
     return p
 
 

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from workbench.atomic import check_not_input, write_text
+from workbench.commands import add_model_and_data, add_report_outputs
 from workbench.compare import Comparison, compare
 from workbench.compare_plots import write_plots
 from workbench.errors import InputError
@@ -34,10 +35,8 @@ def register(subparsers) -> argparse.ArgumentParser:
             "errors, residual spectra and residual/excitation cross-correlation."
         ),
     )
-    p.add_argument("--model", required=True, metavar="MODEL", help="model .npz (A, B, C, D, dt)")
-    p.add_argument("--data", required=True, metavar="DATA", help="measurement .npz")
-    p.add_argument("--json", metavar="OUT", help="write the summary as JSON to OUT")
-    p.add_argument("--plots", metavar="DIR", help="write PNG figures into DIR")
+    add_model_and_data(p)
+    add_report_outputs(p, json_help="write the summary as JSON to OUT")
     p.add_argument(
         "--delay-s",
         type=float,

@@ -11,6 +11,7 @@ import argparse
 import json
 
 from workbench.atomic import check_not_input, write_text
+from workbench.commands import add_model_and_data, add_report_outputs
 from workbench.errors import InputError
 from workbench.formats import load_measurement, read_model
 
@@ -28,10 +29,8 @@ def register(subparsers) -> argparse.ArgumentParser:
             "recorded u."
         ),
     )
-    p.add_argument("--model", required=True, metavar="MODEL", help="model .npz (A, B, C, D, dt)")
-    p.add_argument("--data", required=True, metavar="DATA", help="measurement .npz")
-    p.add_argument("--json", metavar="OUT", help="write the findings JSON to OUT")
-    p.add_argument("--plots", metavar="DIR", help="write PNG figures into DIR")
+    add_model_and_data(p)
+    add_report_outputs(p, json_help="write the findings JSON to OUT")
     p.add_argument(
         "--max-effects", type=int, default=3, help="effects looked for in turn (default 3)"
     )

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from workbench.commands import add_modal_model_arguments
 from workbench.formats import load_model
 
 
@@ -17,9 +18,7 @@ def register(subparsers) -> argparse.ArgumentParser:
             "by the PBH test and Gramians, each with a relative margin."
         ),
     )
-    p.add_argument("model", metavar="MODEL", help="model .npz (continuous or discrete)")
-    p.add_argument("--json", action="store_true", help="print the report as JSON")
-    p.add_argument("--rigid-threshold-hz", type=float, default=5.0, help="rigid-body threshold, Hz")
+    add_modal_model_arguments(p, json_help="print the report as JSON")
     p.add_argument("--tol", type=float, default=1e-8, help="a margin below this fails")
     p.add_argument("--weak", type=float, default=1e-3, help="a margin below this is reported weak")
     return p

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 
 from workbench.atomic import check_not_input
+from workbench.commands import add_modal_model_arguments
 from workbench.formats import load_model
 
 
@@ -24,9 +25,7 @@ def register(subparsers) -> argparse.ArgumentParser:
             "output participation |b_k|, |c_k|."
         ),
     )
-    p.add_argument("model", metavar="MODEL", help="model .npz (continuous or discrete)")
-    p.add_argument("--json", action="store_true", help="print the table as JSON")
-    p.add_argument("--rigid-threshold-hz", type=float, default=5.0, help="rigid-body threshold, Hz")
+    add_modal_model_arguments(p, json_help="print the table as JSON")
     p.add_argument("--plot", metavar="PNG", help="save |G| of every input-output pair")
     p.add_argument("--superposition", metavar="PNG", help="save one pair as the sum of its modes")
     p.add_argument("--output", type=int, default=0, help="output index for --superposition")

@@ -217,8 +217,14 @@ def diagnose(
         )
 
 
-def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Diagnosis:
-    check_model_matches(model, data)
+def base_model(model, data, delay_s: float = 0.0) -> ExtendedModel:
+    """The model as diagnosis and augmentation start from it: its modal decomposition.
+
+    ``model`` is the rational part (a ``StateSpace``), ``delay_s`` (s) its
+    input delay, kept in the decomposition. A discrete model against a time
+    record must have dt = 1/fs; a realization :func:`decompose` refuses is
+    an :class:`InputError` naming the model.
+    """
     _, _, _, _, dt = as_matrices(model)
     if isinstance(data, TimeData) and dt > 0 and abs(dt * data.fs - 1) > 1e-9:
         raise InputError(
@@ -231,8 +237,12 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Dia
         raise
     except ValueError as exc:
         raise InputError(f"model: {exc}") from None
-    if delay_s:
-        base = base.replace(delay_s=float(delay_s))
+    return base.replace(delay_s=float(delay_s)) if delay_s else base
+
+
+def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Diagnosis:
+    check_model_matches(model, data)
+    base = base_model(model, data, delay_s)
     problem = make_problem(data)
     error_before = _spec_error(model, data, delay_s)
     notes = list(base.notes)

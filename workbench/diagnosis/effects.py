@@ -218,16 +218,21 @@ class SuspensionStiffness:
         return {"freq_hz": f, "damping": z}, {"freq_hz": sf, "damping": sz}
 
 
-@dataclass(frozen=True)
-class ResidualCompliance:
-    effect: str = "residual_compliance"
-    theta_names: tuple[str, ...] = ()
+class _LinearOnly:
+    """An effect whose parameters are all linear, fitted in closed form by the problem:
+    no nonlinear parameters, so no start grid and no bounds."""
 
     def grid(self, problem, base):
         return []
 
     def bounds(self, problem, base):
         return np.zeros(0), np.zeros(0)
+
+
+@dataclass(frozen=True)
+class ResidualCompliance(_LinearOnly):
+    effect: str = "residual_compliance"
+    theta_names: tuple[str, ...] = ()
 
     def build(self, theta, problem, base):
         M, S = problem.fit_feedthrough(base)
@@ -314,16 +319,10 @@ class SensorDynamics(_Lag):
 
 
 @dataclass(frozen=True)
-class Crosstalk:
+class Crosstalk(_LinearOnly):
     side: str = "out"
     effect: str = "crosstalk"
     theta_names: tuple[str, ...] = ()
-
-    def grid(self, problem, base):
-        return []
-
-    def bounds(self, problem, base):
-        return np.zeros(0), np.zeros(0)
 
     def build(self, theta, problem, base):
         E, S = problem.fit_crosstalk(base, self.side)
