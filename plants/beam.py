@@ -35,14 +35,13 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
-import control
 import numpy as np
 
 from workbench.errors import InputError
 
 from . import beam_fe
 from .effects import Effects
-from .mechanical import MechanicalPlant, replace_effects
+from .mechanical import MechanicalPlant, chain_statespace, check_field_names, replace_effects
 from .modal import LinearChain, ModalSet
 
 __all__ = [
@@ -282,24 +281,15 @@ def beam_prior_model(config: BeamConfig | None = None, *, max_freq_hz: float | N
     prior = beam_prior_config(config)
     limit = prior.fs / 2 if max_freq_hz is None else float(max_freq_hz)
     modes = beam_modes(prior)
-    mats = LinearChain(modes.select(modes.freq_hz < limit)).matrices
     n_a, n_s = len(prior.actuator_positions_m), len(prior.sensor_positions_m)
-    return control.ss(
-        mats["A"],
-        mats["B"],
-        mats["C"],
-        mats["D"],
-        inputs=[f"F{i + 1}" for i in range(n_a)],
-        outputs=[f"s{i + 1}" for i in range(n_s)],
+    return chain_statespace(
+        LinearChain(modes.select(modes.freq_hz < limit)),
+        [f"F{i + 1}" for i in range(n_a)],
+        [f"s{i + 1}" for i in range(n_s)],
     )
 
 
 def beam_config(**fields: Any) -> BeamConfig:
     """A :class:`BeamConfig` with some fields changed; unknown names are an error."""
-    names = {f.name for f in dataclasses.fields(BeamConfig)}
-    unknown = sorted(set(fields) - names)
-    if unknown:
-        raise InputError(
-            f"BeamConfig: unknown field(s) {unknown}; expected names from {sorted(names)}"
-        )
+    check_field_names(BeamConfig, fields, "BeamConfig")
     return BeamConfig(**fields)

@@ -164,15 +164,7 @@ class MechanicalPlant:
 
     def linear_model(self) -> control.StateSpace:
         """True linear part, continuous, without the delay: a ``control.StateSpace`` (N -> m)."""
-        m = self.chain.matrices
-        return control.ss(
-            m["A"],
-            m["B"],
-            m["C"],
-            m["D"],
-            inputs=list(self.input_names),
-            outputs=list(self.output_names),
-        )
+        return chain_statespace(self.chain, self.input_names, self.output_names)
 
     def frf(self, freq_hz) -> np.ndarray:
         """True linear frequency response with the delay, (n_f, n_y, n_u), at ``freq_hz`` (Hz)."""
@@ -180,14 +172,8 @@ class MechanicalPlant:
 
     def nominal_model(self) -> control.StateSpace:
         """The model an engineer has: nominal modes only, no effects, continuous, no delay."""
-        m = LinearChain(self.nominal_modes).matrices
-        return control.ss(
-            m["A"],
-            m["B"],
-            m["C"],
-            m["D"],
-            inputs=list(self.input_names),
-            outputs=list(self.output_names),
+        return chain_statespace(
+            LinearChain(self.nominal_modes), self.input_names, self.output_names
         )
 
     def with_effects(self, **changes: Any) -> MechanicalPlant:
@@ -301,12 +287,33 @@ class MechanicalPlant:
         return y, MechanicalPlantState(x_next, hist, state.rng)
 
 
-def replace_effects(base: Effects, changes: dict[str, Any]) -> Effects:
-    """``base`` with the named fields changed; an unknown name is an :class:`InputError`."""
-    names = {f.name for f in dataclasses.fields(Effects)}
-    unknown = sorted(set(changes) - names)
+def check_field_names(cls, fields: dict[str, Any], label: str) -> None:
+    """Refuse (:class:`InputError`, one line) names in ``fields`` that are not fields of ``cls``.
+
+    ``label`` names the configuration in the message (``"effects"``, ``"StageConfig"``).
+    """
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(fields) - names)
     if unknown:
         raise InputError(
-            f"effects: unknown field(s) {unknown}; expected names from {sorted(names)}"
+            f"{label}: unknown field(s) {unknown}; expected names from {sorted(names)}"
         )
+
+
+def replace_effects(base: Effects, changes: dict[str, Any]) -> Effects:
+    """``base`` with the named fields changed; an unknown name is an :class:`InputError`."""
+    check_field_names(Effects, changes, "effects")
     return dataclasses.replace(base, **changes)
+
+
+def chain_statespace(chain: LinearChain, input_names, output_names) -> control.StateSpace:
+    """A linear chain's matrices as a continuous ``control.StateSpace`` with channel names."""
+    m = chain.matrices
+    return control.ss(
+        m["A"],
+        m["B"],
+        m["C"],
+        m["D"],
+        inputs=list(input_names),
+        outputs=list(output_names),
+    )

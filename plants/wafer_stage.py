@@ -35,7 +35,6 @@ Seed 000 (wafer stage: 9-axis interferometer, 0.15 nm resolution, 8 motors,
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import Any
 
@@ -44,7 +43,7 @@ import numpy as np
 from workbench.errors import InputError
 
 from .effects import Effects
-from .mechanical import MechanicalPlant, replace_effects
+from .mechanical import MechanicalPlant, check_field_names, replace_effects
 from .modal import ModalSet
 
 __all__ = [
@@ -372,10 +371,5 @@ def wafer_stage(
 
 def stage_config(**fields: Any) -> StageConfig:
     """A :class:`StageConfig` with some fields changed; unknown names are an error."""
-    names = {f.name for f in dataclasses.fields(StageConfig)}
-    unknown = sorted(set(fields) - names)
-    if unknown:
-        raise InputError(
-            f"StageConfig: unknown field(s) {unknown}; expected names from {sorted(names)}"
-        )
+    check_field_names(StageConfig, fields, "StageConfig")
     return StageConfig(**fields)
