@@ -56,6 +56,13 @@ def _names(
     return names
 
 
+def _store_channel_names(obj, n_u: int, n_y: int, src: str) -> None:
+    """Check and store a measurement's ``input_names`` (n_u, default u0, u1, ...) and
+    ``output_names`` (n_y, default y0, ...) on the frozen ``obj``."""
+    for key, n, default in (("input_names", n_u, "u"), ("output_names", n_y, "y")):
+        object.__setattr__(obj, key, _names(getattr(obj, key), n, default, src, key))
+
+
 @dataclass(frozen=True)
 class TimeData:
     """A time-domain experiment (spec 1a).
@@ -119,12 +126,7 @@ class TimeData:
         object.__setattr__(self, "r", None if r is None else readonly(r))
         object.__setattr__(self, "fs", fs)
         object.__setattr__(self, "period", period)
-        object.__setattr__(
-            self, "input_names", _names(self.input_names, u.shape[1], "u", src, "input_names")
-        )
-        object.__setattr__(
-            self, "output_names", _names(self.output_names, y.shape[1], "y", src, "output_names")
-        )
+        _store_channel_names(self, u.shape[1], y.shape[1], src)
 
     @property
     def n_samples(self) -> int:
@@ -215,12 +217,7 @@ class FrfData:
         object.__setattr__(self, "G", readonly(G))
         object.__setattr__(self, "G_var", None if G_var is None else readonly(G_var))
         object.__setattr__(self, "fs", fs)
-        object.__setattr__(
-            self, "input_names", _names(self.input_names, G.shape[2], "u", src, "input_names")
-        )
-        object.__setattr__(
-            self, "output_names", _names(self.output_names, G.shape[1], "y", src, "output_names")
-        )
+        _store_channel_names(self, G.shape[2], G.shape[1], src)
 
     @property
     def n_f(self) -> int:
@@ -312,6 +309,14 @@ def _string_list(value: np.ndarray | None, src: str, key: str) -> tuple[str, ...
     return tuple(str(s) for s in value)
 
 
+def _file_names(arrays: dict[str, Any], src: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """A file's optional ``input_names`` and ``output_names`` keys (empty when absent)."""
+    return tuple(
+        _string_list(None if arrays.get(key) is None else np.asarray(arrays[key]), src, key)
+        for key in ("input_names", "output_names")
+    )
+
+
 # ---------------------------------------------------------------- safe reading
 _MAX_BYTES = 8 * 2**30  # no measurement we handle is larger than 8 GiB
 
@@ -390,14 +395,7 @@ def measurement_from_arrays(arrays: dict[str, Any], src: str = "measurement") ->
     """Build a :class:`TimeData` or :class:`FrfData` from spec arrays."""
     kind = _string(np.asarray(_require(arrays, "kind", src, "'time' or 'frf'")), src, "kind")
     get = arrays.get
-    in_names = _string_list(
-        None if get("input_names") is None else np.asarray(get("input_names")), src, "input_names"
-    )
-    out_names = _string_list(
-        None if get("output_names") is None else np.asarray(get("output_names")),
-        src,
-        "output_names",
-    )
+    in_names, out_names = _file_names(arrays, src)
     try:
         if kind == "time":
             period = get("period")
@@ -487,14 +485,7 @@ def lti_model_from_arrays(arrays: dict[str, Any], src: str = "model"):
     if dt_arr.ndim != 0 or not np.issubdtype(dt_arr.dtype, np.number) or np.iscomplexobj(dt_arr):
         raise InputError(f"{src}: key 'dt': expected a real scalar, got {describe(dt_arr)}")
     get = arrays.get
-    in_names = _string_list(
-        None if get("input_names") is None else np.asarray(get("input_names")), src, "input_names"
-    )
-    out_names = _string_list(
-        None if get("output_names") is None else np.asarray(get("output_names")),
-        src,
-        "output_names",
-    )
+    in_names, out_names = _file_names(arrays, src)
     delay = get("delay_s")
     if delay is not None:
         d = np.asarray(delay)
