@@ -648,6 +648,81 @@ def _check_model(model, spec: PeriodicSpectra):
             )
 
 
+#: z-score above which the first steady period is taken to hold a transient
+TRANSIENT_Z = 5.0
+
+
+def _transient_excess(spec: PeriodicSpectra, G_lines: np.ndarray, n_band: int) -> float:
+    """How far the first steady period's deviations exceed the others', in standard errors.
+
+    Stationary noise gives every period's deviation from the mean the same
+    expected whitened power; a start transient that has not died out by the
+    first kept period makes that period's larger. Per band of ``n_band``
+    lines nearest in frequency, the ratio of the first period's whitened
+    power to the mean over all periods, as ``(ratio - 1) sqrt(n_y k)`` (``k``
+    lines in the band; the ratio of a Gamma(``n_y k``) variable to its mean
+    has a standard deviation of about ``1 / sqrt(n_y k)``); the largest over
+    the bands. 0 without deviations.
+    """
+    est = _local_noise(spec, G_lines, n_band)
+    if est is None:
+        return 0.0
+    dl = spec.dev_line
+    dE = spec.dY - np.einsum("dij,dj->di", G_lines[dl], spec.dU)
+    W = _whiteners(est[0])
+    power = np.sum(np.abs(np.einsum("dij,dj->di", W[dl], dE)) ** 2, axis=1)
+    # rows of one line come period by period (periodic_spectra): rank = period index
+    order = np.argsort(dl, kind="stable")
+    first_row = np.r_[True, dl[order][1:] != dl[order][:-1]]
+    n_l = spec.n_lines
+    p_first, p_all, count = np.zeros(n_l), np.zeros(n_l), np.zeros(n_l)
+    np.add.at(p_first, dl[order][first_row], power[order][first_row])
+    np.add.at(p_all, dl, power)
+    np.add.at(count, dl, 1.0)
+    has = count > 1
+    lines = np.flatnonzero(has)[np.argsort(spec.freq_hz[has], kind="stable")]
+    worst = 0.0
+    for b in range(0, len(lines), max(int(n_band), 1)):
+        k = lines[b : b + max(int(n_band), 1)]
+        mean_all = np.sum(p_all[k] / count[k])
+        if mean_all > 0:
+            ratio = np.sum(p_first[k]) / mean_all
+            worst = max(worst, (ratio - 1.0) * np.sqrt(spec.n_y * len(k)))
+    return float(worst)
+
+
+def _drop_transient(spec, data, lay, theta, input_delay, n_transient, n_band, notes):
+    """Drop further start periods while the first steady one holds a transient.
+
+    Only for TimeData (spectra cannot be recomputed) and while at least two
+    steady periods remain; what was done, or could not be, goes to ``notes``.
+    """
+    T = 1.0 / spec.fs
+
+    def excess(sp):
+        return _transient_excess(sp, _frf_on(lay, theta, sp.z, T, input_delay, sp.n_u), n_band)
+
+    z0 = zt = excess(spec)
+    n_drop = n_transient
+    while zt > TRANSIENT_Z and isinstance(data, TimeData) and spec.n_avg.min() >= 3:
+        n_drop += 1
+        spec = periodic_spectra(data, n_transient=n_drop)
+        zt = excess(spec)
+    if n_drop > n_transient:
+        notes.append(
+            f"a start transient leaked into the first steady period (its deviations "
+            f"{z0:.1f} standard errors above the others'): {n_drop} periods dropped per "
+            f"block instead of {n_transient}"
+        )
+    if zt > TRANSIENT_Z:
+        notes.append(
+            f"a transient leaks into the first steady period ({zt:.1f} standard errors): "
+            "the standard deviations may be optimistic; record more periods or raise "
+            "n_transient"
+        )
+    return spec
+
+
 def _as_spectra(data, n_transient) -> PeriodicSpectra:
     if isinstance(data, PeriodicSpectra):
         return data
@@ -769,7 +844,9 @@ def refine_modal_model(
         Lines pooled for each local noise covariance (widened to at least
         ``3 n_y`` degrees of freedom).
     n_transient : int
-        Periods dropped per block when ``data`` is TimeData.
+        Periods dropped per block when ``data`` is TimeData; one more at a
+        time while the first steady period still holds a start transient
+        (Notes), as long as two steady periods remain.
     reweight : int
         Times the noise covariance is re-estimated at the new estimate and the
         fit repeated (0: weights from the start model only).
@@ -824,6 +901,14 @@ def refine_modal_model(
     a-posteriori variance factor), so that the standard deviations are never
     narrowed by it. ``RefineResult.variance_factor`` holds the product.
 
+    Start transient: stationary noise gives each steady period's deviation
+    from the mean the same expected whitened power. When the first kept
+    period's exceeds the others' by more than ``TRANSIENT_Z`` standard errors
+    in some band of ``noise_lines`` lines (a loop pole slow against the
+    period leaves a transient there, which biases the mean spectra beyond the
+    reported std), that period is dropped too and the fact noted; with
+    ``PeriodicSpectra`` given, or too few periods, only noted.
+
     Examples
     --------
     A 100 Hz mode measured over 5 periods (the first dropped), from a start
@@ -867,10 +952,14 @@ def refine_modal_model(
     if input_delay < 0:
         raise InputError(f"input_delay: expected an integer >= 0 samples, got {input_delay}")
     lay, theta0 = _layout(model, feedthrough)
+    notes: list[str] = []
+    if noise_cov is None:
+        spec = _drop_transient(
+            spec, data, lay, theta0, input_delay, int(n_transient), int(noise_lines), notes
+        )
     T = 1.0 / spec.fs
     z = spec.z
     sw = np.sqrt(spec.n_avg)[:, None]
-    notes: list[str] = []
 
     def noise(theta) -> tuple[np.ndarray, np.ndarray]:
         if noise_cov is not None:
