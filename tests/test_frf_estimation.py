@@ -232,7 +232,8 @@ def direct_multisine(data: TimeData, n_transient: int = 1):
     """Independent, plain implementation: per block, DFT of every kept period, their mean,
     G = (Y R^H)(U R^H)^-1 per line with numpy's inverse, and the noise variance of G from
     the period-to-period residual e_p = dY_p - G dU_p (module docstring of frf_estimation).
-    Blocks are the record's known ones (n_exp experiments of equal length here)."""
+    Blocks are the record's known ones (n_exp experiments of equal length here); the
+    reference is r when recorded, else u."""
     P = data.period
     n_blk = 3  # three experiments, 5 periods each (the test's record)
     scale = 2.0 / P
@@ -240,7 +241,8 @@ def direct_multisine(data: TimeData, n_transient: int = 1):
     def per(x):
         return x.reshape(n_blk, -1, P, x.shape[1])[:, n_transient:]
 
-    Yp, Up, Rp = (np.fft.rfft(per(x), axis=2) * scale for x in (data.y, data.u, data.r))
+    r = data.u if data.r is None else data.r
+    Yp, Up, Rp = (np.fft.rfft(per(x), axis=2) * scale for x in (data.y, data.u, r))
     Ym, Um, Rm = Yp.mean(axis=1), Up.mean(axis=1), Rp.mean(axis=1)  # (b, f, ch)
     pw = np.sum(np.abs(Rm) ** 2, axis=(0, 2))
     pw[0] = 0
@@ -269,6 +271,27 @@ def test_closed_loop_multisine_matches_direct_implementation(rng):
     np.testing.assert_allclose(est.frf.freq, f)
     np.testing.assert_allclose(est.frf.G, G, rtol=1e-9, atol=1e-12 * np.abs(G).max())
     np.testing.assert_allclose(est.G_var_noise, var, rtol=1e-9)
+
+
+def test_open_loop_full_multisine_matches_direct_implementation(rng):
+    """Open loop (u repeats exactly: only y's spread), every bin excited (the lines form one
+    band), 3 experiments: G, its noise variance and the noise of the line analysis."""
+    plant = LinearPlant(sys=chain(), fs=FS, noise_std=1e-6)
+    design = multisine(
+        fs=FS, period=128, band_hz=(1, 499), n_ch=3, kind="full", design="orthogonal", rng=rng
+    )
+    data = run_multisine(plant, design, n_periods=5, rng=rng).to_time_data()
+    est = frf_multisine(data, zoh="none")
+    f, G, var = direct_multisine(data)
+    assert f.size == 63  # bins 1..63 of a 128-sample period: one band
+    np.testing.assert_allclose(est.frf.freq, f)
+    np.testing.assert_allclose(est.frf.G, G, rtol=1e-9, atol=1e-12 * np.abs(G).max())
+    np.testing.assert_allclose(est.G_var_noise, var, rtol=1e-9)
+    # line analysis: mean over blocks of the output's period spread, as sine amplitude^2
+    yp = np.fft.rfft(data.y.reshape(3, -1, 128, 3)[:, 1:], axis=2) * 2 / 128
+    n = yp.shape[1]
+    spread = np.sum(np.abs(yp - yp.mean(axis=1, keepdims=True)) ** 2, axis=1) / (n * (n - 1))
+    np.testing.assert_allclose(est.lines.noise_var, spread.mean(axis=0)[1:64], rtol=1e-9)
 
 
 def test_input_matrix_inverse_equals_numpy_and_refuses_singular(rng):

@@ -94,6 +94,22 @@ def test_noise_variance_of_white_noise_matches_its_known_variance():
     assert np.all(err < 5 * np.sqrt(var[rec.lines]))
 
 
+def test_spread_power_and_deviation_spectra_match_per_period_dfts():
+    """Independent: numpy's DFT of every kept period minus the block's mean, per channel and
+    bin; channels 1e6 apart in scale, so that a mix-up of channel and bin layout shows."""
+    data, _, _ = two_experiments(P=64, n_per=5)
+    rng = np.random.default_rng(3)
+    x = rng.standard_normal((data.u.shape[0], 3)) * np.array([1.0, 1e3, 1e-3])
+    rec = periodic_record(data)
+    for b, p in enumerate(rec.periods(x)):
+        D = np.fft.rfft(p - p.mean(axis=0), axis=1)  # (n_kept, bins, ch)
+        np.testing.assert_allclose(rec.deviation_spectra(x, b), D, rtol=1e-12, atol=1e-12)
+        sq = np.sum(np.abs(D) ** 2, axis=0)
+        np.testing.assert_allclose(rec.spread_power(x, b), sq, rtol=1e-12)
+        n = p.shape[0]
+        np.testing.assert_allclose(rec.noise_var(x)[b], sq / (n * (n - 1)), rtol=1e-12)
+
+
 def two_experiments(P: int = 100, n_per: int = 4) -> tuple[TimeData, np.ndarray, np.ndarray]:
     a = cosines(P, n_per, [3, 8], [1.0, 1.0], [0.0, 0.0])
     b = cosines(P, n_per, [3, 8], [1.0, 1.0], [2.0, -1.0])  # other phases: another experiment

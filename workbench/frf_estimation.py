@@ -173,22 +173,21 @@ def _inverse(B: np.ndarray, what: str) -> np.ndarray:
     # condition of the equilibrated matrix: channels in N and N m differ in scale, not in rank.
     # Rows scaled to unit norm, then columns: Bs = diag(1/r) B diag(1/c), from |B|^2 alone
     A2 = B.real**2 + B.imag**2
-    r2 = A2.sum(axis=2)  # (n_f, n_u), squared row norms
+    r2 = np.einsum("fij->fi", A2)  # (n_f, n_u), squared row norms
     r2 = np.where(r2 > 0, r2, 1.0)
     c2 = np.einsum("fij,fi->fj", A2, 1.0 / r2)  # squared column norms after the row scaling
     c2 = np.where(c2 > 0, c2, 1.0)
     r, c = np.sqrt(r2), np.sqrt(c2)
     Bs = B * (1.0 / (r[:, :, None] * c[:, None, :]))
     # Frobenius-norm condition ||Bs|| ||Bs^-1||: within a factor n_u of the 2-norm one, and
-    # free once the inverse is formed (||Bs|| = sqrt(n_u) for unit columns)
+    # free once the inverse is formed: ||Bs|| = sqrt(n_u), the columns having unit norm (a
+    # zero column leaves the matrix singular, and its inverse infinite, anyway)
     Binv_s = None
     with np.errstate(all="ignore"):
         try:
             Binv_s = np.linalg.inv(Bs)
             v = Binv_s.view(np.float64)
-            ninv = np.sqrt(np.einsum("fij,fij->f", v, v))
-            cond = np.sqrt(np.einsum("fij,fij->f", A2, 1.0 / (r2[:, :, None] * c2[:, None, :])))
-            cond = cond * ninv
+            cond = np.sqrt(B.shape[1] * np.einsum("fij,fij->f", v, v))
         except np.linalg.LinAlgError:
             cond = np.linalg.cond(Bs)
     bad = ~np.isfinite(cond) | (cond > _COND_LIMIT)
@@ -301,9 +300,11 @@ def frf_multisine(
         )
 
     # ---- G = (Y R^H)(U R^H)^-1 per excited line
-    Yl = np.moveaxis(Ym[:, lines], 0, -1)  # (n_l, n_y, n_b)
-    Ul = np.moveaxis(Um[:, lines], 0, -1)  # (n_l, n_u, n_b)
-    RlH = np.conj(np.moveaxis(Rm[:, lines], 0, 1))  # (n_l, n_b, n_u)
+    # a band of consecutive lines (a full multisine) is a slice: views, not gathered copies
+    sel = slice(lines[0], lines[-1] + 1) if lines[-1] - lines[0] + 1 == lines.size else lines
+    Yl = np.moveaxis(Ym[:, sel], 0, -1)  # (n_l, n_y, n_b)
+    Ul = np.moveaxis(Um[:, sel], 0, -1)  # (n_l, n_u, n_b)
+    RlH = np.conj(np.moveaxis(Rm[:, sel], 0, 1))  # (n_l, n_b, n_u)
     W = RlH @ _inverse(Ul @ RlH, "data")  # R^H (U R^H)^-1, (n_l, n_b, n_u)
     G = Yl @ W  # (n_l, n_y, n_u)
 
@@ -320,7 +321,7 @@ def frf_multisine(
                 # the input repeats exactly (open-loop generator): the residual e_p of each
                 # period around the block mean is the output's deviation
                 sq = rec.spread_power("y", i, workers=workers)  # (n_bins, n_y)
-                var_e[:, :, i] = sq[lines] * norm
+                var_e[:, :, i] = sq[sel] * norm
             else:
                 dY = rec.deviation_spectra("y", i, workers=workers)  # (P, n_bins, n_y)
                 if dY is None:  # noise-free output
@@ -328,7 +329,7 @@ def frf_multisine(
                 sq = np.sum(dY.real**2 + dY.imag**2, axis=0)
                 # residual of each period around its block mean, e_p = dY_p - G dU_p
                 GT = np.swapaxes(G, 1, 2)  # (n_l, n_u, n_y)
-                e = dY[:, lines] - np.swapaxes(np.swapaxes(dU[:, lines], 0, 1) @ GT, 0, 1)
+                e = dY[:, sel] - np.swapaxes(np.swapaxes(dU[:, sel], 0, 1) @ GT, 0, 1)
                 var_e[:, :, i] = np.sum(e.real**2 + e.imag**2, axis=0) * norm
             noise_acc += sq * norm
         noise_bins = noise_acc / n_b
