@@ -53,3 +53,26 @@ def test_unknown_table_is_refused(tmp_path, capsys):
     assert main(["run", str(bad), "--results", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
     assert "unknown table [experimnt]" in err and len(err.strip().splitlines()) == 1
+
+
+def test_wafer_stage_demo_models_carry_the_identified_delay(runs):
+    """[identify] input_delay = 1 (samples): both model files hold delay_s = 1/fs (issue 7)."""
+    import numpy as np
+
+    from workbench.formats import load_measurement
+    from workbench.model import LTIModel
+
+    status, folder = runs["wafer_stage_demo"]
+    assert status == 0
+    fs = load_measurement(folder / "measurement.npz").fs
+    identified = LTIModel.read(folder / "model_identified.npz")
+    modal = LTIModel.read(folder / "model_modal.npz")
+    assert identified.dt == pytest.approx(1 / fs)
+    assert identified.delay_s == pytest.approx(1 / fs, rel=1e-12)
+    assert modal.dt == 0.0 and modal.delay_s == pytest.approx(1 / fs, rel=1e-12)
+    # the reported FRF error is that of the model with its delay, read back from the file
+    frf = load_measurement(folder / "frf.npz")
+    summary = json.loads((folder / "summary.json").read_text())
+    G = modal.frf(frf.freq)
+    rel = np.mean(np.linalg.norm(frf.G - G, axis=(1, 2)) / np.linalg.norm(frf.G, axis=(1, 2)))
+    assert summary["modes"]["frf_relative_error"] == pytest.approx(rel, rel=1e-9)
