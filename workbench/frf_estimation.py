@@ -381,12 +381,13 @@ def frf_multisine(
 
     # ---- non-excited lines
     band = np.arange(lines.min(), lines.max() + 1)
+    Yb = Ym[:, band[0] : band[-1] + 1]  # a view
     category = np.where(band % 2 == 1, ODD_FREE, EVEN_FREE)
     category[np.isin(band, lines)] = EXCITED
     analysis = LineAnalysis(
         freq=band * fs / period,
         category=category,
-        y_power=np.mean(np.abs(Ym[:, band]) ** 2, axis=0),
+        y_power=np.mean(Yb.real**2 + Yb.imag**2, axis=0),
         noise_var=noise_bins[band],
     )
     return FrfEstimate(
