@@ -81,10 +81,10 @@ def run(args) -> int:
 
         write_text(args.json, json.dumps(jsonable(res.to_json()), indent=2) + "\n")
     if args.plots and res.extended is not None:
-        from workbench.diagnosis.modal import decompose
+        from workbench.diagnosis.diagnose import base_model
         from workbench.diagnosis.plots import write_plots
 
-        before = decompose(model.without_delay().to_statespace()).replace(delay_s=model.delay_s)
+        before = base_model(model.without_delay().to_statespace(), data, model.delay_s)
         paths = write_plots(args.plots, data, before, res.extended, title=f"augment {res.effect}")
         print("plots: " + ", ".join(str(p) for p in paths))
     return 0

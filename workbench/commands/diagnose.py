@@ -78,10 +78,10 @@ def run(args) -> int:
     if args.json:
         write_text(args.json, json.dumps(result.to_json(), indent=2) + "\n")
     if args.plots:
-        from workbench.diagnosis.modal import decompose
+        from workbench.diagnosis.diagnose import base_model
         from workbench.diagnosis.plots import write_plots
 
-        before = decompose(model.without_delay().to_statespace()).replace(delay_s=model.delay_s)
+        before = base_model(model.without_delay().to_statespace(), data, model.delay_s)
         paths = write_plots(
             args.plots, data, before, result.model, title="diagnose: before / after"
         )
