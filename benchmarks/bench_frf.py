@@ -13,6 +13,11 @@ runs, in this process, on the same data:
   periods of every block and one ``rfft`` per channel and block, for ``u`` and
   ``y`` (the least any period-averaging estimator must do; ``frf_multisine``
   also takes one FFT per kept period of the outputs for the noise variance);
+- the three large parts of ``frf_multisine``: the periodic record (means and
+  their DFTs, the reference's work plus the block and excitation bookkeeping),
+  the DFTs of every kept period's deviation for the noise variance, and the
+  equilibrated, condition-checked inverses of the 6x6 input matrices at the
+  2,047 lines;
 
 each with BLAS/OpenMP threads and ``scipy.fft`` workers limited to 1
 (threadpoolctl, ``scipy.fft.set_workers``) and unlimited (all cores). The
@@ -41,7 +46,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from plants.base import LinearPlant  # noqa: E402
 from workbench.experiments import run_multisine  # noqa: E402
-from workbench.frf_estimation import frf_h1, frf_multisine  # noqa: E402
+from workbench.frf_estimation import _inverse, frf_h1, frf_multisine  # noqa: E402
+from workbench.periodic import periodic_record  # noqa: E402
 from workbench.signals import multisine  # noqa: E402
 
 FS = 5000.0  # Hz, the wafer stage's sampling rate
@@ -120,12 +126,19 @@ def main() -> None:
     )
     exp = run_multisine(plant, design, n_periods=12, rng=rng)
     td = exp.to_time_data()
+    rec = periodic_record(exp)
+    Ul = np.moveaxis(rec.U[:, 1:2048], 0, -1)  # (lines, n_u, blocks): the input matrices
+    B = Ul @ np.conj(np.swapaxes(Ul, 1, 2))
     cases = {
         "frf_multisine (in memory)": lambda: frf_multisine(exp),
         "frf_multisine (from record)": lambda: frf_multisine(td),
         "frf_h1 (vectorized Welch)": lambda: frf_h1(td, nperseg=4096),
         "scipy.signal.csd H1": lambda: csd_h1(td.u, td.y, 4096),
         "average periods + rfft (ref)": lambda: average_and_fft(exp),
+        # where frf_multisine's time goes (its three large parts)
+        "  part: periodic_record": lambda: periodic_record(exp),
+        "  part: spread of y (noise_var)": lambda: rec.noise_var("y"),
+        "  part: 6x6 inverses (_inverse)": lambda: _inverse(B, "B"),
     }
     print(
         f"6x6, 6 experiments x 12 periods x 4096 samples = {td.n_samples} samples; best of "
