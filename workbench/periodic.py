@@ -45,10 +45,10 @@ Identification*, 2nd ed., 2012, section 2.5: the sample variance of the mean
 over periods). These DFTs stay in float64. In float32 they take half the time
 (benchmarks/bench_frf.py: 6 blocks x 11 periods x 6 channels, about 5 -> 2.6
 ms), but their rounding is relative to the spread's total power, not to each
-bin's: about 1e-7 of the mean bin power, so a bin far below the mean is off by
-1e-7 times that ratio. On the benchmark's record (bins down to 1/700 of the
-mean) the median error is 1e-7 and the worst 3e-5; on 1/f to 1/f^3 spreads
-(bins 1e5 below the mean) 1e-4. Far inside the estimate's own scatter (about
+bin's, so a bin far below the mean power carries a larger relative error.
+On the benchmark's record (bins down to 1/700 of the mean) the median error
+is 1e-7 and the worst 3e-5; on 1/f to 1/f^3 spreads (bins 1e5 below the
+mean) 1e-4. Far inside the estimate's own scatter (about
 30 % with 11 periods), but not the 1e-5 agreement with float64 that a result
 of record is held to.
 """
