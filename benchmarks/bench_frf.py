@@ -13,6 +13,8 @@ runs, in this process, on the same data:
   periods of every block and one ``rfft`` per channel and block, for ``u`` and
   ``y`` (the least any period-averaging estimator must do; ``frf_multisine``
   also takes one FFT per kept period of the outputs for the noise variance);
+- the reference plus the rfft of every kept period's deviation from its block
+  mean (the least a per-line noise variance from the period spread needs);
 - the three large parts of ``frf_multisine``: the periodic record (means and
   their DFTs, the reference's work plus the block and excitation bookkeeping),
   the DFTs of every kept period's deviation for the noise variance, and the
@@ -95,6 +97,17 @@ def average_and_fft(exp, n_transient: int = 1) -> None:
         scipy.fft.rfft(blocks[:, n_transient:].mean(axis=1), axis=1)
 
 
+def average_fft_and_spread(exp, n_transient: int = 1) -> None:
+    """The reference plus what a per-line noise variance needs at least: the rfft of every kept
+    period's deviation from its block mean, for the outputs (the inputs here repeat exactly)."""
+    average_and_fft(exp, n_transient)
+    y = exp.y.reshape((-1,) + exp.y.shape[2:])[:, n_transient:]  # (blocks, periods, period, n_y)
+    for p in y:  # block by block: the deviations of one block stay in cache
+        D = scipy.fft.rfft(p - p.mean(axis=0), axis=1)
+        v = D.view(np.float64).reshape(D.shape[0], -1)
+        np.einsum("pi,pi->i", v, v)
+
+
 def best_of(cases: dict, repeat: int) -> dict:
     """Best time of every case over ``repeat`` rounds, s; the cases take turns in every round,
     so that a burst of load on the shared machine hits all of them alike, not one."""
@@ -135,6 +148,7 @@ def main() -> None:
         "frf_h1 (vectorized Welch)": lambda: frf_h1(td, nperseg=4096),
         "scipy.signal.csd H1": lambda: csd_h1(td.u, td.y, 4096),
         "average periods + rfft (ref)": lambda: average_and_fft(exp),
+        "ref + rfft of period deviations": lambda: average_fft_and_spread(exp),
         # where frf_multisine's time goes (its three large parts)
         "  part: periodic_record": lambda: periodic_record(exp),
         "  part: spread of y (noise_var)": lambda: rec.noise_var("y"),
