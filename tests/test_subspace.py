@@ -90,6 +90,55 @@ def test_structured_gram_equals_explicit_gram(N, k, chunk):
     assert np.allclose(G, H @ H.T, rtol=0, atol=1e-13 * np.abs(G).max())
 
 
+def _explicit_gram(blocks_of_signals, scales, k, N):
+    """Independent oracle: the block-Hankel matrix built row by row, then H H^T."""
+    z = np.hstack([s[:N] / c for s, c in zip(blocks_of_signals, scales)])
+    j = N - k + 1
+    H = np.vstack([z[a : a + j].T for a in range(k)])
+    return H @ H.T
+
+
+@pytest.mark.parametrize(
+    "N, k, widths, chunk",
+    [
+        (40, 40, (1,), 1024),  # one channel, a single column (j = 1)
+        (41, 4, (1,), 1024),  # one channel, N below one FFT segment
+        (97, 8, (2, 1), 3),  # chunk smaller than a segment
+        (5000, 40, (6, 6, 6), 1024),  # the benchmark's shape (18 channels), many chunks
+        (5000, 40, (6, 6, 6), 10**6),  # the whole record in one chunk
+        (1203, 6, (3, 2), 250),  # segment count not dividing the chunks
+    ],
+    ids=str,
+)
+def test_hankel_gram_equals_plain_numpy_gram(N, k, widths, chunk):
+    # scaled, non-white channels (a filtered random walk) with a nonzero mean, so that
+    # lagged products differ from zero-lag ones and edge terms matter
+    rng = np.random.default_rng(N + k)
+    sigs = [np.cumsum(rng.standard_normal((N, w)), axis=0) * 0.1 + 1.0 for w in widths]
+    scales = [rng.uniform(0.5, 2.0, w) for w in widths]
+    G = hankel_gram(sigs, scales, n_blocks=k, n_samples=N, chunk=chunk)
+    G0 = _explicit_gram(sigs, scales, k, N)
+    assert G.shape == G0.shape
+    assert np.max(np.abs(G - G0)) <= 1e-13 * np.max(np.abs(G0))
+    assert np.max(np.abs(G - G.T)) <= 1e-13 * np.max(np.abs(G0))  # symmetric to rounding
+
+
+def test_lag_sums_equal_direct_sums():
+    from workbench.ident.gram import lag_sums
+
+    rng = np.random.default_rng(3)
+    N, K = 777, 9
+    a, b = rng.standard_normal((N, 2)), rng.standard_normal((N, 1))
+    sc = [np.ones(2), np.array([3.0])]
+    z = np.hstack([a, b / 3.0])
+    F = lag_sums([a, b], sc, n_lags=K, n_samples=N, chunk=100)
+    F0 = np.stack([z[: N - d].T @ z[d:] for d in range(K)])
+    assert np.max(np.abs(F - F0)) <= 1e-13 * np.max(np.abs(F0))
+    # fewer samples than lags: the sums over what there is (zero beyond)
+    F = lag_sums([a[:5]], [np.ones(2)], n_lags=K, n_samples=5)
+    assert np.allclose(F[5:], 0.0, atol=1e-15) and np.allclose(F[1], a[:4].T @ a[1:5])
+
+
 # ------------------------------------------------------- exact, noise-free
 @pytest.mark.parametrize("factorization", ["gram", "qr"])
 @pytest.mark.parametrize("method", ["n4sid", "moesp"])

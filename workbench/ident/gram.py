@@ -14,8 +14,11 @@ every block by subtracting a few edge terms, never forming ``H``.
 from __future__ import annotations
 
 import numpy as np
+import scipy.fft
+import scipy.linalg.blas
+from numpy.lib.stride_tricks import as_strided
 
-__all__ = ["hankel_gram", "hankel", "stacked_signals"]
+__all__ = ["hankel_gram", "hankel", "lag_sums", "stacked_signals"]
 
 
 def stacked_signals(signals, scales, start: int, stop: int) -> np.ndarray:
@@ -51,7 +54,8 @@ def hankel_gram(signals, scales, *, n_blocks: int, n_samples: int, chunk: int = 
     n_samples : int
         Samples used, ``N``; ``j = N - n_blocks + 1`` columns.
     chunk : int
-        Samples per chunk of the correlation sums (bounds memory).
+        Samples per chunk of the correlation sums (bounds memory; rounded to
+        whole FFT segments, at least one).
 
     Returns
     -------
@@ -64,52 +68,101 @@ def hankel_gram(signals, scales, *, n_blocks: int, n_samples: int, chunk: int = 
     With ``F_d = sum_{t=0}^{N-1-d} z_t z_{t+d}^T`` the full-record lag-``d``
     correlation sum, block ``(a, a + d)`` of the Gram is
     ``F_d - sum_{t<a} z_t z_{t+d}^T - sum_{t=a+j}^{N-1-d} z_t z_{t+d}^T``; both
-    corrections have fewer than ``n_blocks`` terms. The ``F_d`` cost
-    ``N n_ch^2 n_blocks`` multiply-adds, one GEMM per chunk.
+    corrections have fewer than ``n_blocks`` terms, and block ``(a + d, a)`` is
+    the transpose. The ``F_d`` come from :func:`lag_sums` (FFT segments).
     """
     N = int(n_samples)
     k = int(n_blocks)
     m = sum(np.shape(c)[0] for c in scales)
-    # F[:, d*m:(d+1)*m] = F_d, accumulated over chunks of "left" samples t;
-    # one GEMM per lag on views of the chunk (no lagged copy of the data).
-    F = np.zeros((m, k * m))
-    for t0 in range(0, N, chunk):
-        t1 = min(N, t0 + chunk)
-        L = t1 - t0
-        z = np.zeros((L + k - 1, m))  # zero padding beyond N adds nothing
-        got = stacked_signals(signals, scales, t0, min(N, t1 + k - 1))
-        z[: got.shape[0]] = got
-        left = z[:L].T
-        for d in range(k):
-            F[:, d * m : (d + 1) * m] += left @ z[d : d + L]
-    F = F.reshape(m, k, m).transpose(1, 0, 2)  # F[d] (m, m)
+    F = lag_sums(signals, scales, n_lags=k, n_samples=N, chunk=chunk)  # (k, m, m)
 
-    # Edge corrections, vectorized: products z_t z_{t+d}^T near both ends.
-    zh = np.zeros((2 * k, m))
-    got = stacked_signals(signals, scales, 0, min(N, 2 * k))
-    zh[: got.shape[0]] = got
+    # Edge corrections: G = T - E E^T, T block-Toeplitz of the F_d. With
+    # tau = 1 .. k - 1, head block a of E holds z_{a - tau} (zero for a < tau): its
+    # products give sum_{t<a} z_t z_{t+d}^T. With sigma = 0 .. k - 2, tail block a holds
+    # z_{a + j + sigma} (zero past N - 1): sum_{t >= a + j} z_t z_{t+d}^T.
+    # k - 1 zeros, samples 0 .. k - 2, samples j .. N - 1, k - 1 zeros (tail rows read to 4k - 5)
+    ends = np.zeros((4 * k - 4, m))
+    got = stacked_signals(signals, scales, 0, min(N, k - 1))
+    ends[k - 1 : k - 1 + got.shape[0]] = got
+    ends[2 * k - 2 : 3 * k - 3] = stacked_signals(signals, scales, N - k + 1, N)
+    s0, s1 = ends.strides
+    # E[a, p, c]: c < k - 1 is tau = c + 1 (sample a - tau), c >= k - 1 is sigma = c - k + 1
+    head = as_strided(ends[k - 2 :], (k, m, k - 1), (s0, s1, -s0), writeable=False)
+    tail = as_strided(ends[2 * k - 2 :], (k, m, k - 1), (s0, s1, s0), writeable=False)
+    E = np.concatenate([head, tail], axis=2).reshape(k * m, 2 * k - 2)
 
-    def lag_products(w):  # [d, t] = w_t w_{t+d}^T, flattened to m * m, t = 0..k-1
-        lagged = np.stack([w[d : d + k] for d in range(k)])  # [d, t, q] = w_{t+d}
-        return (w[None, :k, :, None] * lagged[:, :, None, :]).reshape(k, k, m * m)
+    # T: block (a, b) = F_{b - a} (b >= a) or F_{a - b}^T, gathered from all 2k - 1 lags
+    # Fx[p, k - 1 + d, q] = F_d[p, q], Fx[p, k - 1 - d, q] = F_d[q, p]: block (a, b) of T
+    # is Fx[:, k - 1 + b - a, :], a strided view of Fx (a steps back, b forward)
+    Fx = np.concatenate([F[:0:-1].transpose(0, 2, 1), F]).transpose(1, 0, 2).copy()
+    f0, f1, f2 = Fx.strides
+    T = as_strided(Fx[:, k - 1 :], (k, m, k, m), (-f1, f0, f1, f2), writeable=False)
+    G = T.reshape(k * m, k * m)  # a copy (the view is not contiguous)
+    # G -= E E^T in place: a fresh (k m)^2 temporary costs more in page faults than the
+    # product itself; G is symmetric, so its transpose is the Fortran array BLAS updates
+    # (the returned array is G.T itself unless BLAS had to copy; either way it is the result)
+    return scipy.linalg.blas.dgemm(-1.0, E.T, E.T, beta=1.0, c=G.T, trans_a=1, overwrite_c=1).T
 
-    # head[d, a] = sum_{t<a} z_t z_{t+d}^T, a = 0..k-1: a strictly lower triangular
-    # matrix of ones sums the running products, one small GEMM per lag
-    head = (np.tril(np.ones((k, k)), -1) @ lag_products(zh)).reshape(k, k, m, m)
-    # tail[d, a] = sum_{t=a+j}^{N-1-d} z_t z_{t+d}^T (zero padding past N-1)
-    zt = np.zeros((2 * k, m))
-    got = stacked_signals(signals, scales, N - (k - 1), N)  # samples j .. N-1
-    zt[: got.shape[0]] = got
-    tail = (np.triu(np.ones((k, k))) @ lag_products(zt)).reshape(k, k, m, m)
 
-    G = np.empty((k * m, k * m))
-    G4 = G.reshape(k, m, k, m)  # a view: G4[a, p, b, q]
-    for d in range(k):
-        blocks = F[d][None] - head[d, : k - d] - tail[d, : k - d]  # (k - d, m, m)
-        a = np.arange(k - d)
-        G4[a, :, a + d, :] = blocks
-        G4[a + d, :, a, :] = blocks.transpose(0, 2, 1)
-    return G
+def lag_sums(signals, scales, *, n_lags: int, n_samples: int, chunk: int = 4096) -> np.ndarray:
+    """Lagged correlation sums ``F_d = sum_{t=0}^{N-1-d} z_t z_{t+d}^T``, d < n_lags.
+
+    Parameters
+    ----------
+    signals, scales
+        As for :func:`hankel_gram` (the sums are of the scaled, stacked ``z_t``).
+    n_lags : int
+        Number of lags ``K`` (0 .. K - 1).
+    n_samples : int
+        Samples used, ``N``.
+    chunk : int
+        Samples per chunk (memory ``O(chunk * n_ch + K n_ch^2)``, whatever ``N``).
+
+    Returns
+    -------
+    (K, n_ch, n_ch) array, ``F[d, p, q] = sum_t z_{t, p} z_{t+d, q}``.
+
+    Notes
+    -----
+    The record is cut into segments of ``B`` samples. For the segment starting
+    at ``s``, ``x`` holds its ``B`` samples zero-padded to the FFT length
+    ``P >= B + K - 1`` and ``y`` the ``P`` samples from ``s`` on; their circular
+    cross-correlation at lags below ``K`` never wraps, so it is the segment's
+    share of ``F_d``. The shares add up in the frequency domain: per frequency,
+    ``sum_s conj(X_s) Y_s^T`` is one small complex matrix product over all
+    segments, and a single inverse FFT per channel pair ends. That is about
+    ``4 n_ch^2 P / B`` real multiply-adds per sample instead of the
+    ``K n_ch^2`` of direct lagged sums; the rounding is that of the FFT
+    (relative ``~1e-16 log P`` of the zero-lag sums).
+    """
+    N, K = int(n_samples), int(n_lags)
+    widths = [np.shape(c)[0] for c in scales]
+    m = sum(widths)
+    # FFT length: a fast size about 6 K, segments of P - K + 1 samples (fewer, longer
+    # segments cost more FFT work per sample; shorter ones more of the products)
+    P = scipy.fft.next_fast_len(max(6 * K, 32), real=True)
+    B = P - K + 1
+    n_seg = -(-N // B)
+    per_chunk = max(1, int(chunk) // B)
+    S = np.zeros((P // 2 + 1, m, m), complex)
+    for s0 in range(0, n_seg, per_chunk):
+        t0, ns = s0 * B, min(per_chunk, n_seg - s0)
+        z = np.zeros((ns * B + P - B, m))  # the chunk's samples, zero past N
+        stop = min(N, t0 + ns * B + K - 1)  # later samples are never reached (lags < K)
+        col = 0
+        for sig, c, w in zip(signals, scales, widths):
+            np.divide(sig[t0:stop], c, out=z[: stop - t0, col : col + w])
+            col += w
+        # segment s: rows s B .. s B + P - 1 of z (a view; segments overlap by P - B)
+        seg = as_strided(
+            z, (ns, P, m), (B * z.strides[0], z.strides[0], z.strides[1]), writeable=False
+        )
+        Y = scipy.fft.rfft(seg, axis=1)  # (ns, P // 2 + 1, m)
+        X = scipy.fft.rfft(seg[:, :B], n=P, axis=1)  # the first B samples, zero-padded
+        np.conj(X, out=X)
+        # per frequency, (m, ns) @ (ns, m): BLAS-compatible strided views, no copies
+        S += X.transpose(1, 2, 0) @ Y.transpose(1, 0, 2)
+    return scipy.fft.irfft(S, n=P, axis=0)[:K]
 
 
 def hankel(signals, scales, *, n_blocks: int, n_samples: int) -> np.ndarray:
