@@ -108,6 +108,38 @@ class ModalSet:
             self.kind + other.kind,
         )
 
+    def to_modal(self, *, delay_s: float = 0.0, input_names=(), output_names=()):
+        """These modes as the workbench's one modal type, a :class:`workbench.modal.ModalModel`.
+
+        A mode at 0 Hz is a rigid mode (double integrator); every other one,
+        whatever its plant role ('suspension', 'flexible', 'residual', 'extra'),
+        is a flexible mode with the same ``b_k``, ``c_k`` (the role is the
+        plant's bookkeeping, not part of the dynamics). D = 0; modes ordered
+        rigid first, then by frequency (stable). ``delay_s`` (s) and the names
+        are passed through. The lags and crosstalk of the plant's chain are not
+        modes and are not included.
+        """
+        from workbench.modal import ModalModel, Mode
+
+        order = sorted(range(self.n_modes), key=lambda k: (self.freq_hz[k] > 0, self.freq_hz[k]))
+        modes = tuple(
+            Mode(
+                kind="rigid" if self.freq_hz[k] == 0 else "flexible",
+                freq_hz=self.freq_hz[k],
+                damping=0.0 if self.freq_hz[k] == 0 else self.damping[k],
+                b=self.b[k],
+                c=self.c[k],
+            )
+            for k in order
+        )
+        return ModalModel(
+            modes=modes,
+            D=np.zeros((self.n_y, self.n_u)),
+            input_names=tuple(input_names),
+            output_names=tuple(output_names),
+            delay_s=delay_s,
+        )
+
     def frf(self, freq_hz) -> np.ndarray:
         """Sum over modes of c_k b_k^T / (s^2 + 2 z w s + w^2) at s = j 2 pi f, (n_f, n_y, n_u)."""
         s = 2j * np.pi * np.atleast_1d(np.asarray(freq_hz, float))

@@ -55,6 +55,12 @@ class Mode:
         Relative size of what the idealized form drops from the identified
         mode (velocity-proportional numerator, rank > 1 residue), at the
         mode's frequency; 0 for an exact modal system.
+    N0, N1 : (n_y, n_u) arrays or None
+        The mode's exact numerator ``N1 s + N0`` over its denominator, kept by
+        ``ModalModel.from_statespace(..., exact=True)`` (and by the diagnosis's
+        fitted terms); None: the ideal ``N0 = c b^T``, ``N1 = 0``. Rigid modes
+        share the denominator ``s^2``: only their sum is defined, so the
+        cluster's ``1/s`` coefficient (single integrators) sits on the first.
     """
 
     kind: str
@@ -63,6 +69,8 @@ class Mode:
     b: np.ndarray
     c: np.ndarray
     residual: float = 0.0
+    N0: np.ndarray | None = None
+    N1: np.ndarray | None = None
 
     def __post_init__(self):
         if self.kind not in ("rigid", "flexible", "real"):
@@ -79,6 +87,19 @@ class Mode:
             raise InputError(f"mode: expected a finite frequency >= 0 Hz, got {self.freq_hz}")
         object.__setattr__(self, "b", b)
         object.__setattr__(self, "c", c)
+        for key in ("N0", "N1"):
+            v = getattr(self, key)
+            if v is None:
+                continue
+            v = readonly(v, float)
+            if v.shape != (c.size, b.size):
+                raise InputError(
+                    f"mode: expected {key} of shape ({c.size}, {b.size}) to match c and b, "
+                    f"got {v.shape}"
+                )
+            object.__setattr__(self, key, v)
+        if self.kind == "real" and self.N1 is not None and np.any(self.N1):
+            raise InputError("mode: a real pole has no s-numerator: expected N1 = 0 or None")
         object.__setattr__(self, "freq_hz", float(self.freq_hz))
         object.__setattr__(self, "damping", float(self.damping))
         object.__setattr__(self, "residual", float(self.residual))
@@ -91,6 +112,26 @@ class Mode:
     @property
     def n_states(self) -> int:
         return 1 if self.kind == "real" else 2
+
+    @property
+    def is_ideal(self) -> bool:
+        """True when the numerator is ``c b^T`` (no exact N0, N1 kept)."""
+        return self.N0 is None and self.N1 is None
+
+    def numerator(self) -> tuple[np.ndarray, np.ndarray]:
+        """(N0, N1), (n_y, n_u) each: the numerator ``N1 s + N0`` of this mode."""
+        N0 = np.outer(self.c, self.b) if self.N0 is None else self.N0
+        N1 = np.zeros((self.c.size, self.b.size)) if self.N1 is None else self.N1
+        return N0, N1
+
+    def denominator(self) -> np.ndarray:
+        """``(a1, a0)`` of ``s^2 + a1 s + a0`` (rigid: (0, 0)), or ``(a0,)`` of ``s + a0``."""
+        w, z = self.omega, self.damping
+        if self.kind == "rigid":
+            return np.zeros(2)
+        if self.kind == "real":
+            return np.array([-self.pole.real])
+        return np.array([2 * z * w, w * w])
 
     @property
     def pole(self) -> complex:
@@ -112,7 +153,10 @@ class Mode:
             den = s - self.pole.real
         else:
             den = s**2 + 2 * z * w * s + w**2
-        return (1.0 / den)[:, None, None] * np.outer(self.c, self.b)[None]
+        if self.is_ideal:
+            return (1.0 / den)[:, None, None] * np.outer(self.c, self.b)[None]
+        N0, N1 = self.numerator()
+        return (N0[None] + s[:, None, None] * N1[None]) / den[:, None, None]
 
 
 @dataclass(frozen=True)
@@ -133,6 +177,9 @@ class ModalModel:
     rigid_poles : (n_rigid_states,) complex array
         The poles the rigid cluster had before projection (near 0), rad/s.
     input_names, output_names : tuple of str
+    delay_s : float
+        Input delay on every input, s (exact, ``exp(-s delay_s)``); the
+        :class:`workbench.model.LTIModel` delay, carried through conversions.
     """
 
     modes: tuple[Mode, ...]
@@ -141,6 +188,7 @@ class ModalModel:
     rigid_poles: np.ndarray = field(default_factory=lambda: np.zeros(0, complex))
     input_names: tuple[str, ...] = ()
     output_names: tuple[str, ...] = ()
+    delay_s: float = 0.0
 
     def __post_init__(self):
         D = readonly(self.D, float)
@@ -160,6 +208,9 @@ class ModalModel:
         if self.transform is not None:
             object.__setattr__(self, "transform", readonly(self.transform, float))
         object.__setattr__(self, "rigid_poles", readonly(self.rigid_poles, complex))
+        if not (np.isfinite(self.delay_s) and self.delay_s >= 0):
+            raise InputError(f"modal model: expected delay_s >= 0 s, got {self.delay_s}")
+        object.__setattr__(self, "delay_s", float(self.delay_s))
         n_u, n_y = D.shape[1], D.shape[0]
         object.__setattr__(
             self, "input_names", tuple(self.input_names) or tuple(f"u{i}" for i in range(n_u))
@@ -179,7 +230,12 @@ class ModalModel:
 
     @property
     def n_states(self) -> int:
-        return sum(m.n_states for m in self.modes)
+        return sum(_mode_blocks(m)[0].shape[0] for m in self.modes)
+
+    @property
+    def is_ideal(self) -> bool:
+        """True when every mode's numerator is ``c_k b_k^T`` (see :attr:`Mode.N0`)."""
+        return all(m.is_ideal for m in self.modes)
 
     @property
     def freq_hz(self) -> np.ndarray:
@@ -198,6 +254,20 @@ class ModalModel:
     def modes_of_kind(self, kind: str) -> tuple[Mode, ...]:
         return tuple(m for m in self.modes if m.kind == kind)
 
+    def rigid_residue(self) -> tuple[np.ndarray, np.ndarray]:
+        """(N0, N1), (n_y, n_u) each: the rigid modes' summed numerator over their shared s^2.
+
+        Only the sum is defined by the response (``N0 = sum_k c_k b_k^T``, full
+        rank with one rigid mode per DOF; ``N1`` the 1/s part of an exact
+        decomposition); diagnosis and refinement take the rigid body as this one term.
+        """
+        N0 = np.zeros((self.n_y, self.n_u))
+        N1 = np.zeros((self.n_y, self.n_u))
+        for m in self.modes_of_kind("rigid"):
+            n0, n1 = m.numerator()
+            N0, N1 = N0 + n0, N1 + n1
+        return N0, N1
+
     # -------------------------------------------------------------- to / from
     def to_statespace(self, *, form: Literal["companion", "scaled"] = "companion"):
         """The modal realization as a continuous ``control.StateSpace``.
@@ -211,46 +281,40 @@ class ModalModel:
             states (w q, dq/dt), C columns ``[c_k / w, 0]``: the layout of the
             shared example files (``nominal_model.npz``), better balanced.
             Rigid blocks are ``[[0, 1], [0, 0]]`` in both; real poles ``[[p]]``.
+            A mode with an exact numerator (:attr:`Mode.N0`) gets the minimal
+            realization of its residue: ``rank`` blocks of the same form with
+            two B rows (rigid: ``[[0, I], [0, 0]]`` blocks of the rank of
+            ``[N0; N1]``). The delay is not part of a ``StateSpace``:
+            :meth:`to_lti` keeps it.
         """
         import control
 
         if form not in ("companion", "scaled"):
             raise InputError(f"form: expected 'companion' or 'scaled', got {form!r}")
-        n = self.n_states
-        A = np.zeros((n, n))
-        B = np.zeros((n, self.n_u))
-        C = np.zeros((self.n_y, n))
-        k = 0
-        for m in self.modes:
-            if m.kind == "real":
-                A[k, k] = m.pole.real
-                B[k] = m.b
-                C[:, k] = m.c
-                k += 1
-                continue
-            w, z = m.omega, m.damping
-            if m.kind == "rigid":
-                A[k, k + 1] = 1.0
-                C[:, k] = m.c
-            elif form == "companion":
-                A[k : k + 2, k : k + 2] = [[0.0, 1.0], [-(w**2), -2 * z * w]]
-                C[:, k] = m.c
-            else:
-                A[k : k + 2, k : k + 2] = [[0.0, w], [-w, -2 * z * w]]
-                C[:, k] = m.c / w
-            B[k + 1] = m.b
-            k += 2
+        blocks = [_mode_blocks(m, form) for m in self.modes]
+        n = sum(a.shape[0] for a, _, _ in blocks)
+        A = scipy.linalg.block_diag(*[a for a, _, _ in blocks]) if n else np.zeros((0, 0))
+        B = np.vstack([b for _, b, _ in blocks]) if n else np.zeros((0, self.n_u))
+        C = np.hstack([c for _, _, c in blocks]) if n else np.zeros((self.n_y, 0))
         return control.ss(
             A, B, C, self.D, 0, inputs=list(self.input_names), outputs=list(self.output_names)
         )
 
-    def frf(self, freq_hz) -> np.ndarray:
-        """Frequency response (n_f, n_y, n_u) as the sum of the modes plus D."""
+    def frf(self, freq_hz, *, with_delay: bool = True) -> np.ndarray:
+        """Frequency response (n_f, n_y, n_u): the sum of the modes plus D, times the delay."""
         s = 2j * np.pi * np.atleast_1d(np.asarray(freq_hz, float))
         G = np.broadcast_to(self.D.astype(complex), (s.size,) + self.D.shape).copy()
         for m in self.modes:
             G += m.response(s)
+        if with_delay and self.delay_s:
+            G *= np.exp(-s * self.delay_s)[:, None, None]
         return G
+
+    def to_lti(self, *, form: Literal["companion", "scaled"] = "companion"):
+        """The modal realization with its delay as a :class:`workbench.model.LTIModel` (dt = 0)."""
+        from workbench.model import LTIModel
+
+        return LTIModel.from_statespace(self.to_statespace(form=form), delay_s=self.delay_s)
 
     @classmethod
     def from_statespace(
@@ -259,14 +323,19 @@ class ModalModel:
         *,
         rigid_threshold_hz: float = 5.0,
         rigid_basis: Literal["auto", "outputs", "svd"] = "auto",
+        exact: bool = False,
     ) -> ModalModel:
         """Modal analysis by similarity of a continuous or discrete model.
 
+        The one modal decomposition of the workbench: identification,
+        refinement, minimality and (with ``exact=True``) diagnosis start here.
+
         Parameters
         ----------
-        sys : control.StateSpace
+        sys : control.StateSpace or workbench.model.LTIModel
             ``A`` (n, n), ``B`` (n, n_u), ``C`` (n_y, n), ``D`` (n_y, n_u);
             a discrete model is first converted with :func:`workbench.d2c.d2c`.
+            An LTIModel's delay and names are kept.
         rigid_threshold_hz : float
             Poles with ``|s| < 2 pi rigid_threshold_hz`` form the rigid-body
             cluster, Hz. They come in pairs (one double integrator per DOF);
@@ -278,6 +347,17 @@ class ModalModel:
             output k; needs as many rigid modes as outputs); ``"svd"``,
             orthogonal ``c_k`` and ``b_k`` from the SVD of ``P``; ``"auto"``,
             outputs when possible.
+        exact : bool
+            False (default): the idealized modal form (rank-one ``c_k b_k^T``,
+            no velocity numerator, the cluster below ``rigid_threshold_hz``
+            projected onto double integrators). True: lossless, the FRF of
+            the result equals the model's: the rigid cluster is the poles at
+            zero only (``|s| < 1e-6 max(|s|_max, 1)`` rad/s, the threshold is
+            not used), near-rigid poles stay flexible or real modes at their
+            own frequency, each mode keeps its exact numerator
+            (:attr:`Mode.N0`, :attr:`Mode.N1`), ``transform`` is None.
+            Integrators of order above two or a defective (non-diagonalizable)
+            flexible part are refused (InputError).
 
         Returns
         -------
@@ -308,6 +388,9 @@ class ModalModel:
         A, B, C, D, dt = as_matrices(sys)
         if dt > 0:
             A, B, C, D, _ = as_matrices(d2c(sys))
+        delay_s = float(getattr(sys, "delay_s", 0.0))
+        in_names = tuple(getattr(sys, "input_names", None) or sys.input_labels)
+        out_names = tuple(getattr(sys, "output_names", None) or sys.output_labels)
         if rigid_threshold_hz < 0 or not np.isfinite(rigid_threshold_hz):
             raise InputError(
                 f"rigid_threshold_hz: expected a finite value >= 0 Hz, got {rigid_threshold_hz}"
@@ -319,6 +402,9 @@ class ModalModel:
         n = A.shape[0]
         w_r = 2 * np.pi * rigid_threshold_hz
         lam_all = np.linalg.eigvals(A) if n else np.zeros(0)
+        if exact:
+            # poles at zero only (the tolerance of a computed double pole at z = 1 after d2c)
+            w_r = 1e-6 * max(float(np.max(np.abs(lam_all), initial=0.0)), 1.0)
         n_cluster = int(np.sum(np.abs(lam_all) < w_r))
         # order the real Schur form: the small poles first
         T_s, A_s = np.eye(n), A.copy()
@@ -330,7 +416,8 @@ class ModalModel:
         n_rigid = n_cluster // 2
         blocks_T = []  # (columns of the source realization, Mode)
         modes: list[Mode] = []
-        k1 = 2 * n_rigid
+        # exact: the whole cluster (an odd one holds a single integrator)
+        k1 = n_cluster if exact else 2 * n_rigid
         # decouple the leading k1 states (rigid pairs) from the rest
         X = np.zeros((k1, n - k1))
         if k1 and n - k1:
@@ -343,11 +430,13 @@ class ModalModel:
         Bb = T_bd_inv @ B
         Cb = C @ T_bd
         rigid_poles = np.linalg.eigvals(Ab[:k1, :k1]) if k1 else np.zeros(0, complex)
-        if n_rigid:
-            r_modes, T_r = _rigid_modes(Ab[:k1, :k1], Bb[:k1], Cb[:, :k1], w_r, rigid_basis)
+        if k1:
+            r_modes, T_r = _rigid_modes(
+                Ab[:k1, :k1], Bb[:k1], Cb[:, :k1], w_r, rigid_basis, exact=exact
+            )
             modes += r_modes
             blocks_T.append(T_bd[:, :k1] @ T_r)
-        f_modes, T_f = _flexible_modes(Ab[k1:, k1:], Bb[k1:], Cb[:, k1:])
+        f_modes, T_f = _flexible_modes(Ab[k1:, k1:], Bb[k1:], Cb[:, k1:], exact=exact)
         modes += f_modes
         if n - k1:
             blocks_T.append(T_bd[:, k1:] @ T_f)
@@ -355,10 +444,11 @@ class ModalModel:
         return cls(
             modes=tuple(modes),
             D=D,
-            transform=T,
+            transform=None if exact else T,
             rigid_poles=rigid_poles,
-            input_names=tuple(sys.input_labels),
-            output_names=tuple(sys.output_labels),
+            input_names=in_names,
+            output_names=out_names,
+            delay_s=delay_s,
         )
 
     # ---------------------------------------------------------------- report
@@ -414,12 +504,93 @@ class ModalModel:
 
 
 # ------------------------------------------------------------------ internals
-def _rigid_modes(A1, B1, C1, w_r, basis):
+def _rank_split(M: np.ndarray, scale: float | None = None, tol: float = 1e-12):
+    """Full-rank factors ``M = L R`` (L (m, r), R (r, n)) by SVD; r counts s > tol scale.
+
+    ``scale`` defaults to the largest singular value of ``M``.
+    """
+    U, sv, Vt = np.linalg.svd(M, full_matrices=False)
+    ref = (sv[0] if sv.size else 0.0) if scale is None else scale
+    r = int(np.sum(sv > tol * max(ref, 1e-300))) if sv.size else 0
+    return U[:, :r] * sv[:r], Vt[:r]
+
+
+def _mode_blocks(m: Mode, form: str = "companion"):
+    """(A, B, C) of one mode: (k, k), (k, n_u), (n_y, k); see ModalModel.to_statespace."""
+    n_u, n_y = m.b.size, m.c.size
+    w, z = m.omega, m.damping
+    if m.is_ideal:
+        if m.kind == "real":
+            return np.array([[m.pole.real]]), m.b[None, :], m.c[:, None]
+        if m.kind == "rigid":
+            A, c0 = np.array([[0.0, 1.0], [0.0, 0.0]]), m.c
+        elif form == "companion":
+            A, c0 = np.array([[0.0, 1.0], [-(w**2), -2 * z * w]]), m.c
+        else:
+            A, c0 = np.array([[0.0, w], [-w, -2 * z * w]]), m.c / w
+        B = np.vstack([np.zeros(n_u), m.b])
+        return A, B, np.column_stack([c0, np.zeros(n_y)])
+    N0, N1 = m.numerator()
+    if m.kind == "real":
+        L, R = _rank_split(N0)
+        return m.pole.real * np.eye(L.shape[1]), R, L
+    if m.kind == "rigid":
+        # (N1 s + N0) / s^2 = [N0 N1] [[I/s^2], [I/s]]: (position, velocity) states per rank
+        # of [N0; N1]; or double chains for N0 and single integrators for N1 (fewer states
+        # when N0 = 0, e.g. a lone integrator): the smaller of the two
+        scale = max(np.linalg.norm(N0, 2), np.linalg.norm(N1, 2))
+        L, R = _rank_split(np.vstack([N0, N1]), scale)
+        L0, R0 = _rank_split(N0, scale)
+        L1, R1 = _rank_split(N1, scale)
+        r, r0, r1 = R.shape[0], R0.shape[0], R1.shape[0]
+        if 2 * r0 + r1 < 2 * r:
+            A = np.zeros((2 * r0 + r1, 2 * r0 + r1))
+            A[:r0, r0 : 2 * r0] = np.eye(r0)
+            B = np.vstack([np.zeros((r0, n_u)), R0, R1])
+            return A, B, np.hstack([L0, np.zeros((n_y, r0)), L1])
+        A = np.block([[np.zeros((r, r)), np.eye(r)], [np.zeros((r, 2 * r))]])
+        return A, np.vstack([np.zeros((r, n_u)), R]), np.hstack([L[:n_y], L[n_y:]])
+    # flexible: residue R = (N1 lam + N0) / (lam - conj lam) at the upper pole lam, each rank
+    # component phi psi^T a real 2-state block in (Re z, Im z), then put into the companion
+    # form by x_c = O x_r with O = [e1^T; e1^T A_r] (an observable pair for Im lam != 0)
+    lam = m.pole
+    Res = (N1 * lam + N0) / (2j * lam.imag)
+    phi, psi = _rank_split(Res)
+    As, Bs, Cs = [], [], []
+    Ar = np.array([[lam.real, -lam.imag], [lam.imag, lam.real]])
+    O = np.array([[1.0, 0.0], Ar[0]])
+    Oi = np.linalg.inv(O)
+    Ac = O @ Ar @ Oi
+    S = np.diag([1.0, 1.0]) if form == "companion" else np.diag([w, 1.0])
+    for k in range(phi.shape[1]):
+        Br = np.vstack([psi[k].real, psi[k].imag])
+        Cr = np.column_stack([2 * phi[:, k].real, -2 * phi[:, k].imag])
+        As.append(S @ Ac @ np.linalg.inv(S))
+        Bs.append(S @ O @ Br)
+        Cs.append(Cr @ Oi @ np.linalg.inv(S))
+    if not As:
+        return np.zeros((0, 0)), np.zeros((0, n_u)), np.zeros((n_y, 0))
+    return scipy.linalg.block_diag(*As), np.vstack(Bs), np.hstack(Cs)
+
+
+def _rigid_modes(A1, B1, C1, w_r, basis, *, exact=False):
     """Double-integrator modes from the rigid cluster (A1, B1, C1); and the state map."""
     n_r = A1.shape[0] // 2
     n_y = C1.shape[0]
     P = C1 @ A1 @ B1  # the 1/s^2 coefficient
     N1 = C1 @ B1  # the 1/s coefficient, 0 for exact double integrators
+    if exact:
+        # C1 A1^2 B1 /s^3 and beyond must vanish: a modal model has no triple integrators
+        R3 = C1 @ A1 @ A1 @ B1
+        scale = max(np.max(np.abs(np.linalg.eigvals(A1))), 1.0)
+        if np.linalg.norm(R3) > 1e-6 * max(np.linalg.norm(P), 1e-300) * scale and np.any(R3):
+            raise InputError(
+                "model: expected rigid-body modes (double integrators) at s = 0, got "
+                "integrators of order above two: not a modal model"
+            )
+        n_r = max(n_r, 1)
+        if basis == "auto" and n_r != n_y:
+            basis = "svd"
     row_norm = np.linalg.norm(P, axis=1)
     use_outputs = basis == "outputs" or (
         basis == "auto" and n_r == n_y and np.all(row_norm > 1e-9 * max(row_norm.max(), 1e-300))
@@ -435,11 +606,30 @@ def _rigid_modes(A1, B1, C1, w_r, basis):
         Br = P / np.where(d > 0, d, 1.0)[:, None]  # rows b_k^T
     else:
         U, s, Vt = np.linalg.svd(P)
-        Cr = U[:, :n_r] * np.sqrt(s[:n_r])
-        Br = np.sqrt(s[:n_r])[:, None] * Vt[:n_r]
+        k = min(n_r, s.size)
+        Cr = U[:, :k] * np.sqrt(s[:k])
+        Br = np.sqrt(s[:k])[:, None] * Vt[:k]
     resid = float(np.linalg.norm(N1) * w_r / max(np.linalg.norm(P), 1e-300))
+    if Br.shape[0] < n_r:  # svd of a P with fewer rows than modes (n_y < n_r)
+        Br = np.vstack([Br, np.zeros((n_r - Br.shape[0], Br.shape[1]))])
+        Cr = np.hstack([Cr, np.zeros((n_y, n_r - Cr.shape[1]))])
+    exact_num = [(None, None)] * n_r
+    if exact:
+        # the rigid modes share s^2: the part their c_k b_k^T miss (P beyond rank n_r,
+        # rounding) and the cluster's 1/s coefficient go on the first, so that the sum is exact
+        exact_num = [(np.outer(Cr[:, k], Br[k]), np.zeros_like(P)) for k in range(n_r)]
+        exact_num[0] = (exact_num[0][0] + P - Cr @ Br, N1)
     modes = [
-        Mode(kind="rigid", freq_hz=0.0, damping=0.0, b=Br[k], c=Cr[:, k], residual=resid)
+        Mode(
+            kind="rigid",
+            freq_hz=0.0,
+            damping=0.0,
+            b=Br[k],
+            c=Cr[:, k],
+            residual=resid,
+            N0=exact_num[k][0],
+            N1=exact_num[k][1],
+        )
         for k in range(n_r)
     ]
     # state map x_cluster = T_r x_modal from the observability matrices (3 block rows)
@@ -451,15 +641,22 @@ def _rigid_modes(A1, B1, C1, w_r, basis):
     O_id = np.vstack([C1, C1 @ A1, C1 @ A1 @ A1])
     O_m = np.vstack([Cm, Cm @ Am, Cm @ Am @ Am])
     T_r = np.linalg.lstsq(O_id, O_m, rcond=None)[0]
+    if exact:
+        T_r = np.zeros((A1.shape[0], 0))  # no state map for the exact form
     return modes, T_r
 
 
-def _flexible_modes(A2, B2, C2):
+def _flexible_modes(A2, B2, C2, *, exact=False):
     """Flexible (pair) and real-pole modes of a block without rigid poles; and the state map."""
     n = A2.shape[0]
     if n == 0:
         return [], np.zeros((0, 0))
     lam, V = np.linalg.eig(A2)
+    if exact and not np.linalg.cond(V) < 1e10:
+        raise InputError(
+            "model: expected a diagonalizable realization apart from the rigid-body modes, "
+            "got a defective (repeated, coupled) pole: not a modal model"
+        )
     W = np.linalg.inv(V)  # rows: left eigenvectors, W V = I
     cols = []
     modes = []
@@ -513,7 +710,16 @@ def _flexible_modes(A2, B2, C2):
             c, b = -c, -b
         resid = np.linalg.norm(N0 - np.outer(c, b) + 1j * w0 * N1) / max(np.linalg.norm(N0), 1e-300)
         modes.append(
-            Mode(kind="flexible", freq_hz=w0 / (2 * np.pi), damping=zeta, b=b, c=c, residual=resid)
+            Mode(
+                kind="flexible",
+                freq_hz=w0 / (2 * np.pi),
+                damping=zeta,
+                b=b,
+                c=c,
+                residual=resid,
+                N0=N0 if exact else None,
+                N1=N1 if exact else None,
+            )
         )
         a = np.vdot(phi, c) / max(np.vdot(phi, phi).real, 1e-300)
         E = np.array([[1.0, 1.0], [s, np.conj(s)]])

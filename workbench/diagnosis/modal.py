@@ -25,7 +25,6 @@ import numpy as np
 import scipy.linalg
 import scipy.signal
 
-from workbench.d2c import d2c
 from workbench.lti import as_matrices
 from workbench.sim import c2d_zoh, split_delay
 
@@ -137,6 +136,90 @@ class ExtendedModel:
 
     def replace(self, **changes) -> ExtendedModel:
         return replace(self, **changes)
+
+    # ------------------------------------------------------------ modal model
+    @classmethod
+    def from_modal(cls, model) -> ExtendedModel:
+        """The terms of a :class:`workbench.modal.ModalModel`, with its D and delay.
+
+        The rigid modes share ``s^2``: they become one term whose numerator is
+        their sum (full rank for one rigid mode per DOF). Flexible and real
+        modes give one term each with their numerator (:meth:`Mode.numerator`).
+        Terms are ordered rigid first, then by frequency.
+        """
+        terms: list[Term] = []
+        if model.modes_of_kind("rigid"):
+            N0, N1 = model.rigid_residue()
+            terms.append(Term(den=np.zeros(2), N0=N0, N1=N1, kind="rigid"))
+        for m in model.modes:
+            if m.kind == "rigid":
+                continue
+            N0, N1 = m.numerator()
+            kind = "flex" if m.kind == "flexible" else "real"
+            terms.append(Term(den=m.denominator(), N0=np.array(N0), N1=np.array(N1), kind=kind))
+        terms.sort(key=lambda t: (t.kind != "rigid", t.freq_hz))
+        return cls(terms=tuple(terms), D=np.array(model.D, float), delay_s=model.delay_s)
+
+    def to_modal(self, *, input_names=(), output_names=()):
+        """This model as a :class:`workbench.modal.ModalModel` (exact numerators kept).
+
+        Only the terms, D and the delay have a place there: a model with lags
+        (``tau_in``, ``tau_out``) or crosstalk (``T_in``, ``T_out``) is refused
+        with an InputError naming the field. The rigid term is split into one
+        mode per DOF (per output when its rank allows, otherwise by SVD);
+        ``"added"`` terms become flexible modes.
+        """
+        from workbench.errors import InputError
+        from workbench.modal import ModalModel, Mode
+
+        extra = [
+            name for name, v in (("tau_in", self.tau_in), ("tau_out", self.tau_out)) if np.any(v)
+        ] + [name for name, v in (("T_in", self.T_in), ("T_out", self.T_out)) if v is not None]
+        if extra:
+            raise InputError(
+                "extended model: expected only modal terms, D and delay_s to convert to a "
+                f"ModalModel, got {', '.join(extra)} (no place for lags or crosstalk there)"
+            )
+        modes: list[Mode] = []
+        for t in self.terms:
+            N0, N1 = np.asarray(t.N0, float), np.asarray(t.N1, float)
+            U, sv, Vt = np.linalg.svd(N0)
+            if t.kind == "rigid":
+                n_r = max(int(np.sum(sv > 1e-12 * max(sv[0], 1e-300))) if sv.size else 0, 1)
+                if n_r == self.n_y and np.all(np.any(N0, axis=1)):
+                    d = np.sqrt(np.linalg.norm(N0, axis=1))
+                    C, B = np.diag(d), N0 / d[:, None]
+                else:
+                    C = U[:, :n_r] * np.sqrt(sv[:n_r])
+                    B = np.sqrt(sv[:n_r])[:, None] * Vt[:n_r]
+                rest = N0 - C @ B  # rounding, or N0 beyond rank n_r: kept on the first mode
+                ideal = not np.any(N1) and np.linalg.norm(rest) <= 1e-12 * max(sv[0], 1e-300)
+                for k in range(n_r):
+                    num = (None, None)
+                    if k == 0 and not ideal:
+                        num = (rest + np.outer(C[:, k], B[k]), N1)
+                    modes.append(Mode("rigid", 0.0, 0.0, B[k], C[:, k], N0=num[0], N1=num[1]))
+                continue
+            c = U[:, 0] * np.sqrt(sv[0]) if sv.size else np.zeros(self.n_y)
+            b = Vt[0] * np.sqrt(sv[0]) if sv.size else np.zeros(self.n_u)
+            ideal = np.allclose(np.outer(c, b), N0, rtol=0, atol=1e-12 * max(sv[0], 1e-300))
+            ideal = ideal and not np.any(N1)
+            if t.order == 1:
+                p = -float(t.den[0])
+                kind, f, z = "real", abs(p) / (2 * np.pi), (1.0 if p < 0 else -1.0)
+                N1 = None
+            else:
+                kind, f, z = "flexible", t.freq_hz, t.damping
+            modes.append(Mode(kind, f, z, b, c, N0=None if ideal else N0, N1=None if ideal else N1))
+        order = {"rigid": 0, "flexible": 1, "real": 2}
+        modes.sort(key=lambda m: order[m.kind])
+        return ModalModel(
+            modes=tuple(modes),
+            D=self.D,
+            input_names=input_names,
+            output_names=output_names,
+            delay_s=self.delay_s,
+        )
 
     # ------------------------------------------------------------- frequency
     def core_frf(self, freq_hz: np.ndarray, terms=None, *, with_d: bool = True) -> np.ndarray:
@@ -367,78 +450,28 @@ def decompose(sys) -> ExtendedModel:
 
     Parameters
     ----------
-    sys : control.StateSpace
+    sys : control.StateSpace or workbench.model.LTIModel
         Continuous, or discrete (converted by the exact ZOH inverse,
         :func:`workbench.d2c.d2c`, which refuses poles at z = 0 and on the
-        negative real axis with an InputError).
+        negative real axis with an InputError). An LTIModel's delay is kept.
 
     Returns
     -------
-    ExtendedModel with no effects added. Raises ValueError when A has Jordan
-    chains other than rigid-body double integrators (not representable).
-
-    Notes
-    -----
-    The eigenvalues near zero (|lambda| < 1e-6 max|lambda|) are split off by an
-    ordered real Schur form and a Sylvester equation; their part is
-    R1/s + R2/s^2 with R1 = C1 B1, R2 = C1 A11 B1. The rest is diagonalized:
-    each complex pair gives (2 Re R s - 2 Re(R conj(lambda))) / |s - lambda|^2
-    with the rank-one residue R = (C v)(w^T B).
+    ExtendedModel with no effects added: :meth:`ExtendedModel.from_modal` of
+    the one modal decomposition, ``ModalModel.from_statespace(sys,
+    exact=True)`` (lossless: the rigid-body modes at s = 0 as one term over
+    ``s^2`` with their summed residue ``N0`` and the ``1/s`` part ``N1``;
+    every pole pair ``(N1 s + N0) / (s^2 + a1 s + a0)`` with its exact
+    numerator; real poles; D). Raises InputError when A has Jordan chains
+    other than rigid-body double integrators (not representable).
     """
-    A, B, C, D, dt = as_matrices(sys)
+    from workbench.modal import ModalModel
+
+    _, _, _, _, dt = as_matrices(sys)
     notes = []
     if dt > 0:
-        # the one d2c: refuses poles at z = 0 and on the negative real axis (no real log)
-        A, B, _, _, _ = as_matrices(d2c(sys))
         notes.append(
             f"discrete model (dt = {dt:g} s) converted to continuous time by the exact ZOH inverse"
         )
-    n = A.shape[0]
-    terms: list[Term] = []
-    if n == 0:
-        return ExtendedModel(terms=(), D=D.copy(), notes=tuple(notes))
-    lam = np.linalg.eigvals(A)
-    scale = max(np.max(np.abs(lam)), 1.0)
-    tol = 1e-6 * scale
-    T, Z, k = scipy.linalg.schur(A, output="real", sort=lambda re, im: np.hypot(re, im) < tol)
-    Bz, Cz = Z.T @ B, C @ Z
-    if 0 < k < n:
-        X = scipy.linalg.solve_sylvester(T[:k, :k], -T[k:, k:], -T[:k, k:])
-        B1 = Bz[:k] - X @ Bz[k:]
-        C1 = Cz[:, :k]
-        B2 = Bz[k:]
-        C2 = Cz[:, :k] @ X + Cz[:, k:]
-    else:
-        B1, C1, B2, C2 = Bz[:k], Cz[:, :k], Bz[k:], Cz[:, k:]
-    if k:
-        A11 = T[:k, :k]
-        R1 = C1 @ B1
-        R2 = C1 @ A11 @ B1
-        R3 = C1 @ A11 @ A11 @ B1
-        if np.linalg.norm(R3) > 1e-6 * max(np.linalg.norm(R2), 1e-300) * scale:
-            raise ValueError("model has integrators of order above two: not a modal model")
-        terms.append(Term(den=np.array([0.0, 0.0]), N0=R2, N1=R1, kind="rigid"))
-    if k < n:
-        A22 = T[k:, k:]
-        lam2, V = np.linalg.eig(A22)
-        if not np.isfinite(np.linalg.cond(V)) or np.linalg.cond(V) > 1e10:
-            raise ValueError("model has a defective (non-diagonalizable) flexible part")
-        W = np.linalg.solve(V, B2.astype(complex))
-        CV = C2 @ V
-        for i, li in enumerate(lam2):
-            R = np.outer(CV[:, i], W[i])
-            if abs(li.imag) <= 1e-9 * abs(li):
-                terms.append(
-                    Term(den=np.array([-li.real]), N0=R.real, N1=np.zeros_like(R.real), kind="real")
-                )
-            elif li.imag > 0:
-                terms.append(
-                    Term(
-                        den=np.array([-2 * li.real, abs(li) ** 2]),
-                        N0=-2 * (R * np.conj(li)).real,
-                        N1=2 * R.real,
-                        kind="flex",
-                    )
-                )
-    terms.sort(key=lambda t: (t.kind != "rigid", t.freq_hz))
-    return ExtendedModel(terms=tuple(terms), D=D.copy(), notes=tuple(notes))
+    em = ExtendedModel.from_modal(ModalModel.from_statespace(sys, exact=True))
+    return em.replace(notes=tuple(notes))

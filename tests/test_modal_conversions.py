@@ -1,0 +1,207 @@
+"""Conversions of the one modal model (workbench.modal.ModalModel).
+
+Oracle independent of the code: a free-free mass-spring chain with Rayleigh
+damping, whose modes come from the generalized eigenproblem K phi = w^2 M phi
+(scipy.linalg.eigh, mass-normalized phi): frequencies w_k, damping
+zeta_k = alpha / (2 w_k) + beta w_k / 2 and residues c_k b_k^T = (S phi_k)(F^T phi_k)^T.
+"""
+
+from __future__ import annotations
+
+import control
+import numpy as np
+import pytest
+import scipy.linalg
+
+from workbench import lti
+from workbench.diagnosis.modal import ExtendedModel, decompose
+from workbench.errors import InputError
+from workbench.modal import ModalModel, Mode
+from workbench.model import LTIModel
+
+FREQ = np.geomspace(0.3, 3000.0, 400)
+
+
+def chain(n_dof: int = 4, *, anchored: bool = False, seed: int = 3):
+    """A chain of masses and springs, forces at DOFs 0 and n-1, positions at 0, 1, n-1.
+
+    Returns the physical state space and the analytic modes (w rad/s, zeta,
+    residues (n_m, n_y, n_u)), lowest first.
+    """
+    rng = np.random.default_rng(seed)
+    m = rng.uniform(0.5, 2.0, n_dof)
+    k = rng.uniform(2e5, 8e5, n_dof - 1)
+    M = np.diag(m)
+    K = np.zeros((n_dof, n_dof))
+    for i, ki in enumerate(k):
+        K[i : i + 2, i : i + 2] += ki * np.array([[1, -1], [-1, 1]])
+    if anchored:
+        K[0, 0] += 5e4  # a suspension (~20 Hz, above the 5 Hz rigid threshold): no rigid mode
+    alpha, beta = 0.0, 2e-6  # Rayleigh: rigid mode undamped
+    Cd = alpha * M + beta * K
+    F = np.zeros((n_dof, 2))
+    F[0, 0] = F[-1, 1] = 1.0
+    S = np.zeros((3, n_dof))
+    S[0, 0] = S[1, 1] = S[2, -1] = 1.0
+    w2, Phi = scipy.linalg.eigh(K, M)  # Phi^T M Phi = I
+    w = np.sqrt(np.clip(w2, 0, None))
+    w[np.abs(w2) < 1e-6 * w2.max()] = 0.0
+    zeta = np.where(w > 0, alpha / (2 * np.where(w > 0, w, 1)) + beta * w / 2, 0.0)
+    res = np.einsum("yk,uk->kyu", S @ Phi, F.T @ Phi)
+    Mi = np.linalg.inv(M)
+    A = np.block([[np.zeros((n_dof, n_dof)), np.eye(n_dof)], [-Mi @ K, -Mi @ Cd]])
+    B = np.vstack([np.zeros((n_dof, 2)), Mi @ F])
+    C = np.hstack([S, np.zeros((3, n_dof))])
+    return control.ss(A, B, C, np.zeros((3, 2))), w, zeta, res
+
+
+def rel(a, b):
+    return np.max(np.abs(a - b)) / np.max(np.abs(b))
+
+
+def check_against_oracle(mm: ModalModel, w, zeta, res, tol=1e-7):
+    assert np.allclose(2 * np.pi * mm.freq_hz, w, rtol=tol, atol=tol * w.max())
+    flex = w > 0
+    assert np.allclose(mm.damping[flex], zeta[flex], rtol=1e-6)
+    for mode, r in zip(mm.modes, res):
+        got = np.outer(mode.c, mode.b)
+        assert np.max(np.abs(got - r)) < tol * np.max(np.abs(res))
+
+
+def test_statespace_to_modal_matches_the_generalized_eigenproblem():
+    sys, w, zeta, res = chain()
+    mm = ModalModel.from_statespace(sys)
+    assert mm.kinds == ("rigid", "flexible", "flexible", "flexible")
+    check_against_oracle(mm, w, zeta, res)
+    assert rel(mm.frf(FREQ), lti.frf(sys, FREQ)) < 1e-9
+    # the exact form agrees on the same chain (a mass-spring mode is ideal: N1 = 0)
+    ex = ModalModel.from_statespace(sys, exact=True)
+    check_against_oracle(ex, w, zeta, res)
+    assert max(np.max(np.abs(m.numerator()[1])) for m in ex.modes) < 1e-9 * np.max(np.abs(res))
+
+
+@pytest.mark.parametrize("form", ["companion", "scaled"])
+def test_modal_lti_round_trip_keeps_frf_modes_and_delay(form):
+    sys, w, zeta, res = chain(anchored=True)
+    mm = ModalModel.from_statespace(LTIModel.from_statespace(sys, delay_s=3e-4))
+    assert mm.delay_s == 3e-4 and mm.kinds == ("flexible",) * 4
+    lti_model = mm.to_lti(form=form)
+    assert isinstance(lti_model, LTIModel) and lti_model.delay_s == 3e-4
+    G = lti.frf(sys, FREQ, delay_s=3e-4)
+    assert rel(lti_model.frf(FREQ), G) < 1e-9
+    assert rel(mm.frf(FREQ), G) < 1e-9
+    back = ModalModel.from_statespace(lti_model)
+    check_against_oracle(back, w, zeta, res)
+    assert back.delay_s == 3e-4
+
+
+def test_discrete_model_goes_through_the_one_d2c():
+    sys, w, zeta, res = chain()
+    mm = ModalModel.from_statespace(control.c2d(sys, 1e-4, "zoh"))
+    check_against_oracle(mm, w, zeta, res, tol=1e-6)
+
+
+def test_exact_form_keeps_what_the_ideal_form_drops():
+    """A velocity numerator (N1), a near-rigid pair, a real pole, a single integrator and D:
+    the exact decomposition reproduces the FRF and realizes it with as many states."""
+    rng = np.random.default_rng(5)
+    s_pair = -2 * np.pi * 3.0 * 0.02 + 2j * np.pi * 300.0
+    near = 2j * np.pi * 0.4 + 0.5  # a slightly unstable near-rigid pair (identified models)
+    blocks = [np.array([[z.real, z.imag], [-z.imag, z.real]]) for z in (s_pair, near)] + [
+        np.array([[-2 * np.pi * 50.0]]),
+        np.zeros((1, 1)),
+    ]
+    A = scipy.linalg.block_diag(*blocks)
+    B, C, D = rng.standard_normal((6, 2)), rng.standard_normal((2, 6)), rng.standard_normal((2, 2))
+    sys = control.ss(A, B, C, D)
+    G = lti.frf(sys, FREQ)
+    ex = ModalModel.from_statespace(sys, exact=True)
+    assert sorted(ex.kinds) == ["flexible", "flexible", "real", "rigid"]
+    assert rel(ex.frf(FREQ), G) < 1e-9
+    ss = ex.to_statespace()
+    assert ss.nstates == 6
+    assert rel(lti.frf(ss, FREQ), G) < 1e-9
+    assert np.allclose(ex.D, D)
+    f_near = [m.freq_hz for m in ex.modes if m.kind == "flexible"]
+    assert min(f_near) == pytest.approx(abs(near) / (2 * np.pi), rel=1e-9)
+
+
+def test_exact_form_refuses_a_triple_integrator():
+    A = np.diag([1.0, 1.0], 1)
+    sys = control.ss(A, [[0], [0], [1]], [[1, 0, 0]], 0)
+    with pytest.raises(InputError) as exc:
+        ModalModel.from_statespace(sys, exact=True)
+    assert "order above two" in str(exc.value) and "\n" not in str(exc.value)
+
+
+def test_extended_model_round_trip():
+    sys, w, zeta, res = chain()
+    mm = ModalModel.from_statespace(LTIModel.from_statespace(sys, delay_s=1e-4))
+    em = ExtendedModel.from_modal(mm)
+    assert [t.kind for t in em.terms] == ["rigid", "flex", "flex", "flex"]
+    assert em.delay_s == 1e-4
+    assert rel(em.frf(FREQ), mm.frf(FREQ)) < 1e-12
+    back = em.to_modal()
+    assert back.is_ideal  # ideal terms come back as ideal modes
+    check_against_oracle(back, w, zeta, res)
+    assert rel(back.frf(FREQ), mm.frf(FREQ)) < 1e-12
+    # the extended fields have no place in a ModalModel: refused in one line
+    with pytest.raises(InputError) as exc:
+        em.replace(tau_in=np.array([1e-4, 0.0])).to_modal()
+    assert "tau_in" in str(exc.value) and "\n" not in str(exc.value)
+    with pytest.raises(InputError):
+        em.replace(T_out=np.eye(3)).to_modal()
+
+
+def test_decompose_is_the_exact_modal_decomposition():
+    """Diagnosis's decompose: the rigid modes as one s^2 term with their summed,
+    full-rank residue (one rigid mode per output DOF here), equal to the oracle."""
+    sys, w, zeta, res = chain(n_dof=3)
+    sys = control.ss(sys.A, sys.B, sys.C[:2], sys.D[:2])  # 2 outputs
+    em = decompose(LTIModel.from_statespace(sys, delay_s=2e-4))
+    assert em.delay_s == 2e-4
+    assert rel(em.frf(FREQ), lti.frf(sys, FREQ, delay_s=2e-4)) < 1e-9
+    assert em.terms[0].kind == "rigid"
+    assert np.allclose(em.terms[0].N0, res[0][:2], atol=1e-9 * np.abs(res).max())
+    for t, wk, zk in zip(em.terms[1:], w[1:], zeta[1:]):
+        assert t.freq_hz == pytest.approx(wk / (2 * np.pi), rel=1e-9)
+        assert t.damping == pytest.approx(zk, rel=1e-6)
+    # two rigid bodies: the summed residue has rank two
+    sys2 = control.append(control.ss([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], 0), sys[0, 0])
+    em2 = decompose(sys2)
+    assert em2.terms[0].kind == "rigid" and np.linalg.matrix_rank(em2.terms[0].N0) == 2
+    assert rel(em2.frf(FREQ), lti.frf(sys2, FREQ)) < 1e-9
+
+
+def test_plant_modal_set_to_modal_model():
+    from plants.modal import ModalSet
+
+    sys, w, zeta, res = chain()
+    # the oracle's modes as a plant ModalSet (b_k, c_k from the rank-one residues)
+    U, sv, Vt = zip(*(np.linalg.svd(r) for r in res))
+    c = np.array([u[:, 0] * np.sqrt(s[0]) for u, s in zip(U, sv)])
+    b = np.array([v[0] * np.sqrt(s[0]) for v, s in zip(Vt, sv)])
+    ms = ModalSet(w / (2 * np.pi), zeta, b, c, ("rigid",) + ("flexible",) * 3)
+    mm = ms.to_modal(delay_s=1e-4)
+    assert mm.kinds == ("rigid", "flexible", "flexible", "flexible") and mm.delay_s == 1e-4
+    assert rel(mm.frf(FREQ), lti.frf(sys, FREQ, delay_s=1e-4)) < 1e-9
+    assert rel(mm.frf(FREQ, with_delay=False), ms.frf(FREQ)) < 1e-12
+
+
+def test_plant_modes_are_the_modal_model_of_the_plant():
+    """The stage's true modes as a ModalModel give the plant's own mechanics."""
+    from test_diagnose_gen import stage
+
+    sys = stage().build()
+    em = decompose(sys)
+    # plants stay the physical truth: the decomposition of the plant's model holds its modes
+    flex = [t.freq_hz for t in em.terms if t.kind == "flex"]
+    assert flex[0] == pytest.approx(913.8, rel=1e-9)
+
+
+def test_mode_validation_is_one_line():
+    with pytest.raises(InputError) as exc:
+        Mode("flexible", 10.0, 0.01, np.ones(2), np.ones(3), N0=np.ones((2, 2)))
+    assert "N0" in str(exc.value) and "\n" not in str(exc.value)
+    with pytest.raises(InputError):
+        ModalModel(modes=(), D=np.zeros((1, 1)), delay_s=-1.0)
