@@ -176,6 +176,12 @@ class MechanicalPlant:
             LinearChain(self.nominal_modes), self.input_names, self.output_names
         )
 
+    def nominal_modal_model(self):
+        """The nominal modes as a :class:`workbench.modal.ModalModel`."""
+        return self.nominal_modes.to_modal(
+            input_names=self.input_names, output_names=self.output_names
+        )
+
     def with_effects(self, **changes: Any) -> MechanicalPlant:
         """The same machine with some effect fields changed (``Effects`` field names)."""
         return dataclasses.replace(self, effects=replace_effects(self.effects, changes))
