@@ -3,10 +3,12 @@
 A subspace method needs the row space of a block-Hankel matrix ``H`` with
 ``n_rows = n_blocks * n_ch`` rows and ``j = N - n_blocks + 1`` columns. Its
 Gram ``H H^T`` has the structure of the data: block ``(a, a + d)`` is a lagged
-correlation sum over a window of ``j`` samples. We compute the ``n_blocks``
-full-record correlation sums once (``O(N * n_ch * n_rows)`` work, in chunks of
-time so memory stays ``O(chunk * n_rows + n_rows^2)`` whatever ``N``) and obtain
-every block by subtracting a few edge terms, never forming ``H``.
+correlation sum over a window of ``j`` samples, i.e. the block-Toeplitz matrix
+of the ``n_blocks`` full-record lagged sums minus a low-rank edge term. The
+lagged sums come from FFTs of short overlapping segments accumulated in the
+frequency domain (:func:`lag_sums`, ``O(N n_ch^2)`` work, in chunks of time so
+memory stays ``O(chunk * n_ch + n_rows^2)`` whatever ``N``); the edge term is
+one product of the first and last ``n_blocks - 1`` samples. ``H`` is never formed.
 
 :func:`hankel` builds ``H`` itself, for the QR reference path and for tests.
 """
