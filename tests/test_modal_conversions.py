@@ -145,12 +145,43 @@ def test_extended_model_round_trip():
     assert back.is_ideal  # ideal terms come back as ideal modes
     check_against_oracle(back, w, zeta, res)
     assert rel(back.frf(FREQ), mm.frf(FREQ)) < 1e-12
-    # the extended fields have no place in a ModalModel: refused in one line
+
+
+def test_extended_terms_live_in_the_modal_model():
+    """Lags, crosstalk, delay, residual compliance (D), a suspension (the rigid s^2 term
+    given a denominator) and an added mode: ExtendedModel -> ModalModel -> StateSpace and
+    back keep the response, each against the other's independent evaluation."""
+    from workbench.diagnosis.modal import Term
+
+    sys, w, zeta, res = chain()
+    em = decompose(sys)
+    rng = np.random.default_rng(2)
+    terms = list(em.terms)
+    terms[0] = terms[0].with_den([2 * 0.1 * 2 * np.pi * 3.0, (2 * np.pi * 3.0) ** 2])
+    terms.append(Term.mode(700.0, 0.03, rng.standard_normal((3, 2)), rng.standard_normal((3, 2))))
+    em = em.replace(
+        terms=tuple(terms),
+        D=em.D + 1e-7 * rng.standard_normal((3, 2)),
+        delay_s=2e-4,
+        tau_in=np.array([1e-4, 0.0]),
+        tau_out=np.array([0.0, 3e-4, 5e-5]),
+        T_out=np.eye(3) + 0.05 * rng.standard_normal((3, 3)),
+        T_in=np.eye(2) + 0.05 * rng.standard_normal((2, 2)),
+    )
+    G = em.frf(FREQ)
+    mm = em.to_modal()
+    assert mm.has_outer and mm.delay_s == 2e-4 and "rigid" not in mm.kinds
+    assert rel(mm.frf(FREQ), G) < 1e-9
+    ss = mm.to_lti()
+    assert rel(ss.frf(FREQ), G) < 1e-9
+    ss_em, delay = em.to_statespace()
+    assert ss.n_x <= ss_em.nstates  # the residue realization is minimal per mode
+    back = ExtendedModel.from_modal(mm)
+    assert rel(back.frf(FREQ), G) < 1e-9
+    # what the modal model cannot hold is refused in one line
     with pytest.raises(InputError) as exc:
-        em.replace(tau_in=np.array([1e-4, 0.0])).to_modal()
+        ModalModel(modes=(), D=np.zeros((3, 2)), tau_in=np.array([1e-4]))
     assert "tau_in" in str(exc.value) and "\n" not in str(exc.value)
-    with pytest.raises(InputError):
-        em.replace(T_out=np.eye(3)).to_modal()
 
 
 def test_decompose_is_the_exact_modal_decomposition():
@@ -219,3 +250,13 @@ def test_mode_validation_is_one_line():
     assert "N0" in str(exc.value) and "\n" not in str(exc.value)
     with pytest.raises(InputError):
         ModalModel(modes=(), D=np.zeros((1, 1)), delay_s=-1.0)
+
+
+def test_minimality_refuses_what_its_lemmas_do_not_cover():
+    from workbench.minimality import check_minimality
+
+    sys, _, _, _ = chain()
+    check_minimality(ModalModel.from_statespace(sys))  # the ideal form: accepted
+    with pytest.raises(InputError) as exc:
+        check_minimality(ModalModel.from_statespace(sys, exact=True))
+    assert "ideal modal model" in str(exc.value) and "\n" not in str(exc.value)

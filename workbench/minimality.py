@@ -183,6 +183,13 @@ def check_minimality(
     """
     if not isinstance(model, ModalModel):
         raise InputError(f"model: expected a ModalModel, got {type(model).__name__}")
+    if not model.is_ideal or model.has_outer:
+        # the lemmas are about the modal form c_k b_k^T / den_k: exact numerators, lags and
+        # coupling add states and directions they do not see
+        raise InputError(
+            "model: expected an ideal modal model (ModalModel.from_statespace without exact=, "
+            "no lags or coupling), got one with exact numerators, lags or coupling"
+        )
     modes = model.modes
     n_m = len(modes)
     groups = _groups(model, same_pole_rtol)

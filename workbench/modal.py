@@ -14,6 +14,14 @@ Per mode k the transfer function is ``c_k b_k^T / (s^2 + 2 z_k w_k s + w_k^2)``
 The split of the scale between ``b_k`` and ``c_k`` is not identifiable from
 input-output data; we take ``|b_k| = |c_k|`` (rigid modes per output DOF: see
 :meth:`ModalModel.from_statespace`).
+
+The one modal model of the workbench. ``from_statespace(..., exact=True)`` is
+lossless (each mode keeps its exact numerator ``N1 s + N0``); the model also
+holds the delay and the diagnosis's lags and coupling. Conversions:
+``to_statespace`` / ``to_lti`` (with the delay) and ``from_statespace`` (a
+``StateSpace`` or :class:`workbench.model.LTIModel`, continuous or discrete);
+``workbench.diagnosis.modal.ExtendedModel.from_modal`` / ``.to_modal`` (the
+diagnosis's term view); ``plants.modal.ModalSet.to_modal`` (the plants' modes).
 """
 
 from __future__ import annotations
@@ -29,7 +37,15 @@ from workbench.arrays import readonly
 from workbench.errors import InputError
 from workbench.lti import as_matrices
 
-__all__ = ["Mode", "ModalModel", "plot_model_bode", "plot_mode_superposition"]
+__all__ = [
+    "Mode",
+    "ModalModel",
+    "apply_outer",
+    "lag_factor",
+    "wrap_outer",
+    "plot_model_bode",
+    "plot_mode_superposition",
+]
 
 Kind = Literal["rigid", "flexible", "real"]
 
@@ -180,6 +196,16 @@ class ModalModel:
     delay_s : float
         Input delay on every input, s (exact, ``exp(-s delay_s)``); the
         :class:`workbench.model.LTIModel` delay, carried through conversions.
+    tau_in : (n_u,) array or None, tau_out : (n_y,) array or None
+        Actuator and sensor first-order lag time constants ``1 / (1 + s tau)``,
+        s (0 or None: no lag); the extended terms of the diagnosis.
+    T_in : (n_u, n_u) array or None, T_out : (n_y, n_y) array or None
+        Static coupling (crosstalk) at the inputs and outputs (None: identity).
+
+    The whole response is ``T_out Hy(s) [D + sum_k modes] Hu(s) T_in exp(-s delay_s)``
+    (residual compliance is part of ``D``, a suspension turns the rigid modes
+    into low flexible ones); a model from :meth:`from_statespace` has no lags
+    or coupling.
     """
 
     modes: tuple[Mode, ...]
@@ -189,6 +215,10 @@ class ModalModel:
     input_names: tuple[str, ...] = ()
     output_names: tuple[str, ...] = ()
     delay_s: float = 0.0
+    tau_in: np.ndarray | None = None
+    tau_out: np.ndarray | None = None
+    T_in: np.ndarray | None = None
+    T_out: np.ndarray | None = None
 
     def __post_init__(self):
         D = readonly(self.D, float)
@@ -212,6 +242,23 @@ class ModalModel:
             raise InputError(f"modal model: expected delay_s >= 0 s, got {self.delay_s}")
         object.__setattr__(self, "delay_s", float(self.delay_s))
         n_u, n_y = D.shape[1], D.shape[0]
+        for key, shape in (
+            ("tau_in", (n_u,)),
+            ("tau_out", (n_y,)),
+            ("T_in", (n_u, n_u)),
+            ("T_out", (n_y, n_y)),
+        ):
+            v = getattr(self, key)
+            if v is None:
+                continue
+            v = readonly(v, float)
+            if v.shape != shape or not np.all(np.isfinite(v)):
+                raise InputError(
+                    f"modal model: expected finite {key} of shape {shape}, got {v.shape}"
+                )
+            if key.startswith("tau") and np.any(v < 0):
+                raise InputError(f"modal model: expected {key} >= 0 s, got {v.tolist()}")
+            object.__setattr__(self, key, v)
         object.__setattr__(
             self, "input_names", tuple(self.input_names) or tuple(f"u{i}" for i in range(n_u))
         )
@@ -296,19 +343,34 @@ class ModalModel:
         A = scipy.linalg.block_diag(*[a for a, _, _ in blocks]) if n else np.zeros((0, 0))
         B = np.vstack([b for _, b, _ in blocks]) if n else np.zeros((0, self.n_u))
         C = np.hstack([c for _, _, c in blocks]) if n else np.zeros((self.n_y, 0))
+        A, B, C, D = wrap_outer(A, B, C, self.D, self.tau_in, self.tau_out, self.T_in, self.T_out)
         return control.ss(
-            A, B, C, self.D, 0, inputs=list(self.input_names), outputs=list(self.output_names)
+            A, B, C, D, 0, inputs=list(self.input_names), outputs=list(self.output_names)
+        )
+
+    @property
+    def has_outer(self) -> bool:
+        """True when the model has lags or coupling (the diagnosis's extended terms)."""
+        return bool(np.any(self.tau_in) or np.any(self.tau_out) or self.T_in is not None) or (
+            self.T_out is not None
         )
 
     def frf(self, freq_hz, *, with_delay: bool = True) -> np.ndarray:
-        """Frequency response (n_f, n_y, n_u): the sum of the modes plus D, times the delay."""
-        s = 2j * np.pi * np.atleast_1d(np.asarray(freq_hz, float))
+        """Frequency response (n_f, n_y, n_u): modes plus D, through lags, coupling and delay."""
+        f = np.atleast_1d(np.asarray(freq_hz, float))
+        s = 2j * np.pi * f
         G = np.broadcast_to(self.D.astype(complex), (s.size,) + self.D.shape).copy()
         for m in self.modes:
             G += m.response(s)
-        if with_delay and self.delay_s:
-            G *= np.exp(-s * self.delay_s)[:, None, None]
-        return G
+        return apply_outer(
+            f,
+            G,
+            tau_in=self.tau_in,
+            tau_out=self.tau_out,
+            T_in=self.T_in,
+            T_out=self.T_out,
+            delay_s=self.delay_s if with_delay else 0.0,
+        )
 
     def to_lti(self, *, form: Literal["companion", "scaled"] = "companion"):
         """The modal realization with its delay as a :class:`workbench.model.LTIModel` (dt = 0)."""
@@ -501,6 +563,72 @@ class ModalModel:
             },
             indent=2,
         )
+
+
+# ------------------------------------------------- lags, coupling, delay (outer)
+def lag_factor(s: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """``1 / (1 + s tau_j)``, (n_f, n_ch), at complex frequencies ``s`` (rad/s); tau (n_ch,), s."""
+    return 1.0 / (1.0 + s[:, None] * tau[None, :])
+
+
+def apply_outer(freq_hz, G, *, tau_in=None, tau_out=None, T_in=None, T_out=None, delay_s=0.0):
+    """``T_out Hy G Hu T_in exp(-s delay_s)`` for a core response ``G`` (n_f, n_y, n_u).
+
+    ``Hu = diag(1/(1 + s tau_in))``, ``Hy = diag(1/(1 + s tau_out))`` (tau in s, None or
+    0: no lag); ``T_in``, ``T_out`` static coupling (None: identity); ``delay_s`` in s.
+    """
+    s = 2j * np.pi * np.asarray(freq_hz, float)
+    if tau_out is not None and np.any(tau_out):
+        G = G * lag_factor(s, tau_out)[:, :, None]
+    if tau_in is not None and np.any(tau_in):
+        G = G * lag_factor(s, tau_in)[:, None, :]
+    if T_out is not None:
+        G = np.einsum("ab,fbu->fau", T_out, G)
+    if T_in is not None:
+        G = G @ T_in
+    if delay_s:
+        G = G * np.exp(-s * delay_s)[:, None, None]
+    return G
+
+
+def _lag_abcd(tau: np.ndarray):
+    """(A, B, C, D) of diag(1/(1 + s tau_i)) (tau_i = 0: a direct channel)."""
+    n = tau.size
+    lagged = np.flatnonzero(tau > 0)
+    A = np.diag(-1.0 / tau[lagged])
+    B = np.zeros((lagged.size, n))
+    B[np.arange(lagged.size), lagged] = 1.0 / tau[lagged]
+    C = np.zeros((n, lagged.size))
+    C[lagged, np.arange(lagged.size)] = 1.0
+    D = np.eye(n)
+    D[lagged, lagged] = 0.0
+    return A, B, C, D
+
+
+def wrap_outer(A, B, C, D, tau_in=None, tau_out=None, T_in=None, T_out=None):
+    """(A, B, C, D) of ``T_out Hy (A, B, C, D) Hu T_in`` (see :func:`apply_outer`).
+
+    States: actuator lags (lagged inputs only), the core, sensor lags.
+    """
+    if tau_in is not None and np.any(tau_in):
+        Al, Bl, Cl, Dl = _lag_abcd(np.asarray(tau_in, float))
+        n0, nl = A.shape[0], Al.shape[0]
+        A = np.block([[Al, np.zeros((nl, n0))], [B @ Cl, A]])
+        B = np.vstack([Bl, B @ Dl])
+        C = np.hstack([D @ Cl, C])
+        D = D @ Dl
+    if tau_out is not None and np.any(tau_out):
+        Al, Bl, Cl, Dl = _lag_abcd(np.asarray(tau_out, float))
+        n0, nl = A.shape[0], Al.shape[0]
+        A = np.block([[A, np.zeros((n0, nl))], [Bl @ C, Al]])
+        B = np.vstack([B, Bl @ D])
+        C = np.hstack([Dl @ C, Cl])
+        D = Dl @ D
+    if T_in is not None:
+        B, D = B @ T_in, D @ T_in
+    if T_out is not None:
+        C, D = T_out @ C, T_out @ D
+    return A, B, C, D
 
 
 # ------------------------------------------------------------------ internals

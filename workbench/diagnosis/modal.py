@@ -15,6 +15,16 @@ denominator, residual compliance adds to ``D``.
 The same object gives the frequency response, an exact zero-order-hold
 simulation (each term filtered per input by ``scipy.signal.lfilter``, so a
 10,000-sample 6x6 record takes milliseconds) and a state-space realization.
+
+Relation to the one modal model, :class:`workbench.modal.ModalModel`: it holds
+the same content (modes with exact numerators, D, delay, lags, coupling), and
+:meth:`ExtendedModel.from_modal` / :meth:`ExtendedModel.to_modal` convert
+losslessly. An ExtendedModel is the diagnosis's working view of it: the
+rigid-body modes grouped into the one ``s^2`` term whose full-rank residue is
+the linear parameter, denominators edited per term, per-term filters cached.
+:func:`decompose` is ``from_modal`` of the one decomposition,
+``ModalModel.from_statespace(sys, exact=True)``; the lags, coupling and delay
+are computed by :func:`workbench.modal.apply_outer` / :func:`workbench.modal.wrap_outer`.
 """
 
 from __future__ import annotations
@@ -26,6 +36,7 @@ import scipy.linalg
 import scipy.signal
 
 from workbench.lti import as_matrices
+from workbench.modal import apply_outer, lag_factor, wrap_outer
 from workbench.sim import c2d_zoh, split_delay
 
 __all__ = ["Term", "ExtendedModel", "decompose"]
@@ -87,10 +98,6 @@ class Term:
         return (self.N0[None] + s[:, None, None] * self.N1[None]) / d[:, None, None]
 
 
-def _lag(s: np.ndarray, tau: np.ndarray) -> np.ndarray:
-    return 1.0 / (1.0 + s[:, None] * tau[None, :])
-
-
 @dataclass(frozen=True)
 class ExtendedModel:
     """A modal model with the effects of the vocabulary as fields (see module docstring).
@@ -140,7 +147,7 @@ class ExtendedModel:
     # ------------------------------------------------------------ modal model
     @classmethod
     def from_modal(cls, model) -> ExtendedModel:
-        """The terms of a :class:`workbench.modal.ModalModel`, with its D and delay.
+        """The terms of a :class:`workbench.modal.ModalModel`, with D, delay, lags, coupling.
 
         The rigid modes share ``s^2``: they become one term whose numerator is
         their sum (full rank for one rigid mode per DOF). Flexible and real
@@ -158,33 +165,33 @@ class ExtendedModel:
             kind = "flex" if m.kind == "flexible" else "real"
             terms.append(Term(den=m.denominator(), N0=np.array(N0), N1=np.array(N1), kind=kind))
         terms.sort(key=lambda t: (t.kind != "rigid", t.freq_hz))
-        return cls(terms=tuple(terms), D=np.array(model.D, float), delay_s=model.delay_s)
+        return cls(
+            terms=tuple(terms),
+            D=np.array(model.D, float),
+            delay_s=model.delay_s,
+            tau_in=None if model.tau_in is None else np.array(model.tau_in),
+            tau_out=None if model.tau_out is None else np.array(model.tau_out),
+            T_in=None if model.T_in is None else np.array(model.T_in),
+            T_out=None if model.T_out is None else np.array(model.T_out),
+        )
 
     def to_modal(self, *, input_names=(), output_names=()):
-        """This model as a :class:`workbench.modal.ModalModel` (exact numerators kept).
+        """This model as a :class:`workbench.modal.ModalModel`, lossless (same FRF).
 
-        Only the terms, D and the delay have a place there: a model with lags
-        (``tau_in``, ``tau_out``) or crosstalk (``T_in``, ``T_out``) is refused
-        with an InputError naming the field. The rigid term is split into one
-        mode per DOF (per output when its rank allows, otherwise by SVD);
-        ``"added"`` terms become flexible modes.
+        The terms become modes with their exact numerators where these are not
+        ``c b^T``; D, delay, lags and coupling are carried over. The rigid term
+        is split into one mode per DOF (per output when its rank allows,
+        otherwise by SVD); a suspended rigid term (its ``s^2`` denominator
+        changed) is a flexible mode with the full residue; ``"added"`` terms
+        become flexible modes.
         """
-        from workbench.errors import InputError
         from workbench.modal import ModalModel, Mode
 
-        extra = [
-            name for name, v in (("tau_in", self.tau_in), ("tau_out", self.tau_out)) if np.any(v)
-        ] + [name for name, v in (("T_in", self.T_in), ("T_out", self.T_out)) if v is not None]
-        if extra:
-            raise InputError(
-                "extended model: expected only modal terms, D and delay_s to convert to a "
-                f"ModalModel, got {', '.join(extra)} (no place for lags or crosstalk there)"
-            )
         modes: list[Mode] = []
         for t in self.terms:
             N0, N1 = np.asarray(t.N0, float), np.asarray(t.N1, float)
             U, sv, Vt = np.linalg.svd(N0)
-            if t.kind == "rigid":
+            if t.kind == "rigid" and not np.any(t.den):
                 n_r = max(int(np.sum(sv > 1e-12 * max(sv[0], 1e-300))) if sv.size else 0, 1)
                 if n_r == self.n_y and np.all(np.any(N0, axis=1)):
                     d = np.sqrt(np.linalg.norm(N0, axis=1))
@@ -219,6 +226,10 @@ class ExtendedModel:
             input_names=input_names,
             output_names=output_names,
             delay_s=self.delay_s,
+            tau_in=self.tau_in if np.any(self.tau_in) else None,
+            tau_out=self.tau_out if np.any(self.tau_out) else None,
+            T_in=self.T_in,
+            T_out=self.T_out,
         )
 
     # ------------------------------------------------------------- frequency
@@ -234,25 +245,21 @@ class ExtendedModel:
 
     def outer(self, freq_hz: np.ndarray, G: np.ndarray) -> np.ndarray:
         """Apply lags, coupling and delay to a core response ``G`` (n_f, n_y, n_u)."""
-        f = np.asarray(freq_hz, float)
-        s = 2j * np.pi * f
-        if np.any(self.tau_out):
-            G = G * _lag(s, self.tau_out)[:, :, None]
-        if np.any(self.tau_in):
-            G = G * _lag(s, self.tau_in)[:, None, :]
-        if self.T_out is not None:
-            G = np.einsum("ab,fbu->fau", self.T_out, G)
-        if self.T_in is not None:
-            G = G @ self.T_in
-        if self.delay_s:
-            G = G * np.exp(-s * self.delay_s)[:, None, None]
-        return G
+        return apply_outer(
+            freq_hz,
+            G,
+            tau_in=self.tau_in,
+            tau_out=self.tau_out,
+            T_in=self.T_in,
+            T_out=self.T_out,
+            delay_s=self.delay_s,
+        )
 
     def channel_factor(self, freq_hz: np.ndarray) -> np.ndarray:
         """Per-channel outer factor Hy_i Hu_j exp(-s delay), (n_f, n_y, n_u) (coupling ignored)."""
         f = np.asarray(freq_hz, float)
         s = 2j * np.pi * f
-        h = _lag(s, self.tau_out)[:, :, None] * _lag(s, self.tau_in)[:, None, :]
+        h = lag_factor(s, self.tau_out)[:, :, None] * lag_factor(s, self.tau_in)[:, None, :]
         return h * np.exp(-s * self.delay_s)[:, None, None]
 
     def frf(self, freq_hz: np.ndarray) -> np.ndarray:
@@ -331,37 +338,13 @@ class ExtendedModel:
                 A_blocks.append(A)
                 B_rows.append(B)
                 C_cols.append(C)
-        n = sum(a.shape[0] for a in A_blocks)
         A = scipy.linalg.block_diag(*A_blocks) if A_blocks else np.zeros((0, 0))
         B = np.vstack(B_rows) if B_rows else np.zeros((0, self.n_u))
         C = np.hstack(C_cols) if C_cols else np.zeros((self.n_y, 0))
-        D = np.array(self.D, float)
-        sys = control.ss(A, B, C, D) if n else control.ss([], [], [], D)
-        if np.any(self.tau_in):
-            sys = control.series(_lag_ss(self.tau_in), sys)
-        if np.any(self.tau_out):
-            sys = control.series(sys, _lag_ss(self.tau_out))
-        A, B, C, D, _ = as_matrices(sys)
-        if self.T_in is not None:
-            B, D = B @ self.T_in, D @ self.T_in
-        if self.T_out is not None:
-            C, D = self.T_out @ C, self.T_out @ D
+        A, B, C, D = wrap_outer(
+            A, B, C, np.array(self.D, float), self.tau_in, self.tau_out, self.T_in, self.T_out
+        )
         return control.ss(A, B, C, D) if A.size else control.ss([], [], [], D), self.delay_s
-
-
-def _lag_ss(tau: np.ndarray):
-    import control
-
-    n = tau.size
-    lagged = np.flatnonzero(tau > 0)
-    A = np.diag(-1.0 / tau[lagged])
-    B = np.zeros((lagged.size, n))
-    B[np.arange(lagged.size), lagged] = 1.0 / tau[lagged]
-    C = np.zeros((n, lagged.size))
-    C[lagged, np.arange(lagged.size)] = 1.0
-    D = np.eye(n)
-    D[lagged, lagged] = 0.0
-    return control.ss(A, B, C, D)
 
 
 def _realize(t: Term):
