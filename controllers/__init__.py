@@ -16,6 +16,7 @@ Sign convention (spec section 5): ``u = K e`` with ``e = r - y``; an excitation
 :class:`StateSpaceController` wraps any discrete StateSpace or spec-5 controller file.
 """
 
+from controllers.modal_sf import ModalSFDesign, design_modal_sf
 from controllers.pid import DecentralizedController, PidChannel, tune_pid
 from controllers.protocol import (
     Controller,
@@ -28,8 +29,10 @@ __all__ = [
     "Controller",
     "ControllerState",
     "DecentralizedController",
+    "ModalSFDesign",
     "PidChannel",
     "StateSpaceController",
     "StrictlyProper",
+    "design_modal_sf",
     "tune_pid",
 ]

@@ -1,0 +1,559 @@
+"""Modal state feedback with an observer, designed on an (identified) modal model.
+
+Data flow::
+
+    ModalModel (continuous, ideal modal form) --restrict to inputs / outputs-->
+        check_minimality: a mode failing Lemma 1/2 -> InputError, a weak one -> DataWarning
+        --ZOH at fs, total delay (model delay_s + loop delay) as shift states
+          (workbench.sim.c2d_zoh / delay_augmented), integrators on the rigid-body DOFs-->
+    DesignModel  xi = [x_p (modal, scaled form); d_1 .. d_{m+1} (past u); x_i (integrators)]
+        --> feedback K: control.dlqr (per-mode weights: modal_weights) or control.place
+                        (per-mode targets: modal_poles)
+        --> observer L on x_p only: control.dlqe (Kalman, DARE) or control.place (Luenberger)
+        --> ModalSFDesign.controller: a StateSpaceController e = r - y -> u
+
+The controller (predictor-form observer, strictly proper, ``D = 0``)::
+
+    x_p^+ = Ad x_p + [plant rows of the delay model] + L (y_hat - C xi_p - D_p u),  y_hat = -e
+    d^+   = shift(d, u)                   the delay line: past u, known exactly
+    x_i^+ = x_i + dt P_r e                integral action on the rigid-body coordinates
+    u     = -K [x_p; d; x_i]
+
+How the loop delay enters (spec 5): the computation delay of the real-time
+system belongs to the loop, not to the controller's matrices; the simulator
+applies it (``workbench.sim.closed_loop(..., delay_samples=n)``). The design
+model contains it (and the model's own ``delay_s``) as shift states, so the
+controller carries a copy of the delay line fed with its own output: its
+observer predicts the plant state ``m`` samples ahead and the feedback on the
+delay states is the prediction (a Smith predictor in state-space form). The
+delay line is known exactly, so the observer corrects the plant states only
+and its error dynamics are ``eig(Ad - L C)`` (separation: the closed loop on
+the design model has the poles ``eig(Phi - Gamma K)`` and ``eig(Ad - L C)``).
+The controller's ``delay_samples`` records the loop delay the design assumed.
+
+Units: inputs as the model (e.g. N), outputs as the model (e.g. m), fs in Hz.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from controllers.protocol import StateSpaceController
+from workbench.errors import DataWarning, InputError
+
+__all__ = [
+    "DesignModel",
+    "ModalSFDesign",
+    "design_model",
+    "modal_weights",
+    "modal_poles",
+    "lqr_gain",
+    "place_gain",
+    "kalman_gain",
+    "luenberger_gain",
+    "observer_controller",
+    "design_modal_sf",
+]
+
+
+@dataclass(frozen=True)
+class DesignModel:
+    """The discrete design model ``xi^+ = Phi xi + Gamma u``, ``y = C xi + D u``.
+
+    Attributes
+    ----------
+    Phi, Gamma, C, D : arrays (n, n), (n, n_u), (n_y, n), (n_y, n_u)
+        States ``[x_p (n_p); delay line (n_d); integrators (n_i)]``; the
+        integrator rows are ``x_i^+ = x_i - dt P_r y`` (``e = -y`` at r = 0).
+    n_p, n_d, n_i : int
+        Plant (modal), delay-line and integrator state counts.
+    fs : float
+        Sampling frequency, Hz.
+    delay_samples : int
+        Loop (computation) delay the design assumes, samples (the loop's, not the controller's).
+    total_delay_s : float
+        Model delay plus loop delay, s: what the shift states represent.
+    P_r : (n_i, n_y) array
+        Outputs -> rigid-body coordinates (pseudo-inverse of the rigid modes' c_k).
+    modal : ModalModel
+        The continuous modal model restricted to the chosen inputs and outputs.
+    mode_states : tuple of slice
+        The states of each mode (in ``modal.modes`` order) inside ``x_p``.
+    """
+
+    Phi: np.ndarray
+    Gamma: np.ndarray
+    C: np.ndarray
+    D: np.ndarray
+    n_p: int
+    n_d: int
+    n_i: int
+    fs: float
+    delay_samples: int
+    total_delay_s: float
+    P_r: np.ndarray
+    modal: object
+    mode_states: tuple
+
+    @property
+    def n(self) -> int:
+        return self.Phi.shape[0]
+
+    @property
+    def dt(self) -> float:
+        return 1.0 / self.fs
+
+    @property
+    def plant(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(A, B, C, D) of plant + delay line (no integrators), input u[k]."""
+        k = self.n_p + self.n_d
+        return self.Phi[:k, :k], self.Gamma[:k], self.C[:, :k], self.D
+
+
+def _restrict(model, inputs, outputs):
+    """The ModalModel with only the chosen input columns / output rows (b_k, c_k, D)."""
+    modes = tuple(dataclasses.replace(m, b=m.b[inputs], c=m.c[outputs]) for m in model.modes)
+    return dataclasses.replace(
+        model,
+        modes=modes,
+        D=model.D[np.ix_(outputs, inputs)],
+        transform=None,
+        input_names=tuple(model.input_names[i] for i in inputs),
+        output_names=tuple(model.output_names[i] for i in outputs),
+    )
+
+
+def _as_modal(model):
+    from workbench.modal import ModalModel
+
+    if isinstance(model, ModalModel):
+        return model
+    try:
+        return ModalModel.from_statespace(model)
+    except AttributeError as exc:
+        raise InputError(
+            f"model: expected a ModalModel, control.StateSpace or LTIModel, got "
+            f"{type(model).__name__}"
+        ) from exc
+
+
+def _channels(sel, names, what):
+    n = len(names)
+    if sel is None:
+        return list(range(n))
+    out = []
+    for s in sel:
+        if isinstance(s, str):
+            if s not in names:
+                raise InputError(f"{what}: expected one of {list(names)}, got {s!r}")
+            out.append(names.index(s))
+        elif isinstance(s, (int, np.integer)) and 0 <= s < n:
+            out.append(int(s))
+        else:
+            raise InputError(f"{what}: expected a name or an index in [0, {n}), got {s!r}")
+    if not out or len(set(out)) != len(out):
+        raise InputError(f"{what}: expected distinct channels, got {list(sel)}")
+    return out
+
+
+def check_modes(modal, *, tol: float = 1e-8, weak: float = 1e-3) -> None:
+    """Refuse a mode failing Lemma 1/2 (InputError, one line); warn on a weak margin.
+
+    The relative margin ``m`` of Lemma 1 is ``|b_k| / max_j |b_j|`` (Lemma 2:
+    ``c_k``); moving the mode's pole as far as the best-controlled mode's takes
+    a feedback (observer) gain about ``1 / m`` times larger, which the warning states.
+    """
+    from workbench.minimality import check_minimality
+
+    report = check_minimality(modal, tol=tol, weak=weak)
+    fails = [f for f in report.failures if f.severity == "fails"]
+    if fails:
+        f = fails[0]
+        raise InputError(
+            f"mode {f.mode} ({f.kind}, {f.freq_hz:.2f} Hz): {f.criterion} fails "
+            f"({f.property} margin {f.margin:.2e} < {tol:g}): {f.meaning}; drop the mode "
+            "(skip_modes) or choose other actuators / sensors"
+        )
+    for f in report.failures:
+        gain = 1.0 / max(f.margin, 1e-300)
+        what = "feedback" if f.property == "controllability" else "observer"
+        best = "controlled" if f.property == "controllability" else "observed"
+        warnings.warn(
+            f"mode {f.mode} ({f.kind}, {f.freq_hz:.2f} Hz): weak {f.property}, {f.criterion}, "
+            f"margin {f.margin:.2e}: placing its poles takes a {what} gain ~1/margin = "
+            f"{gain:.2e} times that of the best-{best} mode",
+            DataWarning,
+            stacklevel=3,
+        )
+
+
+def design_model(
+    model,
+    fs: float,
+    *,
+    loop_delay_samples: int = 0,
+    inputs=None,
+    outputs=None,
+    skip_modes=(),
+    integral: bool = True,
+    tol: float = 1e-8,
+    weak: float = 1e-3,
+) -> DesignModel:
+    """Discretize the modal model with the delay and integral action (see the module notes).
+
+    Parameters
+    ----------
+    model : ModalModel or control.StateSpace or LTIModel
+        Continuous (or discrete) plant model; converted with
+        ``ModalModel.from_statespace`` unless already modal. Its ``delay_s``
+        (the delay inside the model, s) is kept.
+    fs : float
+        Controller sampling frequency, Hz.
+    loop_delay_samples : int
+        Computation delay of the real-time loop, samples (applied by the simulator).
+    inputs, outputs : sequence of int or str, optional
+        Actuators / sensors the controller uses (default all).
+    skip_modes : sequence of int
+        1-based modes left out of the design model (e.g. ones failing Lemma 1/2).
+    integral : bool
+        Integrators on the rigid-body coordinates ``P_r y`` (none without rigid modes).
+    tol, weak : float
+        Minimality thresholds (:func:`workbench.minimality.check_minimality`).
+    """
+    from workbench.sim import c2d_zoh, delay_augmented
+
+    fs = float(fs)
+    if not np.isfinite(fs) or fs <= 0:
+        raise InputError(f"fs: expected a sampling frequency > 0 Hz, got {fs}")
+    if int(loop_delay_samples) != loop_delay_samples or loop_delay_samples < 0:
+        raise InputError(f"loop_delay_samples: expected an integer >= 0, got {loop_delay_samples}")
+    modal = _as_modal(model)
+    n_modes = len(modal.modes)
+    skip = set()
+    for k in skip_modes:
+        if not (isinstance(k, (int, np.integer)) and 1 <= k <= n_modes):
+            raise InputError(f"skip_modes: expected 1-based modes in [1, {n_modes}], got {k!r}")
+        skip.add(int(k))
+    if skip:
+        keep = tuple(m for j, m in enumerate(modal.modes) if j + 1 not in skip)
+        modal = dataclasses.replace(modal, modes=keep, transform=None)
+    modal = _restrict(
+        modal,
+        _channels(inputs, modal.input_names, "inputs"),
+        _channels(outputs, modal.output_names, "outputs"),
+    )
+    if not modal.modes:
+        raise InputError("model: expected at least one mode to control, got none")
+    check_modes(modal, tol=tol, weak=weak)
+    # "scaled" form: states (w q, dq/dt) per flexible mode, energy-like, better balanced
+    sys = modal.to_statespace(form="scaled")
+    A, B, C, D = (np.asarray(x, float) for x in (sys.A, sys.B, sys.C, sys.D))
+    n_p, n_y = A.shape[0], C.shape[0]
+    dt = 1.0 / fs
+    total = modal.delay_s + int(loop_delay_samples) * dt
+    Ad, B0, B1, m = c2d_zoh(A, B, dt, delay_s=total)
+    Pa, Ga, Ca, Da = delay_augmented(Ad, B0, B1, m, C, D)
+    n_d = Pa.shape[0] - n_p
+    rigid = [k for k, md in enumerate(modal.modes) if md.kind == "rigid"]
+    if integral and rigid:
+        Cr = np.array([modal.modes[k].c for k in rigid]).T  # (n_y, n_r)
+        P_r = np.linalg.pinv(Cr)
+    else:
+        P_r = np.zeros((0, n_y))
+    n_i = P_r.shape[0]
+    n1 = Pa.shape[0]
+    Phi = np.zeros((n1 + n_i, n1 + n_i))
+    Phi[:n1, :n1] = Pa
+    Phi[n1:, :n1] = -dt * P_r @ Ca
+    Phi[n1:, n1:] = np.eye(n_i)
+    Gamma = np.vstack([Ga, -dt * P_r @ Da])
+    Cf = np.hstack([Ca, np.zeros((n_y, n_i))])
+    starts = np.cumsum([0] + [md.n_states for md in modal.modes])
+    return DesignModel(
+        Phi=Phi,
+        Gamma=Gamma,
+        C=Cf,
+        D=Da,
+        n_p=n_p,
+        n_d=n_d,
+        n_i=n_i,
+        fs=fs,
+        delay_samples=int(loop_delay_samples),
+        total_delay_s=total,
+        P_r=P_r,
+        modal=modal,
+        mode_states=tuple(slice(a, b) for a, b in zip(starts[:-1], starts[1:])),
+    )
+
+
+# ------------------------------------------------------------------ feedback
+def _per_mode(value, n_modes: int, name: str) -> np.ndarray:
+    v = np.broadcast_to(np.asarray(value, float), (n_modes,)) if np.ndim(value) == 0 else value
+    v = np.asarray(v, float)
+    if v.shape != (n_modes,) or not np.all(np.isfinite(v)):
+        raise InputError(f"{name}: expected a scalar or {n_modes} values (one per mode), got {v}")
+    return v
+
+
+def modal_weights(
+    dm: DesignModel,
+    *,
+    rigid_position: float = 1.0,
+    rigid_velocity: float = 0.0,
+    flexible=1.0,
+    integral: float = 1.0,
+) -> np.ndarray:
+    """LQR state weight Q (n, n), set mode by mode.
+
+    Rigid mode k: ``rigid_position q_k^2 + rigid_velocity (dq_k/dt)^2``.
+    Flexible mode k (scaled states ``(w q, dq/dt)``): ``flexible[k] (w^2 q^2 +
+    qdot^2)``, twice the mode's energy per unit modal mass, so a larger weight
+    asks for more added damping of that mode. Integrators: ``integral``. The
+    delay line is not weighted (it is a consequence of u).
+    """
+    modes = dm.modal.modes
+    wf = _per_mode(flexible, len(modes), "flexible")
+    Q = np.zeros((dm.n, dm.n))
+    for k, (md, sl) in enumerate(zip(modes, dm.mode_states)):
+        if md.kind == "rigid":
+            Q[sl, sl] = np.diag([rigid_position, rigid_velocity])
+        else:
+            Q[sl, sl] = wf[k] * np.eye(sl.stop - sl.start)
+    i0 = dm.n_p + dm.n_d
+    Q[i0:, i0:] = integral * np.eye(dm.n_i)
+    if np.any(np.linalg.eigvalsh(Q) < -1e-12 * max(1.0, np.abs(Q).max())):
+        raise InputError("modal_weights: expected weights >= 0")
+    return Q
+
+
+def lqr_gain(dm: DesignModel, Q, R=None) -> np.ndarray:
+    """K (n_u, n) from ``control.dlqr(Phi, Gamma, Q, R)``; R default identity."""
+    import control
+
+    R = np.eye(dm.Gamma.shape[1]) if R is None else np.atleast_2d(np.asarray(R, float))
+    K, _, _ = control.dlqr(dm.Phi, dm.Gamma, Q, R)
+    return np.asarray(K, float)
+
+
+def modal_poles(
+    dm: DesignModel,
+    *,
+    damping=0.3,
+    bandwidth_hz: float = 10.0,
+    delay_pole: float = 0.0,
+) -> np.ndarray:
+    """Target discrete poles, mode by mode.
+
+    Flexible mode k keeps its natural frequency and gets ``max(damping[k],
+    its own)``; real poles stay; each rigid DOF with its integrator gets the
+    third-order Butterworth pattern at ``bandwidth_hz`` (without integrator,
+    the second-order one); the delay line goes to ``delay_pole`` (spread by
+    0.02 so that ``control.place`` sees distinct poles). Continuous targets
+    are mapped with ``z = exp(s / fs)``.
+    """
+    modes = dm.modal.modes
+    zt = _per_mode(damping, len(modes), "damping")
+    if np.any((zt < 0) | (zt >= 1)):
+        raise InputError(f"damping: expected targets in [0, 1), got {zt}")
+    if not (np.isfinite(bandwidth_hz) and 0 < bandwidth_hz < dm.fs / 2):
+        raise InputError(
+            f"bandwidth_hz: expected 0 < f < fs/2 = {dm.fs / 2:g} Hz, got {bandwidth_hz}"
+        )
+    s = []
+    wb = 2 * np.pi * bandwidth_hz
+    n_rigid = 0
+    for k, md in enumerate(modes):
+        if md.kind == "rigid":
+            n_rigid += 1
+            # spread the DOFs a little: place needs multiplicity <= rank(Gamma)
+            w = wb * (1 + 1e-3 * (n_rigid - 1))
+            s += [w * np.exp(1j * np.pi * 2 / 3), w * np.exp(-1j * np.pi * 2 / 3)]
+        elif md.kind == "real":
+            s.append(md.pole)
+        else:
+            z = max(zt[k], md.damping)
+            w = md.omega
+            wd = w * np.sqrt(1 - z * z)
+            s += [complex(-z * w, wd), complex(-z * w, -wd)]
+    for j in range(dm.n_i):
+        s.append(-wb * (1 + 1e-3 * j))
+    z = list(np.exp(np.array(s, complex) / dm.fs))
+    z += [delay_pole + 0.02 * j for j in range(dm.n_d)]
+    return np.array(z, complex)
+
+
+def place_gain(dm: DesignModel, poles) -> np.ndarray:
+    """K (n_u, n) with ``eig(Phi - Gamma K) = poles`` (``control.place``)."""
+    import control
+
+    poles = np.asarray(poles, complex)
+    if poles.shape != (dm.n,):
+        raise InputError(f"poles: expected {dm.n} poles, got {poles.shape}")
+    return np.asarray(control.place(dm.Phi, dm.Gamma, poles), float)
+
+
+# ------------------------------------------------------------------ observers
+def _obs_matrices(dm: DesignModel):
+    n = dm.n_p
+    return dm.Phi[:n, :n], dm.C[:, :n]
+
+
+def kalman_gain(dm: DesignModel, *, process=1.0, sensor=1.0) -> np.ndarray:
+    """Predictor Kalman gain L (n_p, n_y) on the plant states, ``control.dlqe``.
+
+    Process noise: a force at every input with standard deviation ``process``
+    (scalar or (n_u,), input units), through the one-sample ZOH input matrix
+    of the plant; sensor noise ``sensor`` (scalar or (n_y,), output units).
+    The delay line is known exactly (no noise, no gain rows).
+    """
+    import control
+
+    from workbench.sim import phi_gamma
+
+    Ad, C = _obs_matrices(dm)
+    sys = dm.modal.to_statespace(form="scaled")
+    _, G = phi_gamma(np.asarray(sys.A, float), np.asarray(sys.B, float), dm.dt)
+    n_u, n_y = G.shape[1], C.shape[0]
+    qn = np.broadcast_to(np.asarray(process, float), (n_u,)) ** 2
+    rn = np.broadcast_to(np.asarray(sensor, float), (n_y,)) ** 2
+    if np.any(rn <= 0) or np.any(qn < 0):
+        raise InputError("kalman_gain: expected process >= 0 and sensor > 0 noise levels")
+    L, _, _ = control.dlqe(Ad, G, C, np.diag(qn), np.diag(rn))
+    return np.asarray(L, float)
+
+
+def luenberger_gain(dm: DesignModel, poles) -> np.ndarray:
+    """L (n_p, n_y) with ``eig(Ad - L C) = poles`` by ``control.place`` on the dual."""
+    import control
+
+    Ad, C = _obs_matrices(dm)
+    poles = np.asarray(poles, complex)
+    if poles.shape != (dm.n_p,):
+        raise InputError(f"poles: expected {dm.n_p} observer poles, got {poles.shape}")
+    return np.asarray(control.place(Ad.T, C.T, poles), float).T
+
+
+# ------------------------------------------------------------------ controller
+def observer_controller(dm: DesignModel, K, L) -> StateSpaceController:
+    """Observer + feedback as one discrete controller e -> u (module notes), D = 0."""
+    K = np.asarray(K, float)
+    L = np.asarray(L, float)
+    n, n_p, n_i = dm.n, dm.n_p, dm.n_i
+    n_y = dm.C.shape[0]
+    if K.shape != (dm.Gamma.shape[1], n) or L.shape != (n_p, n_y):
+        raise InputError(
+            f"K, L: expected shapes {(dm.Gamma.shape[1], n)} and {(n_p, n_y)}, "
+            f"got {K.shape} and {L.shape}"
+        )
+    k1 = n - n_i
+    Lf = np.zeros((k1, n_y))
+    Lf[:n_p] = L  # the delay line gets no correction: it is known exactly
+    Pp, Gp, Cp, Dp = dm.plant
+    Ac = np.zeros((n, n))
+    Ac[:k1, :k1] = Pp - Lf @ Cp
+    Ac[k1:, k1:] = np.eye(n_i)
+    Ac[:k1] -= (Gp - Lf @ Dp) @ K
+    Bc = np.vstack([-Lf, dm.dt * dm.P_r])
+    return StateSpaceController(
+        Ac,
+        Bc,
+        -K,
+        np.zeros((K.shape[0], n_y)),
+        fs=dm.fs,
+        input_names=dm.modal.output_names,
+        output_names=dm.modal.input_names,
+        delay_samples=dm.delay_samples,
+    )
+
+
+@dataclass(frozen=True)
+class ModalSFDesign:
+    """A finished design: the model, the gains and the controller.
+
+    ``K`` (n_u, n) state feedback, ``L`` (n_p, n_y) observer gain, ``controller``
+    the :class:`StateSpaceController` e -> u (loop delay ``dm.delay_samples``
+    applied by the loop, not inside it).
+    """
+
+    dm: DesignModel
+    K: np.ndarray
+    L: np.ndarray
+    controller: StateSpaceController
+
+    def design_poles(self) -> tuple[np.ndarray, np.ndarray]:
+        """(feedback poles eig(Phi - Gamma K), observer poles eig(Ad - L C)), discrete."""
+        Ad, C = _obs_matrices(self.dm)
+        return (
+            np.linalg.eigvals(self.dm.Phi - self.dm.Gamma @ self.K),
+            np.linalg.eigvals(Ad - self.L @ C),
+        )
+
+
+def design_modal_sf(
+    model,
+    fs: float,
+    *,
+    loop_delay_samples: int = 0,
+    inputs=None,
+    outputs=None,
+    skip_modes=(),
+    feedback: Literal["lqr", "place"] = "lqr",
+    observer: Literal["kalman", "luenberger"] = "kalman",
+    weights: dict | None = None,
+    R=None,
+    damping=0.3,
+    bandwidth_hz: float = 10.0,
+    observer_poles=None,
+    observer_speed: float = 3.0,
+    process=1.0,
+    sensor=1.0,
+    integral: bool = True,
+) -> ModalSFDesign:
+    """Modal state feedback + observer in one call (see the module notes).
+
+    Parameters (beyond :func:`design_model`)
+    ----------------------------------------
+    feedback : {"lqr", "place"}
+        LQR with ``modal_weights(**weights)`` and input weight ``R``, or pole
+        placement at ``modal_poles(damping=, bandwidth_hz=)``.
+    observer : {"kalman", "luenberger"}
+        ``kalman_gain(process=, sensor=)``, or placement at ``observer_poles``
+        (default: the feedback targets of the plant states with their
+        continuous poles decaying ``observer_speed`` times faster, same frequencies).
+    """
+    dm = design_model(
+        model,
+        fs,
+        loop_delay_samples=loop_delay_samples,
+        inputs=inputs,
+        outputs=outputs,
+        skip_modes=skip_modes,
+        integral=integral,
+    )
+    if feedback == "lqr":
+        K = lqr_gain(dm, modal_weights(dm, **(weights or {})), R)
+    elif feedback == "place":
+        K = place_gain(dm, modal_poles(dm, damping=damping, bandwidth_hz=bandwidth_hz))
+    else:
+        raise InputError(f"feedback: expected 'lqr' or 'place', got {feedback!r}")
+    if observer == "kalman":
+        L = kalman_gain(dm, process=process, sensor=sensor)
+    elif observer == "luenberger":
+        if observer_poles is None:
+            z = modal_poles(dm, damping=damping, bandwidth_hz=bandwidth_hz)[: dm.n_p]
+            s = np.log(z.astype(complex)) * dm.fs
+            # same frequencies, observer_speed times faster decay
+            observer_poles = np.exp((observer_speed * s.real + 1j * s.imag) / dm.fs)
+        L = luenberger_gain(dm, observer_poles)
+    else:
+        raise InputError(f"observer: expected 'kalman' or 'luenberger', got {observer!r}")
+    ctrl = observer_controller(dm, K, L)
+    rho = float(np.max(np.abs(np.linalg.eigvals(dm.Phi - dm.Gamma @ K))))
+    if rho >= 1:
+        raise InputError(f"design: the state feedback is unstable (spectral radius {rho:.4f})")
+    return ModalSFDesign(dm=dm, K=K, L=L, controller=ctrl)
