@@ -51,6 +51,8 @@ __all__ = [
     "ModalSFDesign",
     "design_model",
     "modal_weights",
+    "mode_damping",
+    "lqr_damping_weights",
     "modal_poles",
     "lqr_gain",
     "place_gain",
@@ -340,6 +342,68 @@ def lqr_gain(dm: DesignModel, Q, R=None) -> np.ndarray:
     return np.asarray(K, float)
 
 
+def mode_damping(dm: DesignModel, K) -> np.ndarray:
+    """Closed-loop damping of each flexible mode under ``u = -K xi`` (rigid / real: nan).
+
+    The mode's pole pair is the eigenvalue of ``Phi - Gamma K`` (as ``s =
+    fs log z``, upper half plane) nearest the mode's natural frequency.
+    """
+    z = np.linalg.eigvals(dm.Phi - dm.Gamma @ np.asarray(K, float))
+    z = z[(np.abs(z) > 1e-12) & (z.imag > 0)]
+    s = np.log(z.astype(complex)) * dm.fs
+    out = np.full(len(dm.modal.modes), np.nan)
+    for k, md in enumerate(dm.modal.modes):
+        if md.kind == "flexible" and s.size:
+            j = np.argmin(np.abs(np.abs(s) - md.omega))
+            out[k] = -s[j].real / abs(s[j])
+    return out
+
+
+def lqr_damping_weights(dm: DesignModel, damping, *, R=None, max_weight: float = 1e30, **weights):
+    """Q from :func:`modal_weights` with each flexible mode's weight raised to reach ``damping``.
+
+    Mode by mode (the others held), the smallest weight (log bisection to 1 %)
+    whose LQR closed loop gives the mode a damping >= ``damping[k]``
+    (:func:`mode_damping`); two passes, as the modes couple through K. A target
+    the mode already has keeps the weight given. Refused (InputError) when
+    ``max_weight`` does not reach it.
+    """
+    modes = dm.modal.modes
+    zt = _per_mode(damping, len(modes), "damping")
+    w = _per_mode(weights.pop("flexible", 0.0), len(modes), "flexible").copy()
+
+    def damp(wv):
+        return mode_damping(dm, lqr_gain(dm, modal_weights(dm, flexible=wv, **weights), R))
+
+    for _ in range(2):
+        for k, md in enumerate(modes):
+            if md.kind != "flexible" or damp(w)[k] >= zt[k]:
+                continue
+            lo, hi = max(w[k], 1e-30), max(w[k], 1.0)
+            while True:
+                trial = w.copy()
+                trial[k] = hi
+                if damp(trial)[k] >= zt[k]:
+                    break
+                lo, hi = hi, hi * 100
+                if hi > max_weight:
+                    raise InputError(
+                        f"mode {k + 1} ({md.kind}, {md.freq_hz:.2f} Hz): LQR does not reach "
+                        f"damping {zt[k]:g} with weights up to {max_weight:g}; lower the target "
+                        "or use pole placement"
+                    )
+            while hi / lo > 1.01:
+                mid = np.sqrt(lo * hi)
+                trial = w.copy()
+                trial[k] = mid
+                if damp(trial)[k] >= zt[k]:
+                    hi = mid
+                else:
+                    lo = mid
+            w[k] = hi
+    return modal_weights(dm, flexible=w, **weights)
+
+
 def modal_poles(
     dm: DesignModel,
     *,
@@ -513,6 +577,7 @@ def design_modal_sf(
     process=1.0,
     sensor=1.0,
     integral: bool = True,
+    lqr_damping=None,
 ) -> ModalSFDesign:
     """Modal state feedback + observer in one call (see the module notes).
 
@@ -520,7 +585,9 @@ def design_modal_sf(
     ----------------------------------------
     feedback : {"lqr", "place"}
         LQR with ``modal_weights(**weights)`` and input weight ``R``, or pole
-        placement at ``modal_poles(damping=, bandwidth_hz=)``.
+        placement at ``modal_poles(damping=, bandwidth_hz=)``. With
+        ``lqr_damping`` (scalar or per mode), the flexible weights are raised
+        to reach that damping (:func:`lqr_damping_weights`).
     observer : {"kalman", "luenberger"}
         ``kalman_gain(process=, sensor=)``, or placement at ``observer_poles``
         (default: the feedback targets of the plant states with their
@@ -535,7 +602,9 @@ def design_modal_sf(
         skip_modes=skip_modes,
         integral=integral,
     )
-    if feedback == "lqr":
+    if feedback == "lqr" and lqr_damping is not None:
+        K = lqr_gain(dm, lqr_damping_weights(dm, lqr_damping, R=R, **(weights or {})), R)
+    elif feedback == "lqr":
         K = lqr_gain(dm, modal_weights(dm, **(weights or {})), R)
     elif feedback == "place":
         K = place_gain(dm, modal_poles(dm, damping=damping, bandwidth_hz=bandwidth_hz))

@@ -21,10 +21,12 @@ from controllers.modal_sf import (
     design_modal_sf,
     design_model,
     kalman_gain,
+    lqr_damping_weights,
     lqr_gain,
     luenberger_gain,
     modal_poles,
     modal_weights,
+    mode_damping,
     observer_controller,
     place_gain,
 )
@@ -127,6 +129,28 @@ def test_luenberger_poles_are_the_requested_ones():
     assert np.allclose(np.sort_complex(got), np.sort_complex(want), atol=1e-9)
     with pytest.raises(InputError, match="expected 4 observer poles"):
         luenberger_gain(dm, want[:3])
+
+
+def test_lqr_damping_weights_reach_the_target_with_the_smallest_weight():
+    sys = mass_flex()
+    dm = design_model(modal_of(sys), FS, loop_delay_samples=1)
+    base = dict(rigid_position=1e12, rigid_velocity=1e4, integral=1e14)
+    assert mode_damping(dm, lqr_gain(dm, modal_weights(dm, **base)))[1] < 0.05
+    Q = lqr_damping_weights(dm, 0.2, **base)
+    zeta = mode_damping(dm, lqr_gain(dm, Q))
+    assert np.isnan(zeta[0]) and zeta[1] >= 0.2
+    w = Q[dm.mode_states[1], dm.mode_states[1]][0, 0]
+    lower = modal_weights(dm, flexible=[0, w / 1.05], **base)
+    assert mode_damping(dm, lqr_gain(dm, lower))[1] < 0.2
+    # in the real loop (continuous plant, 1-sample delay, Kalman observer) the mode is damped
+    d = design_modal_sf(
+        modal_of(sys), FS, loop_delay_samples=1, weights=base, lqr_damping=0.2, sensor=1e-7
+    )
+    K = d.controller
+    A, _, _, _ = closed_loop_matrices(discretize(sys, FS), (K.A, K.B, K.C, K.D), delay_samples=1)
+    s = s_poles(np.linalg.eigvals(A))
+    near = s[(np.abs(np.abs(s) - W) < 0.1 * W) & (s.imag > 0)]
+    assert np.max(np.abs(np.exp(s / FS))) < 1 and np.max(-near.real / np.abs(near)) >= 0.2
 
 
 def test_place_gain_places_the_modal_targets():
