@@ -338,7 +338,10 @@ def lqr_gain(dm: DesignModel, Q, R=None) -> np.ndarray:
     import control
 
     R = np.eye(dm.Gamma.shape[1]) if R is None else np.atleast_2d(np.asarray(R, float))
-    K, _, _ = control.dlqr(dm.Phi, dm.Gamma, Q, R)
+    try:
+        K, _, _ = control.dlqr(dm.Phi, dm.Gamma, Q, R)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        raise InputError(f"lqr: the Riccati equation has no usable solution ({exc})") from exc
     return np.asarray(K, float)
 
 
@@ -352,10 +355,15 @@ def mode_damping(dm: DesignModel, K) -> np.ndarray:
     z = z[(np.abs(z) > 1e-12) & (z.imag > 0)]
     s = np.log(z.astype(complex)) * dm.fs
     out = np.full(len(dm.modal.modes), np.nan)
-    for k, md in enumerate(dm.modal.modes):
-        if md.kind == "flexible" and s.size:
-            j = np.argmin(np.abs(np.abs(s) - md.omega))
-            out[k] = -s[j].real / abs(s[j])
+    flex = [k for k, md in enumerate(dm.modal.modes) if md.kind == "flexible"]
+    if flex and s.size:
+        from scipy.optimize import linear_sum_assignment
+
+        # one pole pair per mode: modes of nearby frequency must not share one
+        w = np.array([dm.modal.modes[k].omega for k in flex])
+        rows, cols = linear_sum_assignment(np.abs(np.abs(s)[None, :] - w[:, None]))
+        for i, j in zip(rows, cols):
+            out[flex[i]] = -s[j].real / abs(s[j])
     return out
 
 
@@ -383,9 +391,12 @@ def lqr_damping_weights(dm: DesignModel, damping, *, R=None, max_weight: float =
             while True:
                 trial = w.copy()
                 trial[k] = hi
-                if damp(trial)[k] >= zt[k]:
-                    break
-                lo, hi = hi, hi * 100
+                try:
+                    if damp(trial)[k] >= zt[k]:
+                        break
+                except InputError:
+                    hi = np.inf  # the DARE breaks down before the target is reached
+                lo, hi = hi, hi * 10
                 if hi > max_weight:
                     raise InputError(
                         f"mode {k + 1} ({md.kind}, {md.freq_hz:.2f} Hz): LQR does not reach "
