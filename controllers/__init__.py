@@ -18,6 +18,12 @@ Sign convention (spec section 5): ``u = K e`` with ``e = r - y``; an excitation
 
 from controllers.modal_sf import ModalSFDesign, design_modal_sf
 from controllers.pid import DecentralizedController, PidChannel, tune_pid
+from controllers.pid_notch import (
+    DecentralizedPidNotch,
+    PidNotchChannel,
+    PidNotchReport,
+    tune_pid_notch,
+)
 from controllers.protocol import (
     Controller,
     ControllerState,
@@ -29,10 +35,14 @@ __all__ = [
     "Controller",
     "ControllerState",
     "DecentralizedController",
+    "DecentralizedPidNotch",
     "ModalSFDesign",
     "PidChannel",
+    "PidNotchChannel",
+    "PidNotchReport",
     "StateSpaceController",
     "StrictlyProper",
     "design_modal_sf",
     "tune_pid",
+    "tune_pid_notch",
 ]

@@ -1,0 +1,141 @@
+"""workbench.loop against closed forms and python-control on the same discrete loop."""
+
+from __future__ import annotations
+
+import json
+import warnings
+
+import control
+import numpy as np
+import pytest
+
+from workbench.errors import InputError
+from workbench.formats import FrfData
+from workbench.loop import analyze_loop, save_loop_plots
+from workbench.lti import frf
+
+M = 2.0  # kg
+
+
+def _lead(fc: float, a: float, fs: float):
+    """Continuous lead for 1/(M s^2): zero wc/sqrt(a), pole wc sqrt(a), |L(j wc)| = 1; Tustin."""
+    wc = 2 * np.pi * fc
+    shape = control.tf([1 / (wc / np.sqrt(a)), 1], [1 / (wc * np.sqrt(a)), 1])
+    k = M * wc**2 / abs(shape(1j * wc))
+    return control.ss(control.c2d(k * shape, 1 / fs, "tustin"))
+
+
+def _plant():
+    return control.ss(control.tf([1.0], [M, 0, 0]))
+
+
+def _frf_data(fs: float, n: int = 4000) -> FrfData:
+    f = np.logspace(np.log10(fs / 2e4), np.log10(fs / 2 * 0.999), n)
+    return FrfData(freq=f, G=frf(_plant(), f))
+
+
+@pytest.mark.parametrize("a", [4.0, 10.0])
+def test_double_integrator_lead_closed_form(a):
+    fs, fc = 20000.0, 50.0
+    res = analyze_loop(_plant(), _lead(fc, a, fs))
+    lp = res.loops[0]
+    # closed form: crossover at wc, phase margin asin((a-1)/(a+1)) less the ZOH's half sample
+    pm = np.degrees(np.arcsin((a - 1) / (a + 1))) - 180.0 * fc / fs
+    assert lp.crossover_hz == pytest.approx(fc, rel=5e-3)
+    assert lp.phase_margin_deg == pytest.approx(pm, abs=0.3)
+    assert lp.phase_margin_hz == pytest.approx(fc, rel=5e-3)
+    assert res.stable
+    # the same on FRF data of the continuous plant (ZOH factor applied by the analysis)
+    lf = analyze_loop(_frf_data(fs), _lead(fc, a, fs)).loops[0]
+    assert lf.crossover_hz == pytest.approx(fc, rel=5e-3)
+    assert lf.phase_margin_deg == pytest.approx(pm, abs=0.3)
+
+
+@pytest.mark.parametrize("delay", [0, 2])
+def test_discrete_against_python_control(delay):
+    fs = 5000.0
+    K = _lead(100.0, 9.0, fs)
+    Pd = control.c2d(_plant(), 1 / fs, "zoh")
+    zd = control.tf([1], [1] + [0] * delay, 1 / fs)
+    Ld = control.tf(Pd) * zd * control.tf(K)
+    gm, pm, _sm, wg, wp, _ws = control.stability_margins(Ld, method="poly")
+    res = analyze_loop(Pd, K, loop_delay_samples=delay)
+    lp = res.loops[0]
+    assert lp.phase_margin_deg == pytest.approx(pm, abs=0.05)
+    assert lp.phase_margin_hz == pytest.approx(wp / (2 * np.pi), rel=1e-3)
+    assert lp.gain_margin == pytest.approx(gm, rel=1e-3)
+    assert lp.gain_margin_hz == pytest.approx(wg / (2 * np.pi), rel=1e-3)
+    # |S|inf against a dense grid of python-control's own frequency response
+    w = np.linspace(1e-3, np.pi * fs * 0.9999, 200001)
+    S = control.feedback(1, Ld)
+    s_dense = np.max(np.abs(S.frequency_response(w).complex.ravel()))
+    assert lp.s_peak == pytest.approx(s_dense, rel=2e-3)
+    # the same analysis on the continuous plant: exact ZOH discretization inside
+    assert analyze_loop(_plant(), K, loop_delay_samples=delay).loops[0].s_peak == pytest.approx(
+        lp.s_peak, rel=1e-6
+    )
+    # disk margin: python-control's on the model, the formula on FRF lines
+    dm, _dgm, dpm = control.disk_margins(Ld, w[::20], skew=0.0)
+    assert lp.disk_margin == pytest.approx(dm, rel=1e-3)
+    assert lp.disk_phase_margin_deg == pytest.approx(dpm, rel=1e-3)
+    lf = analyze_loop(_frf_data(fs, 8000), K, loop_delay_samples=delay).loops[0]
+    # FRF path: the plant's response times the ZOH factor, no aliasing: close, not equal
+    assert lf.disk_margin == pytest.approx(dm, rel=0.02)
+
+
+@pytest.mark.parametrize("gain", [0.05, 0.3, 1.0, 3.0, 8.0, 30.0])
+def test_stability_against_closed_loop_poles(gain):
+    fs = 5000.0
+    K = _lead(100.0, 9.0, fs) * gain
+    Pd = control.c2d(_plant(), 1 / fs, "zoh")
+    zd = control.tf([1], [1, 0], 1 / fs)
+    cl = control.feedback(control.ss(Pd) * control.ss(zd) * K, 1)
+    stable = bool(np.max(np.abs(cl.poles())) < 1)
+    res = analyze_loop(_plant(), K, loop_delay_samples=1)
+    assert res.stable == stable
+    assert res.max_pole_radius == pytest.approx(np.max(np.abs(cl.poles())), rel=1e-6)
+    resf = analyze_loop(_frf_data(fs), K, loop_delay_samples=1)
+    assert resf.stable == stable
+    assert (resf.loops[0].unstable_poles == 0) == stable
+
+
+def test_coupled_mimo_loop_at_a_time_and_outputs(tmp_path):
+    """Loop-at-a-time margins from S_ii (FRF path) equal python-control's on feedback-built L_i."""
+    fs = 5000.0
+    mix = np.array([[1.0, 0.3], [0.2, 1.0]])
+    P = control.ss(np.zeros((4, 4)) + np.eye(4, k=2), np.vstack([np.zeros((2, 2)), mix / M]),
+                   np.hstack([np.eye(2), np.zeros((2, 2))]), np.zeros((2, 2)))  # fmt: skip
+    P.output_labels = ["x", "y"]
+    K1 = _lead(80.0, 9.0, fs)
+    K = control.append(K1, 1.3 * K1)
+    res = analyze_loop(P, K, loop_delay_samples=1)
+    f = np.logspace(np.log10(fs / 2e4), np.log10(fs / 2 * 0.999), 6000)
+    resf = analyze_loop(FrfData(freq=f, G=frf(P, f)), K, loop_delay_samples=1)
+    assert [lp.name for lp in res.loops] == ["x", "y"]
+    for a, b in zip(res.loops, resf.loops):
+        assert a.disk_margin == pytest.approx(b.disk_margin, rel=0.02)
+        assert a.phase_margin_deg == pytest.approx(b.phase_margin_deg, abs=0.5)
+        assert a.crossover_hz == pytest.approx(b.crossover_hz, rel=0.01)
+    assert res.stable and resf.stable
+    # MIMO peak >= every diagonal peak (sigma_max(S) >= |S_ii|)
+    assert res.sigma_max_S_inf >= max(lp.s_peak for lp in res.loops) - 1e-12
+    d = json.loads(res.to_json())
+    assert len(d["loops"]) == 2 and d["stable"] is True
+    assert "x" in res.table()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        paths = save_loop_plots(res, tmp_path)
+    assert len(paths) == 3
+    for p in paths:
+        with open(p, "rb") as fh:
+            assert fh.read(8) == b"\x89PNG\r\n\x1a\n"
+
+
+def test_bad_input():
+    with pytest.raises(InputError, match="discrete"):
+        analyze_loop(_plant(), control.ss(control.tf([1], [1, 1])))
+    K2 = control.append(_lead(50.0, 4.0, 5000.0), _lead(50.0, 4.0, 5000.0))
+    with pytest.raises(InputError, match="controller: expected 1 inputs"):
+        analyze_loop(_plant(), K2)
+    with pytest.raises(InputError, match="loop_delay_samples"):
+        analyze_loop(_plant(), _lead(50.0, 4.0, 5000.0), loop_delay_samples=-1)
