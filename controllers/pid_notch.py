@@ -196,7 +196,7 @@ class PidNotchReport:
     """Per-DOF result of :func:`tune_pid_notch` and the MIMO loop analysis."""
 
     crossover_hz: tuple[float, ...]  # tuned crossover per DOF
-    s_peak: tuple[float, ...]  # max |S_ii| of the diagonal loop on the design lines
+    s_peak: tuple[float, ...]  # max |1 / (1 + G_ii K_i)|, the diagonal loop alone
     notch_hz: tuple[tuple[float, ...], ...]
     analysis: object  # workbench.loop.LoopAnalysis of the full loop
 
@@ -255,6 +255,8 @@ def tune_pid_notch(
     freq_hz=None,
     n_scan: int = 40,
     rel_tol: float = 1e-3,
+    mimo_iterations: int = 30,
+    mimo_step: float = 0.03,
 ) -> tuple[DecentralizedPidNotch, PidNotchReport]:
     """Tune the decentralized PID + low-pass + notches for the highest crossover per DOF.
 
@@ -279,6 +281,10 @@ def tune_pid_notch(
         Design lines for a model (default 4000 log lines fs/1e4 .. fs/2).
     n_scan, rel_tol
         Log-scan candidates and relative bisection tolerance on fc.
+    mimo_iterations, mimo_step
+        MIMO pass (square plants with n > 1): while a loop's |S_ii| with all the
+        other loops closed exceeds ms_max, its crossover is re-tuned below
+        (1 - mimo_step) times its current value, at most mimo_iterations rounds.
 
     Returns
     -------
@@ -343,10 +349,12 @@ def tune_pid_notch(
         ok = np.max(np.abs(1 / (1 + Li))) <= ms_max and loop.nyquist_unstable_count(f, Li, fs) == 0
         return ok, gain, ch, Li
 
-    def best_fc(i, shape) -> float:
-        """Largest fc meeting the bound for this shape (scan, then bisection); 0 if none."""
-        f_hi = fs / 2 / max(shape[0], 1.0) * 0.95
+    def best_fc(i, shape, cap) -> float:
+        """Largest fc <= cap meeting the bound for this shape (scan, then bisection); 0 if none."""
+        f_hi = min(fs / 2 / max(shape[0], 1.0) * 0.95, cap)
         f_lo = max(f[0] * integrator_ratio * 3, fs / 5000)
+        if f_hi <= f_lo:
+            return 0.0
         cand = np.logspace(np.log10(f_lo), np.log10(f_hi), n_scan)
         good = np.flatnonzero([design(i, fc, shape)[0] for fc in cand])
         if good.size == 0:
@@ -363,31 +371,42 @@ def tune_pid_notch(
                     hi = mid
         return float(lo)
 
-    channels, fcs, peaks, notch_used = [], [], [], []
-    for i in range(n):
+    def tune_dof(i, cap=np.inf):
         tried = {(a, b, nt) for a, b in shapes for nt in options[i]}
-        found = [(best_fc(i, sh), sh) for sh in sorted(tried)]
+        found = [(best_fc(i, sh, cap), sh) for sh in sorted(tried)]
         fc, shape = max(found, key=lambda t: t[0])
         if fc <= 0:
             raise InputError(
                 f"DOF {i}: no crossover and shape (lead_ratio, lowpass_ratio) in {shapes} "
-                f"meets |S| <= {ms_max:g}"
+                f"meets |S| <= {ms_max:g}" + ("" if np.isinf(cap) else f" below {cap:.4g} Hz")
             )
         _ok, gain, ch, Li = design(i, fc, shape)
         pid = ch.pid
-        channels.append(
-            PidNotchChannel(
-                PidChannel(
-                    kp=gain, f_i_hz=pid.f_i_hz, f_lead_zero_hz=pid.f_lead_zero_hz,
-                    f_lead_pole_hz=pid.f_lead_pole_hz, f_lp_hz=pid.f_lp_hz,
-                    lp_damping=pid.lp_damping,
-                ),
-                ch.notch_hz, ch.notch_depth_damping, ch.notch_width_damping,
-            )
+        channel = PidNotchChannel(
+            PidChannel(
+                kp=gain, f_i_hz=pid.f_i_hz, f_lead_zero_hz=pid.f_lead_zero_hz,
+                f_lead_pole_hz=pid.f_lead_pole_hz, f_lp_hz=pid.f_lp_hz,
+                lp_damping=pid.lp_damping,
+            ),
+            ch.notch_hz, ch.notch_depth_damping, ch.notch_width_damping,
         )  # fmt: skip
-        fcs.append(fc)
-        notch_used.append(shape[2])
-        peaks.append(float(np.max(np.abs(1 / (1 + Li)))))
+        return fc, channel, float(np.max(np.abs(1 / (1 + Li))))
+
+    dofs = [tune_dof(i) for i in range(n)]
+    # MIMO pass: with every loop closed, loop-at-a-time |S_ii| may exceed the bound through
+    # the coupling; lower the crossover of the offending loops until it does not
+    for _ in range(mimo_iterations if n > 1 else 0):
+        Kf = np.stack([ch.discrete_frf(f, fs) for _fc, ch, _p in dofs], axis=1)  # (n_f, n)
+        S = np.linalg.inv(np.eye(n) + G * Kf[:, None, :])
+        over = np.max(np.abs(np.diagonal(S, axis1=1, axis2=2)), axis=0) > ms_max * (1 + 1e-9)
+        if not over.any():
+            break
+        for i in np.flatnonzero(over):
+            dofs[i] = tune_dof(int(i), cap=dofs[i][0] * (1 - mimo_step))
+    channels = [ch for _fc, ch, _p in dofs]
+    fcs = [fc for fc, _ch, _p in dofs]
+    peaks = [p for _fc, _ch, p in dofs]
+    notch_used = [ch.notch_hz for ch in channels]
     K = DecentralizedPidNotch(
         tuple(channels), fs,
         input_names=tuple(loop._names(plant, "output")),
