@@ -125,7 +125,7 @@ def main(argv=None):
     )
     ex = Path(__file__).resolve().parents[2] / "shared" / "examples"
     if ex.is_dir():
-        from workbench.formats import load_measurement, load_model
+        from workbench.io.formats import load_measurement, load_model
 
         for folder in sorted(p for p in ex.iterdir() if p.is_dir()):
             t0 = time.perf_counter()

@@ -48,9 +48,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from plants.base import LinearPlant  # noqa: E402
 from workbench.experiments import run_multisine  # noqa: E402
-from workbench.frf_estimation import _inverse, frf_h1, frf_multisine  # noqa: E402
-from workbench.periodic import periodic_record  # noqa: E402
-from workbench.signals import multisine  # noqa: E402
+from workbench.signals.excitation import multisine  # noqa: E402
+from workbench.signals.frf import _inverse, frf_h1, frf_multisine  # noqa: E402
+from workbench.signals.periodic import periodic_record  # noqa: E402
 
 FS = 5000.0  # Hz, the wafer stage's sampling rate
 MASS = np.array([20.0, 20.0, 20.0, 0.38, 0.46, 0.58])  # kg, kg m^2: the example stage

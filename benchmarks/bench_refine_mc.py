@@ -42,7 +42,7 @@ TRUE_ZETA = (0.0091, 0.0095)
 
 def true_modal_model(plant):
     """The plant's own modes as a ModalModel (rigid, then flexible), D = 0 (truth side only)."""
-    from workbench.modal import ModalModel, Mode
+    from workbench.modal.model import ModalModel, Mode
 
     ms = plant.modes
     modes = tuple(
@@ -79,7 +79,7 @@ def one(plant, arrangement: str, seed: int, true, noise_cov, *, period: int) -> 
     """Errors, reported stds and bound of the flexible modes for one realization."""
     from workbench.ident import identify_subspace
     from workbench.ident.refine import modal_crb, periodic_spectra, refine_modal_model
-    from workbench.modal import ModalModel
+    from workbench.modal.model import ModalModel
 
     data, delay = make(plant, arrangement, seed, period=period)
     res = identify_subspace(data, method="cl-moesp", order=16, block_rows=20, input_delay=delay)

@@ -3,7 +3,7 @@
 Each line prints the workbench's time against a reference measured in the same run:
 
 - ``compare`` of a 6x6 model with 2,500 FRF lines, against the bare arithmetic it cannot avoid
-  (model FRF by ``workbench.lti.frf`` plus the noise-normalized error ``|G - G_m|^2 / G_var``);
+  (model FRF by ``workbench.core.lti.frf`` plus the noise-normalized error ``|G - G_m|^2 / G_var``);
 - the wafer stage's linear simulation of 300,000 samples x 6 inputs, against real time (60 s at
   5 kHz); the closed-loop simulator's own benchmark is benchmarks/bench_sim.py.
 
@@ -36,9 +36,9 @@ def best_of(fn, repeat: int) -> float:
 def bench_compare(repeat: int) -> None:
     from test_compare import modal_model
 
-    from workbench import lti
-    from workbench.compare import compare
-    from workbench.formats import FrfData
+    from workbench.core import lti
+    from workbench.io.formats import FrfData
+    from workbench.validate.compare import compare
 
     rng = np.random.default_rng(0)
     freq = np.linspace(1.0, 2500.0, 2500)

@@ -38,9 +38,9 @@ import tracemalloc
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from workbench import lti
-from workbench.formats import TimeData
+from workbench.core import lti
 from workbench.ident import identify_subspace
+from workbench.io.formats import TimeData
 
 TRUE_HZ = (913.8, 1032.0)
 TRUE_ZETA = (0.0091, 0.0095)
@@ -497,7 +497,7 @@ def part_realdata(args) -> None:
 
 def true_modal_model(plant):
     """The plant's own modes as a ModalModel (rigid, then flexible), D = 0."""
-    from workbench.modal import ModalModel, Mode
+    from workbench.modal.model import ModalModel, Mode
 
     ms = plant.modes
     modes = tuple(
@@ -533,7 +533,7 @@ def part_refine(args) -> None:
     from plants.wafer_stage import wafer_stage
     from workbench.experiments import wafer_stage_closed_loop_record
     from workbench.ident.refine import modal_crb, periodic_spectra, refine_modal_model
-    from workbench.modal import ModalModel
+    from workbench.modal.model import ModalModel
 
     n = args.realizations
     print(

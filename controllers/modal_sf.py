@@ -44,7 +44,7 @@ from typing import Literal
 import numpy as np
 
 from controllers.protocol import StateSpaceController
-from workbench.errors import DataWarning, InputError
+from workbench.core.errors import DataWarning, InputError
 
 __all__ = [
     "DesignModel",
@@ -131,7 +131,7 @@ def _restrict(model, inputs, outputs):
 
 
 def _as_modal(model):
-    from workbench.modal import ModalModel
+    from workbench.modal.model import ModalModel
 
     if isinstance(model, ModalModel):
         return model
@@ -170,7 +170,7 @@ def check_modes(modal, *, tol: float = 1e-8, weak: float = 1e-3) -> None:
     ``c_k``); moving the mode's pole as far as the best-controlled mode's takes
     a feedback (observer) gain about ``1 / m`` times larger, which the warning states.
     """
-    from workbench.minimality import check_minimality
+    from workbench.modal.minimality import check_minimality
 
     report = check_minimality(modal, tol=tol, weak=weak)
     fails = [f for f in report.failures if f.severity == "fails"]
@@ -225,7 +225,7 @@ def design_model(
     integral : bool
         Integrators on the rigid-body coordinates ``P_r y`` (none without rigid modes).
     tol, weak : float
-        Minimality thresholds (:func:`workbench.minimality.check_minimality`).
+        Minimality thresholds (:func:`workbench.modal.minimality.check_minimality`).
     """
     from workbench.sim import c2d_zoh, delay_augmented
 

@@ -28,7 +28,7 @@ import scipy.linalg
 import scipy.signal
 
 from controllers.protocol import ControllerState
-from workbench.errors import InputError
+from workbench.core.errors import InputError
 
 __all__ = ["PidChannel", "DecentralizedController", "ControllerState", "tune_pid"]
 
@@ -215,7 +215,7 @@ class DecentralizedController:
 
     def frf(self, freq_hz) -> np.ndarray:
         """Frequency response of e -> u, (n_f, n_u, n_y); the loop gain is G K."""
-        from workbench import lti
+        from workbench.core import lti
 
         return lti.frf(self.statespace(), freq_hz)
 

@@ -33,7 +33,7 @@ import scipy.signal
 
 from controllers.pid import PidChannel
 from controllers.protocol import StateSpaceController
-from workbench.errors import InputError
+from workbench.core.errors import InputError
 
 __all__ = ["PidNotchChannel", "DecentralizedPidNotch", "PidNotchReport", "tune_pid_notch"]
 
@@ -296,8 +296,8 @@ def tune_pid_notch(
         A non-square plant, or a DOF where no crossover meets the bound.
     """
     from workbench import loop
-    from workbench.formats import FrfData
-    from workbench.lti import delay_frf, frf, zoh_frf
+    from workbench.core.lti import delay_frf, frf, zoh_frf
+    from workbench.io.formats import FrfData
 
     fs = float(fs)
     m = loop._delay_check(loop_delay_samples)

@@ -24,7 +24,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from workbench.errors import InputError
+from workbench.core.errors import InputError
 
 __all__ = ["Controller", "StrictlyProper", "ControllerState", "StateSpaceController"]
 
@@ -153,7 +153,7 @@ class StateSpaceController:
     @classmethod
     def from_statespace(cls, sys, *, delay_samples: int = 0) -> StateSpaceController:
         """From a discrete ``control.StateSpace`` (or LTIModel without delay) e -> u."""
-        from workbench.lti import as_matrices
+        from workbench.core.lti import as_matrices
 
         A, B, C, D, dt = as_matrices(sys)
         if dt <= 0:
@@ -174,7 +174,7 @@ class StateSpaceController:
     @classmethod
     def from_arrays(cls, arrays: dict, src: str = "controller") -> StateSpaceController:
         """From the arrays of a spec-5 controller file (``role = "controller"``)."""
-        from workbench.formats import lti_model_from_arrays
+        from workbench.io.formats import lti_model_from_arrays
 
         role = arrays.get("role")
         if role is None or str(np.asarray(role)) != "controller":
@@ -191,7 +191,7 @@ class StateSpaceController:
     @classmethod
     def read(cls, path) -> StateSpaceController:
         """Read a spec-5 controller file."""
-        from workbench.formats import read_npz
+        from workbench.io.formats import read_npz
 
         return cls.from_arrays(read_npz(path), src=str(path))
 

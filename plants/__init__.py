@@ -45,7 +45,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from workbench.errors import InputError
+from workbench.core.errors import InputError
 
 from .base import LinearPlant, Plant
 from .beam import BeamConfig, beam, beam_fe_model, beam_modes, beam_prior_config, beam_prior_model

@@ -8,7 +8,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from workbench import lti
+from workbench.core import lti
 
 
 @runtime_checkable

@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from workbench.errors import InputError
+from workbench.core.errors import InputError
 
 from . import beam_fe
 from .effects import Effects

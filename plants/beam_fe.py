@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.linalg
 
-from workbench.errors import InputError
+from workbench.core.errors import InputError
 
 __all__ = [
     "PARAMETER_NAMES",

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from workbench.errors import InputError, describe
+from workbench.core.errors import InputError, describe
 
 __all__ = ["ExtraMode", "Effects", "as_channel_vector"]
 

@@ -22,7 +22,7 @@ from typing import Any
 import control
 import numpy as np
 
-from workbench.errors import InputError, describe
+from workbench.core.errors import InputError, describe
 
 from .effects import Effects, as_channel_vector
 from .modal import LinearChain, ModalSet, apply_modal_effects
@@ -177,7 +177,7 @@ class MechanicalPlant:
         )
 
     def nominal_modal_model(self):
-        """The nominal modes as a :class:`workbench.modal.ModalModel`."""
+        """The nominal modes as a :class:`workbench.modal.model.ModalModel`."""
         return self.nominal_modes.to_modal(
             input_names=self.input_names, output_names=self.output_names
         )

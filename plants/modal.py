@@ -22,8 +22,8 @@ from functools import cached_property
 
 import numpy as np
 
-from workbench.arrays import readonly
-from workbench.errors import InputError
+from workbench.core.arrays import readonly
+from workbench.core.errors import InputError
 
 from .effects import Effects, as_channel_vector
 
@@ -109,7 +109,7 @@ class ModalSet:
         )
 
     def to_modal(self, *, delay_s: float = 0.0, input_names=(), output_names=()):
-        """These modes as the workbench's one modal type, a :class:`workbench.modal.ModalModel`.
+        """These modes as the one modal type, :class:`workbench.modal.model.ModalModel`.
 
         A mode at 0 Hz is a rigid mode (double integrator); every other one,
         whatever its plant role ('suspension', 'flexible', 'residual', 'extra'),
@@ -119,7 +119,7 @@ class ModalSet:
         are passed through. The lags and crosstalk of the plant's chain are not
         modes and are not included.
         """
-        from workbench.modal import ModalModel, Mode
+        from workbench.modal.model import ModalModel, Mode
 
         order = sorted(range(self.n_modes), key=lambda k: (self.freq_hz[k] > 0, self.freq_hz[k]))
         modes = tuple(

@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from workbench.errors import InputError
+from workbench.core.errors import InputError
 
 from .effects import Effects
 from .mechanical import MechanicalPlant, check_field_names, replace_effects

@@ -18,8 +18,8 @@ import numpy as np
 
 import plants
 from plants.effects import ExtraMode
-from workbench import lti
-from workbench.formats import FrfData, TimeData
+from workbench.core import lti
+from workbench.io.formats import FrfData, TimeData
 
 # (plant, effect) -> size -> Effects fields. Values are physical: a one-sample
 # computation delay, an amplifier lag at a few kHz, a 3 % too stiff mode ...

@@ -2,7 +2,7 @@
 
 Mimics the conventions of the shared examples (/work/shared/examples) without
 using plants/ or the diagnosis code for the truth: numpy/scipy/control only
-(``workbench.lti`` only for the two spec error measures of answer.json).
+(``workbench.core.lti`` only for the two spec error measures of answer.json).
 
 - Plants, in the scaled modal form of the examples' nominal_model.npz:
   rigid body ``[[0, 1], [0, 0]]``, B row ``b``, C column ``c``; flexible mode
@@ -37,8 +37,8 @@ import numpy as np
 import scipy.linalg
 import scipy.signal
 
-from workbench import lti
-from workbench.formats import FrfData, TimeData
+from workbench.core import lti
+from workbench.io.formats import FrfData, TimeData
 
 EFFECTS = (
     "none",

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from controllers.pid import tune_pid
-from workbench.formats import TimeData
+from workbench.io.formats import TimeData
 
 ARRANGEMENTS = ("loop", "controller")
 

@@ -1,4 +1,4 @@
-"""Atomic outputs (workbench.atomic): a write is whole or absent, never partial,
+"""Atomic outputs (workbench.core.atomic): a write is whole or absent, never partial,
 and never over an input file.
 
 On SIGKILL nothing can run, so the hidden temporary file
@@ -19,8 +19,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from workbench.atomic import atomic_path, check_not_input, save_npz, write_text
-from workbench.errors import InputError
+from workbench.core.atomic import atomic_path, check_not_input, save_npz, write_text
+from workbench.core.errors import InputError
 
 
 def test_raise_mid_write_leaves_nothing(tmp_path):
@@ -57,7 +57,7 @@ _KILLED_WRITER = textwrap.dedent(
     import sys, time
     import numpy as np
     import numpy.lib._npyio_impl as npyio
-    from workbench.atomic import save_npz
+    from workbench.core.atomic import save_npz
 
     real = npyio.format.write_array
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from conftest import SHARED_EXAMPLES, require_shared
 
-from workbench.cli import main
+from workbench.cli.main import main
 
 EXAMPLES = SHARED_EXAMPLES
 

@@ -1,4 +1,4 @@
-"""workbench.compare: within noise vs failing bands, on synthetic data with a
+"""workbench.validate.compare: within noise vs failing bands, on synthetic data with a
 known truth (closed-form modal FRFs) and on the shared time example."""
 
 from __future__ import annotations
@@ -10,10 +10,9 @@ import numpy as np
 import pytest
 from conftest import SHARED_EXAMPLES, require_shared
 
-from workbench import lti
-from workbench.cli import main
-from workbench.compare import band_threshold, compare
-from workbench.formats import (
+from workbench.cli.main import main
+from workbench.core import lti
+from workbench.io.formats import (
     FrfData,
     TimeData,
     load_measurement,
@@ -21,6 +20,7 @@ from workbench.formats import (
     save_measurement,
     save_model,
 )
+from workbench.validate.compare import band_threshold, compare
 
 EXAMPLES = SHARED_EXAMPLES
 FREQ = np.arange(1.0, 1000.0, 1.0)  # Hz: 999 lines, 1 Hz apart (a typical multisine grid)

@@ -9,11 +9,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from workbench import lti
-from workbench.formats import TimeData, save_measurement
+from workbench.core import lti
+from workbench.core.model import LTIModel
 from workbench.ident import identify_subspace
 from workbench.ident.validate import simulation_fit
-from workbench.model import LTIModel
+from workbench.io.formats import TimeData, save_measurement
 
 FS = 1000.0  # Hz, sample rate of the records below
 
@@ -65,7 +65,7 @@ def test_subspace_result_lti_model_carries_the_delay():
 
 
 def test_identify_cli_writes_the_delay_into_the_model_file(tmp_path, capsys):
-    from workbench.cli import main
+    from workbench.cli.main import main
 
     path, out, modal = tmp_path / "d.npz", tmp_path / "m.npz", tmp_path / "modal.npz"
     save_measurement(path, _record(2000, 1))
@@ -95,7 +95,7 @@ def test_simulation_fit_takes_the_delay_from_the_model():
 
 
 def test_simulation_fit_refuses_a_fractional_sample_delay():
-    from workbench.errors import InputError
+    from workbench.core.errors import InputError
 
     res = identify_subspace(_record(2000, 2), method="moesp", order=4)
     half = res.lti_model.replace(delay_s=0.5 / FS)
@@ -105,7 +105,7 @@ def test_simulation_fit_refuses_a_fractional_sample_delay():
 
 def test_fit_friction_uses_the_models_own_delay():
     """Friction on a mass-spring port recorded with a 3-sample delay: the delay is the model's."""
-    from workbench.nonlinear import PortNonlinearity, fit_friction, simulate_nonlinear
+    from workbench.diagnosis.nonlinear import PortNonlinearity, fit_friction, simulate_nonlinear
 
     w = 2 * np.pi * 20.0  # rad/s: a 20 Hz suspension of a 1 kg mass
     rational = LTIModel(

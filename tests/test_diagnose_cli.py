@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from test_diagnose_gen import frf_case, stage, stage_params
 
-from workbench.cli import main
-from workbench.formats import load_model, read_npz, save_measurement, save_model
+from workbench.cli.main import main
+from workbench.io.formats import load_model, read_npz, save_measurement, save_model
 
 
 @pytest.fixture
@@ -125,7 +125,7 @@ def test_augment_writes_model_with_delay(delay_case, capsys):
 
 
 def test_augment_python_api_missing_mode():
-    from workbench.augment import augment
+    from workbench.diagnosis.augment import augment
 
     truth = stage_params("missing_mode", "clear")
     case = frf_case(stage(), "missing_mode", truth, rel=0.005, rng=np.random.default_rng(2))

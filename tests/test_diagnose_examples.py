@@ -8,7 +8,7 @@ import pytest
 from conftest import SHARED_EXAMPLES, require_shared
 
 from workbench.diagnosis import diagnose
-from workbench.formats import load_measurement, load_model
+from workbench.io.formats import load_measurement, load_model
 
 EXAMPLES = SHARED_EXAMPLES
 NAMES = ["example_stage_missing_frf", "example_beam_none_frf", "example_stage_delay_time"]

@@ -96,7 +96,7 @@ def test_frf_none_on_clean_model(plant):
 
 def test_frf_none_without_g_var():
     # relative weighting path: no G_var, the model right -> nothing significant
-    from workbench.formats import FrfData
+    from workbench.io.formats import FrfData
 
     case = frf_case(stage(), "none", {}, rel=0.005, rng=np.random.default_rng(6))
     data = FrfData(freq=case.data.freq, G=case.data.G)
@@ -105,7 +105,7 @@ def test_frf_none_without_g_var():
 
 
 def test_frf_delay_without_g_var():
-    from workbench.formats import FrfData
+    from workbench.io.formats import FrfData
 
     case = frf_case(
         stage(), "time_delay", {"delay_s": 1e-4}, rel=0.005, rng=np.random.default_rng(6)
@@ -134,8 +134,8 @@ def test_two_effects_found_one_after_the_other():
     # a delay on top of a missing mode: both reported, the error after both at the floor
     import control
 
-    from workbench import lti
-    from workbench.formats import FrfData
+    from workbench.core import lti
+    from workbench.io.formats import FrfData
 
     p = stage()
     truth = stage_params("missing_mode", "clear")

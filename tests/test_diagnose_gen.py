@@ -1,7 +1,7 @@
 """Synthetic diagnosis cases: a known plant, one physical effect, noise.
 
 Independent of the diagnosis code: the true plant is built with python-control
-state-space algebra and ``workbench.lti`` only (no modal decomposition), the
+state-space algebra and ``workbench.core.lti`` only (no modal decomposition), the
 effect is applied in its physical form, and the nominal model is the plant
 without it. Two plant templates:
 
@@ -25,8 +25,8 @@ from dataclasses import dataclass
 import control
 import numpy as np
 
-from workbench import lti
-from workbench.formats import FrfData, TimeData
+from workbench.core import lti
+from workbench.io.formats import FrfData, TimeData
 
 # ------------------------------------------------------------------ templates
 _STAGE_B = np.array(

@@ -13,7 +13,7 @@ from test_diagnose_frf import check_parameters
 from test_diagnose_gen import beam, beam_params, stage, stage_params, time_case
 
 from workbench.diagnosis import diagnose
-from workbench.formats import TimeData
+from workbench.io.formats import TimeData
 
 CASES = [
     ("beam", "time_delay"),

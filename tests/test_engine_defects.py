@@ -8,9 +8,9 @@ import importlib
 import numpy as np
 import pytest
 
-from workbench.blas import limited_blas
+from workbench.core.blas import limited_blas
+from workbench.core.errors import InputError
 from workbench.diagnosis.fit import Realized, parameter_std, screen
-from workbench.errors import InputError
 
 
 class _Problem:
@@ -120,7 +120,7 @@ def test_limited_blas_is_scoped_and_checked():
 
 
 def test_cli_fails_loudly_on_a_broken_command_import(monkeypatch):
-    cli = importlib.import_module("workbench.cli")
+    cli = importlib.import_module("workbench.cli.main")
     monkeypatch.setattr(cli, "COMMANDS", (*cli.COMMANDS, "no_such_command_module"))
     with pytest.raises(ModuleNotFoundError):
         cli.build_parser()
@@ -131,7 +131,7 @@ def test_diagnosis_plots_leave_the_matplotlib_backend_alone(tmp_path):
 
     from workbench.diagnosis.modal import decompose
     from workbench.diagnosis.plots import write_plots
-    from workbench.formats import FrfData
+    from workbench.io.formats import FrfData
 
     backend = matplotlib.get_backend()
     import control

@@ -8,8 +8,8 @@ import pytest
 
 from controllers import tune_pid
 from plants.base import LinearPlant
-from workbench import lti
-from workbench.errors import InputError
+from workbench.core import lti
+from workbench.core.errors import InputError
 from workbench.experiments import (
     ExperimentConfig,
     default_controller,
@@ -19,8 +19,8 @@ from workbench.experiments import (
     simulate_closed_loop,
     wafer_stage_closed_loop_record,
 )
-from workbench.frf_estimation import frf_multisine
-from workbench.signals import multisine
+from workbench.signals.excitation import multisine
+from workbench.signals.frf import frf_multisine
 
 FS = 5000.0  # Hz, the wafer stage's sampling rate
 # Rigid-body masses and inertias of the shared example stage (answer_true_model.npz):
@@ -149,8 +149,8 @@ def test_configured_runs_and_refusals(stage):
 
 
 def test_cli_simulate_scenario(tmp_path):
-    from workbench.cli import main
-    from workbench.formats import load_measurement
+    from workbench.cli.main import main
+    from workbench.io.formats import load_measurement
 
     toml = tmp_path / "s.toml"
     toml.write_text(

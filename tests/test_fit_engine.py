@@ -1,4 +1,4 @@
-"""The fitting engine and its modal model: oracles from closed forms and from workbench.lti."""
+"""The fitting engine and its modal model: oracles from closed forms and from workbench.core.lti."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from test_diagnose_gen import beam, frf_case, stage
 
-from workbench import lti
+from workbench.core import lti
 from workbench.diagnosis.effects import MissingMode, TimeDelay
 from workbench.diagnosis.fit import fit, fit_joint
 from workbench.diagnosis.modal import Term, decompose, zoh_filter
@@ -103,7 +103,7 @@ def test_joint_fit_removes_the_bias_of_sequential_fits():
         "c": np.array([0, 0, 0.45, -0.35, 0.25, 0.0]),
     }
     case = frf_case(p, "missing_mode", truth, rel=0.005, rng=np.random.default_rng(1))
-    from workbench.formats import FrfData
+    from workbench.io.formats import FrfData
 
     _, true, _ = __import__("test_diagnose_gen").true_plant(p, "missing_mode", truth)
     G = lti.frf(true, case.data.freq, delay_s=5e-5)

@@ -19,8 +19,9 @@ import numpy as np
 import pytest
 from conftest import SHARED_EXAMPLES, require_shared
 
-from workbench import formats, lti
-from workbench.cli import main
+from workbench.cli.main import main
+from workbench.core import lti
+from workbench.io import formats
 
 EXAMPLES = SHARED_EXAMPLES
 N = 64  # samples of the small synthetic records: any N >= 2 would do

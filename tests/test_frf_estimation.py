@@ -1,4 +1,4 @@
-"""FRF estimation (workbench.frf_estimation): multisine and H1 estimators against
+"""FRF estimation (workbench.signals.frf): multisine and H1 estimators against
 closed-form mass-spring FRFs, their own variance, closed-loop bias, nonlinear
 detection on left-out lines, zero-order-hold compensation and file round trips."""
 
@@ -12,13 +12,13 @@ import pytest
 
 from controllers import tune_pid
 from plants.base import LinearPlant
-from workbench import lti
-from workbench.cli import main
-from workbench.errors import InputError
+from workbench.cli.main import main
+from workbench.core import lti
+from workbench.core.errors import InputError
 from workbench.experiments import run_multisine, run_noise
-from workbench.formats import TimeData, load_measurement, save_measurement
-from workbench.frf_estimation import EVEN_FREE, ODD_FREE, frf_h1, frf_multisine
-from workbench.signals import multisine
+from workbench.io.formats import TimeData, load_measurement, save_measurement
+from workbench.signals.excitation import multisine
+from workbench.signals.frf import EVEN_FREE, ODD_FREE, frf_h1, frf_multisine
 
 FS = 1000.0  # Hz, sampling of the synthetic experiments (any rate well above the modes)
 # A 3-mass chain: 2 kg masses, 4e4 N/m grounding springs, 1e4 N/m couplings, 60 N s/m
@@ -295,7 +295,7 @@ def test_open_loop_full_multisine_matches_direct_implementation(rng):
 
 
 def test_input_matrix_inverse_equals_numpy_and_refuses_singular(rng):
-    from workbench.frf_estimation import _inverse
+    from workbench.signals.frf import _inverse
 
     B = rng.standard_normal((50, 4, 4)) + 1j * rng.standard_normal((50, 4, 4))
     B = B * np.array([1e-3, 1.0, 1e4, 10.0])[:, None] * np.array([1.0, 1e5, 1e-2, 3.0])  # scales

@@ -9,10 +9,10 @@ import control
 import numpy as np
 import pytest
 
-from workbench.errors import InputError
-from workbench.formats import FrfData
+from workbench.core.errors import InputError
+from workbench.core.lti import frf
+from workbench.io.formats import FrfData
 from workbench.loop import analyze_loop, save_loop_plots
-from workbench.lti import frf
 
 M = 2.0  # kg
 

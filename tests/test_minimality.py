@@ -8,11 +8,11 @@ import control
 import numpy as np
 import pytest
 
-from workbench.cli import main
-from workbench.errors import InputError
-from workbench.formats import TimeData, save_measurement, save_model
-from workbench.minimality import check_minimality
-from workbench.modal import ModalModel, Mode
+from workbench.cli.main import main
+from workbench.core.errors import InputError
+from workbench.io.formats import TimeData, save_measurement, save_model
+from workbench.modal.minimality import check_minimality
+from workbench.modal.model import ModalModel, Mode
 
 
 def stage_like(n_rigid: int = 3) -> ModalModel:

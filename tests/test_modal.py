@@ -10,12 +10,12 @@ import pytest
 import scipy.linalg
 from conftest import SHARED_EXAMPLES, require_shared
 
-from workbench.cli import main
-from workbench.d2c import d2c
-from workbench.errors import InputError
-from workbench.formats import load_model, save_model
-from workbench.lti import frf
-from workbench.modal import ModalModel, Mode, plot_mode_superposition, plot_model_bode
+from workbench.cli.main import main
+from workbench.core.d2c import d2c
+from workbench.core.errors import InputError
+from workbench.core.lti import frf
+from workbench.io.formats import load_model, save_model
+from workbench.modal.model import ModalModel, Mode, plot_mode_superposition, plot_model_bode
 
 EXAMPLE = SHARED_EXAMPLES / "example_stage_delay_time" / "nominal_model.npz"
 

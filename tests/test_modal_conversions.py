@@ -1,4 +1,4 @@
-"""Conversions of the one modal model (workbench.modal.ModalModel).
+"""Conversions of the one modal model (workbench.modal.model.ModalModel).
 
 Oracle independent of the code: a free-free mass-spring chain with Rayleigh
 damping, whose modes come from the generalized eigenproblem K phi = w^2 M phi
@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from workbench import lti
+from workbench.core import lti
+from workbench.core.errors import InputError
+from workbench.core.model import LTIModel
 from workbench.diagnosis.modal import ExtendedModel, decompose
-from workbench.errors import InputError
-from workbench.modal import ModalModel, Mode
-from workbench.model import LTIModel
+from workbench.modal.model import ModalModel, Mode
 
 FREQ = np.geomspace(0.3, 3000.0, 400)
 
@@ -253,7 +253,7 @@ def test_mode_validation_is_one_line():
 
 
 def test_minimality_refuses_what_its_lemmas_do_not_cover():
-    from workbench.minimality import check_minimality
+    from workbench.modal.minimality import check_minimality
 
     sys, _, _, _ = chain()
     check_minimality(ModalModel.from_statespace(sys))  # the ideal form: accepted

@@ -30,8 +30,8 @@ from controllers.modal_sf import (
     observer_controller,
     place_gain,
 )
-from workbench.errors import DataWarning, InputError
-from workbench.modal import ModalModel, Mode
+from workbench.core.errors import DataWarning, InputError
+from workbench.modal.model import ModalModel, Mode
 from workbench.sim import closed_loop, closed_loop_matrices, discretize
 
 FS = 5000.0
@@ -287,7 +287,7 @@ def test_bad_input_is_one_line():
 
 # ------------------------------------------------------------ spec-5 controller file
 def test_controller_round_trips_through_a_spec5_file(tmp_path):
-    from workbench.formats import save_model
+    from workbench.io.formats import save_model
 
     d = design_modal_sf(modal_of(mass_flex()), FS, loop_delay_samples=1, sensor=1e-6)
     K = d.controller

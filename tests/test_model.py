@@ -1,4 +1,4 @@
-"""workbench.model.LTIModel: one test per conversion, against closed forms.
+"""workbench.core.model.LTIModel: one test per conversion, against closed forms.
 
 Oracle: a mass-spring-damper, G(s) = 1 / (m s^2 + c s + k), natural frequency
 sqrt(k/m) / 2 pi, damping c / (2 sqrt(k m)), static gain 1/k; a delay tau is
@@ -11,10 +11,11 @@ import control
 import numpy as np
 import pytest
 
-from workbench import formats, lti
-from workbench.errors import InputError
-from workbench.formats import FrfData
-from workbench.model import LTIModel, as_model, dc_gain, pade_order, pole_summary
+from workbench.core import lti
+from workbench.core.errors import InputError
+from workbench.core.model import LTIModel, as_model, dc_gain, pade_order, pole_summary
+from workbench.io import formats
+from workbench.io.formats import FrfData
 
 # a 2 kg mass on a 8e4 N/m spring, 20 N s/m damper: f_n = sqrt(4e4)/2 pi = 31.83 Hz,
 # damping 20 / (2 sqrt(8e4 * 2)) = 0.025
@@ -170,7 +171,7 @@ def test_dc_gain_of_a_rigid_body_is_infinite():
 
 
 def test_d2c_keeps_the_delay_and_names():
-    from workbench.d2c import d2c
+    from workbench.core.d2c import d2c
 
     cont = d2c(msd(1e-4, 2e-4))
     assert isinstance(cont, LTIModel) and cont.dt == 0.0 and cont.delay_s == 2e-4
@@ -231,9 +232,9 @@ def test_scenario_model_file_keeps_its_delay_through_compare(tmp_path):
     comparison of the model with its own (delayed) response then showed an error
     of |1 - exp(-j w tau)|, about 0.5 at 260 Hz for tau = 0.3 ms.
     """
-    from workbench.loop_stages import stage_compare
-    from workbench.pipeline import RunState, stage_model
-    from workbench.scenario import Scenario
+    from workbench.cli.loop_stages import stage_compare
+    from workbench.cli.pipeline import RunState, stage_model
+    from workbench.io.scenario import Scenario
 
     true = msd(0.0, TAU)
     true.write(tmp_path / "model.npz")
@@ -253,7 +254,7 @@ def test_scenario_model_file_keeps_its_delay_through_compare(tmp_path):
 
 def test_augment_keeps_the_models_delay(tmp_path):
     """augment of a delayed model: the delay is carried, exact, into the result."""
-    from workbench.augment import augment
+    from workbench.diagnosis.augment import augment
 
     true = msd(0.0, TAU)
     f = np.linspace(5.0, 500.0, 120)

@@ -1,4 +1,4 @@
-"""Nonlinear simulation models (workbench.nonlinear) against linear and plant oracles."""
+"""Nonlinear simulation models (workbench.diagnosis.nonlinear) against linear and plant oracles."""
 
 from __future__ import annotations
 
@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 import plants
-from workbench import lti
+from workbench.core import lti
+from workbench.diagnosis.nonlinear import PortNonlinearity, simulate_nonlinear
 from workbench.experiments import ExperimentConfig, run_experiment
-from workbench.nonlinear import PortNonlinearity, simulate_nonlinear
 
 
 @pytest.fixture(scope="module")
@@ -36,7 +36,7 @@ def test_saturation_equals_the_linear_response_to_the_clipped_input(stage_model)
 
 def test_augment_adds_friction_fitted_to_closed_loop_stage_data(stage_model):
     """augment --effect nonlinearity: Coulomb friction in the simulation model (fit_friction)."""
-    from workbench.augment import augment
+    from workbench.diagnosis.augment import augment
 
     # the true stage has 1 N (N m) of Coulomb friction at every port (v0 = 1 um/s, far
     # below the motion's velocities): the linear simulation drifts by orders of magnitude

@@ -1,4 +1,4 @@
-"""workbench.periodic: one periodic record, against analytic results.
+"""workbench.signals.periodic: one periodic record, against analytic results.
 
 Constants: P, amplitudes and phases are arbitrary test values; the DFT of a
 cosine a cos(2 pi k n / P + phi) over one period is a P/2 exp(j phi) at bin k
@@ -15,14 +15,14 @@ import numpy as np
 import pytest
 
 from plants.base import LinearPlant
+from workbench.core.errors import InputError
 from workbench.diagnosis import detect
-from workbench.errors import InputError
 from workbench.experiments import run_multisine
-from workbench.formats import TimeData
-from workbench.periodic import EXCITED_REL_POWER, periodic_record, split_blocks
-from workbench.signals import multisine
+from workbench.io.formats import TimeData
+from workbench.signals.excitation import multisine
+from workbench.signals.periodic import EXCITED_REL_POWER, periodic_record, split_blocks
 
-compare_mod = importlib.import_module("workbench.compare")
+compare_mod = importlib.import_module("workbench.validate.compare")
 
 FS = 1000.0
 

@@ -11,10 +11,10 @@ import scipy.signal
 
 from controllers import Controller, tune_pid
 from controllers.pid_notch import detect_modes, tune_pid_notch
-from workbench.errors import InputError
-from workbench.formats import FrfData
+from workbench.core.errors import InputError
+from workbench.core.lti import frf
+from workbench.io.formats import FrfData
 from workbench.loop import analyze_loop
-from workbench.lti import frf
 
 FS = 5000.0
 MASS = 10.0

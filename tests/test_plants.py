@@ -8,8 +8,8 @@ import pytest
 import plants
 from plants import Effects, ExtraMode, Plant
 from plants.wafer_stage import stage_geometry
-from workbench import lti
-from workbench.errors import InputError
+from workbench.core import lti
+from workbench.core.errors import InputError
 
 # Stage parameters of the nominal machine (plants.wafer_stage.StageConfig; seed 000
 # gives 913.8 Hz / 0.0091 and 1032 Hz / 0.0095, 5 kHz, 0.15 nm resolution).
@@ -114,8 +114,8 @@ def test_contract_refuses_unknown_names():
 
 @pytest.mark.parametrize("name", PLANT_NAMES, ids=PLANT_NAMES)
 def test_simulation_matches_plain_state_recursion(name):
-    """Fast block simulator == workbench.lti.simulate_zoh (plain loop) with every linear effect on,
-    including a fractional delay (0.65 samples + 1)."""
+    """Fast block simulator == workbench.sim.simulate_zoh (plain loop) with every linear effect
+    on, including a fractional delay (0.65 samples + 1)."""
     fs = plants.get_plant(name).fs
     plant = quiet(
         plants.get_plant(

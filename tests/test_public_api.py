@@ -30,8 +30,8 @@ def test_import_is_lazy():
 
 
 def test_every_scenario_stage_has_a_function_without_import_side_effects():
-    from workbench.pipeline import stage_functions
-    from workbench.scenario import STAGES
+    from workbench.cli.pipeline import stage_functions
+    from workbench.io.scenario import STAGES
 
     assert set(stage_functions()) == set(STAGES)
     assert all(callable(f) for f in stage_functions().values())

@@ -1,4 +1,4 @@
-"""Data-quality warnings (workbench.quality): each poor-data case warns once,
+"""Data-quality warnings (workbench.signals.quality): each poor-data case warns once,
 naming the channel or band; good data gives no warning."""
 
 from __future__ import annotations
@@ -10,10 +10,10 @@ import pytest
 import scipy.signal
 from conftest import SHARED_EXAMPLES, require_shared
 
-from workbench.cli import main
-from workbench.errors import DataWarning
-from workbench.formats import FrfData, TimeData, load_measurement, save_measurement
-from workbench.quality import check_measurement, runs
+from workbench.cli.main import main
+from workbench.core.errors import DataWarning
+from workbench.io.formats import FrfData, TimeData, load_measurement, save_measurement
+from workbench.signals.quality import check_measurement, runs
 
 EXAMPLES = SHARED_EXAMPLES
 FS = 2000.0  # Hz, sampling of the synthetic records (any rate would do)
@@ -250,7 +250,7 @@ def test_info_prints_warning_and_exits_zero(tmp_path, rng, capsys):
 def test_data_reading_commands_warn_on_poor_data(capsys):
     """compare warns like info, one line, exit 0 (the stage FRF has noise-dominated lines)."""
     require_shared()
-    from workbench.cli import main
+    from workbench.cli.main import main
 
     folder = EXAMPLES / "example_stage_missing_frf"
     argv = ["compare", "--model", str(folder / "nominal_model.npz")]

@@ -14,8 +14,7 @@ import pytest
 import scipy.signal
 from conftest import SHARED_REALDATA, require_shared
 
-from workbench.errors import InputError
-from workbench.formats import TimeData, save_measurement
+from workbench.core.errors import InputError
 from workbench.ident import identify_subspace
 from workbench.ident.order import gap_verdict, order_where_fit_stops_paying
 from workbench.ident.validate import (
@@ -27,6 +26,7 @@ from workbench.ident.validate import (
     simulation_fit,
     split_record,
 )
+from workbench.io.formats import TimeData, save_measurement
 
 # SLICOT MOESP (IB01AD/BD + IB01CD), block rows 15, README of the shared record
 SLICOT_FIT = {4: 71.6, 8: 73.0, 12: 73.2}
@@ -160,7 +160,7 @@ def test_cd_player_validation_fit_matches_slicot(cd_split):
 
 
 def test_cli_validate_orders_and_report(tmp_path, capsys):
-    from workbench.cli import main
+    from workbench.cli.main import main
 
     data = tmp_path / "cd.npz"
     save_measurement(data, cd_player())
@@ -201,7 +201,7 @@ def test_cli_validate_orders_and_report(tmp_path, capsys):
 
 
 def test_cli_orders_needs_a_validation_part(tmp_path, capsys):
-    from workbench.cli import main
+    from workbench.cli.main import main
 
     data = tmp_path / "cd.npz"
     save_measurement(data, cd_player())
@@ -246,7 +246,7 @@ def test_gap_verdict_and_where_more_states_stop_paying():
 
 
 def test_compare_on_time_data_reports_the_same_fit(cd_split):
-    from workbench.compare import compare
+    from workbench.validate.compare import compare
 
     ident, val = cd_split
     res = identify_subspace(ident, method="moesp", block_rows=15, order=4)
@@ -267,7 +267,7 @@ def test_an_unstable_model_scores_minus_infinity_with_a_reason():
 
 
 def test_cli_separate_validation_record(tmp_path, capsys, cd_split):
-    from workbench.cli import main
+    from workbench.cli.main import main
 
     ident, val = cd_split
     a, b = tmp_path / "ident.npz", tmp_path / "val.npz"

@@ -13,8 +13,7 @@ import numpy as np
 import pytest
 import scipy.linalg
 
-from workbench.errors import InputError
-from workbench.formats import TimeData
+from workbench.core.errors import InputError
 from workbench.ident import identify_subspace
 from workbench.ident.refine import (
     PeriodicSpectra,
@@ -23,7 +22,8 @@ from workbench.ident.refine import (
     refine_modal_model,
     zoh_mode_response,
 )
-from workbench.modal import ModalModel, Mode
+from workbench.io.formats import TimeData
+from workbench.modal.model import ModalModel, Mode
 
 FS = 2000.0  # Hz, synthetic examples
 PERIOD = 400  # samples: 5 Hz lines
@@ -342,8 +342,8 @@ def test_cli_identify_refine(tmp_path, capsys):
     """``identify --modal --refine`` writes the refined modal model and prints its errors."""
     import json
 
-    from workbench.cli import main
-    from workbench.formats import save_measurement
+    from workbench.cli.main import main
+    from workbench.io.formats import save_measurement
 
     true = two_by_two()
     data = periodic_record(true, np.random.default_rng(4), sigma=3e-7)

@@ -28,7 +28,7 @@ from refgen_closed_loop import ARRANGEMENTS, closed_loop_record
 
 from plants.base import LinearPlant
 from workbench.ident.refine import refine_modal_model
-from workbench.modal import ModalModel, Mode
+from workbench.modal.model import ModalModel, Mode
 
 FS = 2000.0  # Hz
 PERIOD = 400  # samples: 5 Hz lines

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from workbench.cli import main
+from workbench.cli.main import main
 
 SCENARIOS = sorted((Path(__file__).resolve().parents[1] / "scenarios").glob("*.toml"))
 
@@ -59,8 +59,8 @@ def test_wafer_stage_demo_models_carry_the_identified_delay(runs):
     """[identify] input_delay = 1 (samples): both model files hold delay_s = 1/fs (issue 7)."""
     import numpy as np
 
-    from workbench.formats import load_measurement
-    from workbench.model import LTIModel
+    from workbench.core.model import LTIModel
+    from workbench.io.formats import load_measurement
 
     status, folder = runs["wafer_stage_demo"]
     assert status == 0

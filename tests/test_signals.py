@@ -1,12 +1,12 @@
-"""Excitation designs (workbench.signals): lines, levels, orthogonality, reproducibility."""
+"""Excitation designs (workbench.signals.excitation): lines, levels, orthogonality, seeds."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from workbench.errors import InputError
-from workbench.signals import (
+from workbench.core.errors import InputError
+from workbench.signals.excitation import (
     as_rng,
     crest_factor,
     multisine,

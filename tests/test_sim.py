@@ -16,7 +16,7 @@ import scipy.signal
 from controllers import Controller, StateSpaceController, StrictlyProper, tune_pid
 from plants.base import LinearPlant
 from workbench import sim
-from workbench.errors import InputError
+from workbench.core.errors import InputError
 
 FS = 5000.0  # Hz, the wafer stage's sampling rate
 T = 1.0 / FS
@@ -219,7 +219,7 @@ def test_closed_loop_refusals():
 
 
 def test_simulate_zoh_applies_an_ltimodel_delay():
-    from workbench.model import LTIModel
+    from workbench.core.model import LTIModel
 
     m, delay = 2.0, 1.5 / FS
     sys = _mass(m)

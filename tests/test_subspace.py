@@ -7,8 +7,7 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from workbench.errors import InputError
-from workbench.formats import TimeData
+from workbench.core.errors import InputError
 from workbench.ident import (
     METHODS,
     format_singular_values,
@@ -17,6 +16,7 @@ from workbench.ident import (
     suggest_order,
 )
 from workbench.ident.gram import hankel, hankel_gram
+from workbench.io.formats import TimeData
 
 
 # ------------------------------------------------------------------ helpers
@@ -310,7 +310,7 @@ def test_wafer_stage_closed_loop_record_gives_the_modes():
     """
     from plants.wafer_stage import wafer_stage
     from workbench.experiments import wafer_stage_closed_loop_record
-    from workbench.modal import ModalModel
+    from workbench.modal.model import ModalModel
 
     data = wafer_stage_closed_loop_record(wafer_stage(), rng=3)
     res = identify_subspace(data, method="cl-moesp", block_rows=20, input_delay=1)

@@ -4,18 +4,24 @@ controller design for rigid-flexible precision motion systems.
 ``import workbench as wb`` gives the main entry points; they are imported on first use, so
 that ``import workbench`` (and the command line's start) stays fast.
 
-Data flow (which module owns which concept)::
+Data flow, and the package that owns each concept::
 
-    measurements  wb.load_measurement / wb.save_measurement   workbench.formats (spec 1a/1b)
-    periodic      wb.PeriodicRecord                           workbench.periodic
-    FRF           wb.frf_multisine, wb.estimate_frf            workbench.frf_estimation
-    models        wb.LTIModel, wb.load_model, wb.save_model    workbench.model, workbench.formats
-    simulation    wb.simulate, wb.simulate_closed_loop          workbench.sim
-    identify      wb.identify_subspace, wb.refine_modal_model   workbench.ident
-    modal         wb.ModalModel, wb.check_minimality            workbench.modal, .minimality
-    validate      wb.compare                                    workbench.compare
-    diagnosis     wb.diagnose, wb.augment                       workbench.diagnosis, .augment
-    scenarios     wb.load_scenario, wb.run_scenario             workbench.scenario, .pipeline
+    plants/ (true machines) --experiments, sim--> time record (io: spec 1a)
+    time record --signals (periodic record, FRF)--> FRF (io: spec 1b)
+    time record --ident (subspace, refine)--> LTIModel (core) --modal--> ModalModel, minimality
+    model + measurement --validate (compare)--> where it fails --diagnosis--> findings, augment
+    model --controllers/ (designs) + loop (analysis) + sim (closed loop)--> evaluation
+
+    core        LTIModel, as_model, lti (FRF), d2c, errors, atomic files, BLAS threads
+    io          spec files (measurements, models, findings), scenario files
+    signals     excitation, PeriodicRecord, FRF estimation, data quality
+    sim         the one simulator: ZOH with exact delays, nonlinear ports, closed loop
+    ident       subspace identification, validation fit, ML refinement
+    modal       ModalModel (the one modal model), minimality
+    validate    compare a model with a measurement
+    diagnosis   which physical effect is missing; augment the model with it
+    loop        L, S, T, crossovers and margins of a plant with a controller
+    cli         the command line, its commands and the scenario pipeline
 """
 
 from __future__ import annotations
@@ -30,28 +36,35 @@ except metadata.PackageNotFoundError:  # a source tree that was never installed
 
 #: public name -> module that defines it
 _EXPORTS = {
-    "InputError": "workbench.errors",
-    "DataWarning": "workbench.errors",
-    "TimeData": "workbench.formats",
-    "FrfData": "workbench.formats",
-    "load_measurement": "workbench.formats",
-    "save_measurement": "workbench.formats",
-    "load_model": "workbench.formats",
-    "save_model": "workbench.formats",
-    "frf_multisine": "workbench.frf_estimation",
-    "frf_h1": "workbench.frf_estimation",
-    "estimate_frf": "workbench.frf_estimation",
+    "InputError": "workbench.core.errors",
+    "DataWarning": "workbench.core.errors",
+    "LTIModel": "workbench.core.model",
+    "as_model": "workbench.core.model",
+    "TimeData": "workbench.io.formats",
+    "FrfData": "workbench.io.formats",
+    "load_measurement": "workbench.io.formats",
+    "save_measurement": "workbench.io.formats",
+    "load_model": "workbench.io.formats",
+    "save_model": "workbench.io.formats",
+    "PeriodicRecord": "workbench.signals.periodic",
+    "periodic_record": "workbench.signals.periodic",
+    "simulate_zoh": "workbench.sim",
+    "closed_loop": "workbench.sim",
+    "analyze_loop": "workbench.loop",
+    "frf_multisine": "workbench.signals.frf",
+    "frf_h1": "workbench.signals.frf",
+    "estimate_frf": "workbench.signals.frf",
     "identify_subspace": "workbench.ident",
     "refine_modal_model": "workbench.ident",
     "modal_crb": "workbench.ident",
-    "d2c": "workbench.d2c",
-    "ModalModel": "workbench.modal",
-    "check_minimality": "workbench.minimality",
-    "compare": "workbench.compare",
+    "d2c": "workbench.core.d2c",
+    "ModalModel": "workbench.modal.model",
+    "check_minimality": "workbench.modal.minimality",
+    "compare": "workbench.validate.compare",
     "diagnose": "workbench.diagnosis",
-    "augment": "workbench.augment",
-    "load_scenario": "workbench.scenario",
-    "run_scenario": "workbench.pipeline",
+    "augment": "workbench.diagnosis.augment",
+    "load_scenario": "workbench.io.scenario",
+    "run_scenario": "workbench.cli.pipeline",
 }
 
 __all__ = ["__version__", *_EXPORTS]

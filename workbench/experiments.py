@@ -44,9 +44,9 @@ import numpy as np
 from controllers.pid import DecentralizedController, tune_pid
 from controllers.protocol import Controller
 from workbench import sim
-from workbench.errors import InputError
-from workbench.formats import TimeData
-from workbench.signals import Multisine, as_rng, multisine, step_signal, white_noise
+from workbench.core.errors import InputError
+from workbench.io.formats import TimeData
+from workbench.signals.excitation import Multisine, as_rng, multisine, step_signal, white_noise
 
 __all__ = [
     "MultisineExperiment",
@@ -264,7 +264,7 @@ def run_noise(
 ) -> TimeData:
     """White (or band-limited) Gaussian noise on every input, open or closed loop.
 
-    ``rms`` per input in N (or N m); see :func:`workbench.signals.white_noise`.
+    ``rms`` per input in N (or N m); see :func:`workbench.signals.excitation.white_noise`.
     """
     rng = as_rng(rng)
     r = white_noise(n_samples, plant.n_u, fs=plant.fs, rms=rms, band_hz=band_hz, rng=rng)

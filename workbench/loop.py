@@ -11,8 +11,8 @@ The plant is either
   zero-order hold at the controller's rate (:func:`workbench.sim.discretize`,
   fractional delays included), so the analysis is that of the sampled loop,
   aliasing included; or
-* a measured :class:`~workbench.formats.FrfData` (spec 1b, ZOH compensated):
-  the loop uses ``G(jw) * ZOH(jw)`` (:func:`workbench.lti.zoh_frf`), i.e. the
+* a measured :class:`~workbench.io.formats.FrfData` (spec 1b, ZOH compensated):
+  the loop uses ``G(jw) * ZOH(jw)`` (:func:`workbench.core.lti.zoh_frf`), i.e. the
   sampled loop without the aliasing of the plant's response above fs/2.
 
 ``loop_delay_samples`` adds the real-time system's computation delay
@@ -45,7 +45,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from workbench.errors import InputError
+from workbench.core.errors import InputError
 
 __all__ = ["LoopFigures", "LoopAnalysis", "analyze_loop", "loop_frf", "save_loop_plots"]
 
@@ -171,7 +171,7 @@ def _controller_ss(controller):
 
 
 def _is_frf(plant) -> bool:
-    from workbench.formats import FrfData
+    from workbench.io.formats import FrfData
 
     return isinstance(plant, FrfData)
 
@@ -197,7 +197,7 @@ def discrete_plant(plant, fs: float, loop_delay_samples: int = 0):
     """
     import control
 
-    from workbench.model import as_model
+    from workbench.core.model import as_model
     from workbench.sim import discretize
 
     model = as_model(plant)
@@ -227,15 +227,15 @@ def loop_frf(plant, controller, freq_hz=None, *, loop_delay_samples: int = 0):
             Gf = plant.G[keep]
         else:
             Gf = plant.G
-        from workbench.lti import delay_frf, zoh_frf
+        from workbench.core.lti import delay_frf, zoh_frf
 
         Gf = Gf * (zoh_frf(f, fs) * delay_frf(f, m / fs))[:, None, None]
     else:
         f = _default_grid(fs) if freq_hz is None else np.asarray(freq_hz, float)
-        from workbench.lti import frf
+        from workbench.core.lti import frf
 
         Gf = frf(discrete_plant(plant, fs, m), f)
-    from workbench.lti import frf
+    from workbench.core.lti import frf
 
     Kf = frf(Ks, f)
     if Gf.shape[2] != Kf.shape[1] or Kf.shape[2] != Gf.shape[1]:
@@ -463,7 +463,7 @@ def analyze_loop(
                     disk_phase_margin_deg=float(dpm),
                 )
             )  # fmt: skip
-        from workbench.lti import as_matrices
+        from workbench.core.lti import as_matrices
         from workbench.sim import closed_loop_matrices
 
         Acl = closed_loop_matrices(as_matrices(G)[:4], as_matrices(Ks)[:4])[0]

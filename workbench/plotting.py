@@ -15,7 +15,7 @@ import os
 
 import numpy as np
 
-from workbench.atomic import atomic_path
+from workbench.core.atomic import atomic_path
 
 __all__ = [
     "new_figure",

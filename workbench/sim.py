@@ -12,9 +12,9 @@ Data flow::
         linear plant and linear controller -> one discrete LTI system driven by [r, d, v] (dlsim)
         otherwise                          -> plant.step / controller.step sample by sample
 
-Every simulator of the project calls these functions: ``workbench.lti`` re-exports
+Every simulator of the project calls these functions: ``workbench.core.lti`` re-exports
 ``c2d_zoh`` and ``simulate_zoh``; ``plants.sim`` builds its substep propagation
-with :func:`substep_zoh`; ``workbench.nonlinear`` steps its port model with it too;
+with :func:`substep_zoh`; ``workbench.diagnosis.nonlinear`` steps its port model with it too;
 ``workbench.experiments`` runs its closed loops through :func:`closed_loop`.
 
 Sampling convention (spec 1a): ``u[k]`` is held over [k/fs, (k+1)/fs), ``y[k]`` is
@@ -31,8 +31,8 @@ from typing import Any, Literal
 import numpy as np
 import scipy.linalg
 
-from workbench.errors import InputError
-from workbench.lti import as_matrices
+from workbench.core.errors import InputError
+from workbench.core.lti import as_matrices
 
 __all__ = [
     "phi_gamma",
@@ -263,7 +263,7 @@ def simulate_zoh(sys, u: np.ndarray, fs: float, *, delay_s: float = 0.0, x0=None
 
     Parameters
     ----------
-    sys : control.StateSpace or workbench.model.LTIModel
+    sys : control.StateSpace or workbench.core.model.LTIModel
         Continuous model (discretized exactly with the ZOH at ``fs``) or a
         discrete model whose dt equals 1/fs. An LTIModel's own delay is applied.
     u : (N, n_u) array

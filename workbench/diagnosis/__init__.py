@@ -16,7 +16,7 @@ Data flow::
               error_after, explanation (explain.py, detect.py)]) ──to_json()──> spec section 3
 
 Public entry points: :func:`diagnose` and, for one given effect,
-:func:`workbench.augment.augment`.
+:func:`workbench.diagnosis.augment.augment`.
 """
 
 #: The effect vocabulary of the exchange spec (section 3), in its order.

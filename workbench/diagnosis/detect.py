@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from workbench.formats import TimeData
+from workbench.io.formats import TimeData
 
 __all__ = ["phase_slope", "where_it_shows", "nonlinearity", "Where", "NonlinearityEvidence"]
 
@@ -128,7 +128,7 @@ def nonlinearity(data: TimeData, y_model: np.ndarray | None = None) -> Nonlinear
 
     Notes
     -----
-    In every experiment block (:mod:`workbench.periodic`) the first period is
+    In every experiment block (:mod:`workbench.signals.periodic`) the first period is
     dropped (transient from rest or from the switch), and periods of different
     blocks are never averaged together; the statistics below are pooled over
     blocks. The excited lines are those where the excitation (r, or u in open
@@ -198,8 +198,8 @@ def _record(data: TimeData):
     None when ``data`` is not periodic or a block has fewer than 3 periods (2
     must stay for a noise estimate).
     """
-    from workbench.errors import InputError
-    from workbench.periodic import periodic_record
+    from workbench.core.errors import InputError
+    from workbench.signals.periodic import periodic_record
 
     if not data.period:
         return None

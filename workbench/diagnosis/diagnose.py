@@ -19,17 +19,23 @@ from typing import Any
 
 import numpy as np
 
-from workbench.blas import limited_blas
+from workbench.core.blas import limited_blas
+from workbench.core.errors import InputError
+from workbench.core.jsonutil import jsonable
+from workbench.core.lti import (
+    as_matrices,
+    frf,
+    relative_error_frf,
+    relative_error_time,
+    simulate_zoh,
+)
 from workbench.diagnosis import detect
 from workbench.diagnosis.effects import candidate_structures
 from workbench.diagnosis.explain import explain
 from workbench.diagnosis.fit import FitResult, fit, fit_joint, screen
 from workbench.diagnosis.modal import ExtendedModel, decompose
 from workbench.diagnosis.problem import make_problem
-from workbench.errors import InputError
-from workbench.formats import FrfData, TimeData, check_model_matches
-from workbench.jsonutil import jsonable
-from workbench.lti import as_matrices, frf, relative_error_frf, relative_error_time, simulate_zoh
+from workbench.io.formats import FrfData, TimeData, check_model_matches
 
 __all__ = ["Finding", "Diagnosis", "diagnose"]
 
@@ -199,7 +205,7 @@ def diagnose(
     -------
     Diagnosis
     """
-    from workbench.model import as_model
+    from workbench.core.model import as_model
 
     # the model's own delay travels with it; delay_s adds to it
     lti_model = as_model(model)

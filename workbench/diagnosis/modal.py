@@ -16,7 +16,7 @@ The same object gives the frequency response, an exact zero-order-hold
 simulation (each term filtered per input by ``scipy.signal.lfilter``, so a
 10,000-sample 6x6 record takes milliseconds) and a state-space realization.
 
-Relation to the one modal model, :class:`workbench.modal.ModalModel`: it holds
+Relation to the one modal model, :class:`workbench.modal.model.ModalModel`: it holds
 the same content (modes with exact numerators, D, delay, lags, coupling), and
 :meth:`ExtendedModel.from_modal` / :meth:`ExtendedModel.to_modal` convert
 losslessly. An ExtendedModel is the diagnosis's working view of it: the
@@ -24,7 +24,8 @@ rigid-body modes grouped into the one ``s^2`` term whose full-rank residue is
 the linear parameter, denominators edited per term, per-term filters cached.
 :func:`decompose` is ``from_modal`` of the one decomposition,
 ``ModalModel.from_statespace(sys, exact=True)``; the lags, coupling and delay
-are computed by :func:`workbench.modal.apply_outer` / :func:`workbench.modal.wrap_outer`.
+are computed by :func:`workbench.modal.model.apply_outer` /
+:func:`workbench.modal.model.wrap_outer`.
 """
 
 from __future__ import annotations
@@ -35,8 +36,8 @@ import numpy as np
 import scipy.linalg
 import scipy.signal
 
-from workbench.lti import as_matrices
-from workbench.modal import apply_outer, lag_factor, wrap_outer
+from workbench.core.lti import as_matrices
+from workbench.modal.model import apply_outer, lag_factor, wrap_outer
 from workbench.sim import c2d_zoh, split_delay
 
 __all__ = ["Term", "ExtendedModel", "decompose"]
@@ -147,7 +148,7 @@ class ExtendedModel:
     # ------------------------------------------------------------ modal model
     @classmethod
     def from_modal(cls, model) -> ExtendedModel:
-        """The terms of a :class:`workbench.modal.ModalModel`, with D, delay, lags, coupling.
+        """The terms of a :class:`workbench.modal.model.ModalModel`, with D, delay, lags, coupling.
 
         The rigid modes share ``s^2``: they become one term whose numerator is
         their sum (full rank for one rigid mode per DOF). Flexible and real
@@ -176,7 +177,7 @@ class ExtendedModel:
         )
 
     def to_modal(self, *, input_names=(), output_names=()):
-        """This model as a :class:`workbench.modal.ModalModel`, lossless (same FRF).
+        """This model as a :class:`workbench.modal.model.ModalModel`, lossless (same FRF).
 
         The terms become modes with their exact numerators where these are not
         ``c b^T``; D, delay, lags and coupling are carried over. The rigid term
@@ -185,7 +186,7 @@ class ExtendedModel:
         changed) is a flexible mode with the full residue; ``"added"`` terms
         become flexible modes.
         """
-        from workbench.modal import ModalModel, Mode
+        from workbench.modal.model import ModalModel, Mode
 
         modes: list[Mode] = []
         for t in self.terms:
@@ -433,9 +434,9 @@ def decompose(sys) -> ExtendedModel:
 
     Parameters
     ----------
-    sys : control.StateSpace or workbench.model.LTIModel
+    sys : control.StateSpace or workbench.core.model.LTIModel
         Continuous, or discrete (converted by the exact ZOH inverse,
-        :func:`workbench.d2c.d2c`, which refuses poles at z = 0 and on the
+        :func:`workbench.core.d2c.d2c`, which refuses poles at z = 0 and on the
         negative real axis with an InputError). An LTIModel's delay is kept.
 
     Returns
@@ -448,7 +449,7 @@ def decompose(sys) -> ExtendedModel:
     numerator; real poles; D). Raises InputError when A has Jordan chains
     other than rigid-body double integrators (not representable).
     """
-    from workbench.modal import ModalModel
+    from workbench.modal.model import ModalModel
 
     _, _, _, _, dt = as_matrices(sys)
     notes = []

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from workbench.diagnosis.modal import ExtendedModel
-from workbench.formats import FrfData, TimeData
+from workbench.io.formats import FrfData, TimeData
 from workbench.plotting import new_figure, save_png
 
 __all__ = ["write_plots"]

@@ -21,9 +21,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from workbench.core.lti import relative_error_frf, relative_error_time
 from workbench.diagnosis.modal import ExtendedModel
-from workbench.formats import FrfData, TimeData
-from workbench.lti import relative_error_frf, relative_error_time
+from workbench.io.formats import FrfData, TimeData
 
 __all__ = ["FrfProblem", "TimeProblem", "make_problem"]
 
@@ -332,7 +332,7 @@ class TimeProblem:
         E = np.sum(np.abs(np.fft.rfft(seg_e, axis=0)) ** 2, axis=1)
         U = np.sum(np.abs(np.fft.rfft(seg_u, axis=0)) ** 2, axis=1)
         f = np.fft.rfftfreq(L, 1 / self.fs)
-        if rec is not None:  # the lines the excitation drives (workbench.periodic's rule)
+        if rec is not None:  # the lines the excitation drives (workbench.signals.periodic's rule)
             excited = np.zeros(f.size, bool)
             excited[rec.lines] = True
             excited &= U > 0
@@ -349,12 +349,12 @@ class TimeProblem:
 
 
 def _periodic(data: TimeData):
-    """The record's :class:`workbench.periodic.PeriodicRecord` (all periods), or None.
+    """The record's :class:`workbench.signals.periodic.PeriodicRecord` (all periods), or None.
 
     None when the record is not periodic, has fewer than 2 periods, or no excitation.
     """
-    from workbench.errors import InputError
-    from workbench.periodic import periodic_record
+    from workbench.core.errors import InputError
+    from workbench.signals.periodic import periodic_record
 
     if not data.period or data.n_samples // data.period < 2:
         return None
@@ -368,7 +368,7 @@ def _time_band(data: TimeData) -> tuple[float, float]:
     """Excited band of a time record, Hz (from the periodic excitation if there is one)."""
     N = data.n_samples
     rec = _periodic(data)
-    if rec is not None:  # the excited lines of workbench.periodic, over all experiment blocks
+    if rec is not None:  # the excited lines of the periodic record, all experiment blocks
         f, lines = rec.freq_hz, rec.lines
     else:
         x = data.r if data.r is not None else data.u

@@ -13,10 +13,10 @@ Data flow::
         -> SubspaceResult.model    control.StateSpace, dt = 1/fs
         -> validate.simulation_fit    fit on data not used for identification, x0 by
                                       least squares; order scan by that fit
-    then workbench.d2c -> workbench.modal (ModalModel)
+    then workbench.core.d2c -> workbench.modal.model (ModalModel)
         -> refine.refine_modal_model   maximum-likelihood refinement on periodic data,
                                        near the Cramer-Rao bound (refine.modal_crb)
-        -> workbench.minimality.
+        -> workbench.modal.minimality.
 """
 
 from workbench.ident.order import (

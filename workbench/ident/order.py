@@ -136,7 +136,7 @@ def plot_singular_values(
     """Save a semilog plot of the singular values with the chosen and suggested orders (PNG)."""
     from matplotlib.figure import Figure  # no pyplot: no global state, any backend
 
-    from workbench.atomic import atomic_path
+    from workbench.core.atomic import atomic_path
 
     s = np.asarray(singular_values, float)
     fig = Figure(figsize=(6.4, 3.6))
@@ -196,7 +196,7 @@ def plot_order_scan(
     """Save the validation fit against the order, per output and mean (PNG)."""
     from matplotlib.figure import Figure
 
-    from workbench.atomic import atomic_path
+    from workbench.core.atomic import atomic_path
 
     orders = np.asarray(orders, int)
     F = np.array([f.fit for f in fits], float)

@@ -39,10 +39,10 @@ import numpy as np
 import scipy.linalg
 import scipy.optimize
 
-from workbench.arrays import readonly
-from workbench.errors import InputError
-from workbench.formats import TimeData
-from workbench.modal import ModalModel, Mode
+from workbench.core.arrays import readonly
+from workbench.core.errors import InputError
+from workbench.io.formats import TimeData
+from workbench.modal.model import ModalModel, Mode
 
 __all__ = [
     "PeriodicSpectra",
@@ -164,7 +164,7 @@ def periodic_spectra(data: TimeData, *, n_transient: int = 1) -> PeriodicSpectra
     InputError
         Not periodic, or no block with a steady-state period.
     """
-    from workbench.periodic import periodic_record
+    from workbench.signals.periodic import periodic_record
 
     if not isinstance(data, TimeData):
         raise InputError(f"data: expected periodic TimeData, got {type(data).__name__}")
@@ -915,7 +915,7 @@ def refine_modal_model(
     1 Hz and 50 % off:
 
     >>> import numpy as np
-    >>> from workbench.modal import ModalModel, Mode
+    >>> from workbench.modal.model import ModalModel, Mode
     >>> P, fs, rng = 200, 1000.0, np.random.default_rng(0)
     >>> k = np.arange(10, 31)  # lines 50 .. 150 Hz
     >>> U = np.zeros(P // 2 + 1, complex)

@@ -24,11 +24,11 @@ from typing import Literal
 import numpy as np
 import scipy.linalg
 
-from workbench.arrays import readonly
-from workbench.errors import DataWarning, InputError
-from workbench.formats import TimeData
+from workbench.core.arrays import readonly
+from workbench.core.errors import DataWarning, InputError
 from workbench.ident.gram import hankel, hankel_gram
 from workbench.ident.order import suggest_order
+from workbench.io.formats import TimeData
 
 __all__ = ["SubspaceResult", "identify_subspace", "METHODS"]
 
@@ -98,13 +98,13 @@ class SubspaceResult:
 
     @property
     def lti_model(self):
-        """The identified model with its delay: a :class:`~workbench.model.LTIModel`.
+        """The identified model with its delay: a :class:`~workbench.core.model.LTIModel`.
 
         ``model`` is the rational part (a ``StateSpace`` cannot hold the delay);
         this one carries ``delay_s = input_delay / fs`` exactly, so its FRF,
         simulation and model file include the delay. Pass this one on.
         """
-        from workbench.model import LTIModel
+        from workbench.core.model import LTIModel
 
         return LTIModel.from_statespace(self.model, delay_s=self.delay_s)
 
@@ -491,7 +491,7 @@ def _periodic_factor(data, *, input_delay, su, sy, i, cva, chunk, n_transient=1)
     lines. The projected signals are periodic and noise-reduced; their
     circular block-Hankel Gram is block-Toeplitz, ``G[a, b] = F_{b-a}``.
     """
-    from workbench.periodic import periodic_record
+    from workbench.signals.periodic import periodic_record
 
     P = int(data.period)
     # A record may hold several experiments (blocks of identical periods, each

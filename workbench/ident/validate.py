@@ -3,7 +3,7 @@
 One implementation of "simulate the model with its initial state estimated
 and compute the fit", used by :func:`workbench.ident.identify_subspace`
 (B, D, x0 jointly for open-loop methods), ``workbench identify --validate``,
-the order scan and :func:`workbench.compare.compare` on time data.
+the order scan and :func:`workbench.validate.compare.compare` on time data.
 
 The output of a discrete model ``x[k+1] = A x[k] + B u[k]``,
 ``y[k] = C x[k] + D u[k]`` is linear in ``theta = [x0; vec(B); vec(D)]``
@@ -33,9 +33,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from workbench.arrays import readonly
-from workbench.errors import InputError
-from workbench.formats import TimeData
+from workbench.core.arrays import readonly
+from workbench.core.errors import InputError
+from workbench.io.formats import TimeData
 
 __all__ = [
     "Fit",
@@ -229,7 +229,7 @@ def least_squares_bd_x0(A, C, u, y, *, su=None, sy=None, feedthrough=True):
 
 
 def _matrices(model):
-    from workbench.lti import as_matrices
+    from workbench.core.lti import as_matrices
 
     A, B, C, D, dt = as_matrices(model)
     if not dt:
@@ -241,7 +241,7 @@ def _matrices(model):
 
 def simulate(model, u: np.ndarray, x0=None) -> np.ndarray:
     """Output (N, l) of a discrete model for the input ``u`` (N, m) from the state ``x0``."""
-    from workbench.lti import simulate_zoh
+    from workbench.core.lti import simulate_zoh
 
     _, _, _, _, dt = _matrices(model)
     return simulate_zoh(model, np.asarray(u, float), 1.0 / dt, x0=x0)
@@ -324,12 +324,12 @@ class Fit:
 def simulation_fit(model, data: TimeData, *, input_delay: int = 0, estimate: bool = True) -> Fit:
     """Fit of ``model`` on ``data``: simulate with ``x0`` by least squares, compare.
 
-    The model's own delay (an :class:`~workbench.model.LTIModel`'s ``delay_s``,
+    The model's own delay (an :class:`~workbench.core.model.LTIModel`'s ``delay_s``,
     a whole number of samples) plus ``input_delay`` (samples) pairs ``y[k]``
     with ``u[k - delay]`` as in identification; the first ``delay`` outputs
     are not scored.
     """
-    from workbench.model import as_model
+    from workbench.core.model import as_model
 
     lti_model = as_model(model)
     own = lti_model.delay_s / lti_model.dt if lti_model.dt else 0.0

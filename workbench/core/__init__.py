@@ -1,0 +1,1 @@
+"""Foundations: the LTI model type, state-space arithmetic, errors, safe files."""

@@ -1,0 +1,1 @@
+"""Exchange formats (spec files) and scenario files."""

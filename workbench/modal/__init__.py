@@ -1,0 +1,1 @@
+"""Modal models: decomposition of any realization, mode tables, minimality."""

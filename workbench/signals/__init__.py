@@ -1,0 +1,1 @@
+"""Excitation signals, periodic records, FRF estimation, data quality."""

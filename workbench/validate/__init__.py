@@ -1,0 +1,1 @@
+"""Model against measurement: where a model fails, per channel and band."""
