@@ -27,6 +27,8 @@ COMMANDS = (
     "compare",
     "diagnose",
     "augment",
+    "design",
+    "loop",
 )
 
 

@@ -35,6 +35,7 @@ __all__ = [
     "load_model",
     "read_model",
     "save_model",
+    "save_controller",
     "lti_model_from_arrays",
     "load_any",
     "model_names",
@@ -570,6 +571,38 @@ def save_model(path: str | os.PathLike, sys, **extra: np.ndarray) -> None:
     if clash:
         raise InputError(f"{path}: key '{clash[0]}' given twice (in the model and as an extra)")
     save_npz(path, **arrays, **extra)
+
+
+def save_controller(
+    path: str | os.PathLike, controller, *, delay_samples: int | None = None
+) -> None:
+    """Write a controller as a spec-5 controller file, atomically.
+
+    ``controller`` is a Controller (its ``statespace()``) or a discrete
+    python-control ``StateSpace`` e = r - y -> u; its input names are the
+    measured outputs', its output names the plant inputs'. The keys are a
+    model file's (spec 2, without ``delay_s``: the loop's delay is not in the
+    matrices) plus ``role = "controller"`` and ``delay_samples``, the loop
+    computation delay the design assumed (default the controller's own
+    ``delay_samples`` attribute, else 0).
+    """
+    sys = controller.statespace() if hasattr(controller, "statespace") else controller
+    if delay_samples is None:
+        delay_samples = getattr(controller, "delay_samples", 0)
+    if int(delay_samples) != delay_samples or delay_samples < 0:
+        raise InputError(f"{path}: delay_samples: expected an integer >= 0, got {delay_samples}")
+    arrays = model_arrays(sys)
+    if float(arrays["dt"]) <= 0:
+        raise InputError(
+            f"{path}: expected a discrete controller (dt > 0), got dt = {arrays['dt']}"
+        )
+    if "delay_s" in arrays:
+        raise InputError(
+            f"{path}: expected a controller without delay_s (the loop delay belongs to the plant)"
+        )
+    save_npz(
+        path, **arrays, role=np.array("controller"), delay_samples=np.array(int(delay_samples))
+    )
 
 
 def load_any(path: str | os.PathLike):
