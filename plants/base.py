@@ -8,6 +8,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from workbench import sim
 from workbench.core import lti
 
 
@@ -107,13 +108,13 @@ class LinearPlant:
         return y
 
     def simulate(self, u: np.ndarray, *, rng: np.random.Generator) -> np.ndarray:
-        y = lti.simulate_zoh(self.sys, u, self.fs, delay_s=self.delay_s)
+        y = sim.simulate_zoh(self.sys, u, self.fs, delay_s=self.delay_s)
         return self._measure(y, rng)
 
     @cached_property
     def _discrete(self):
         A, B, C, D, _ = lti.as_matrices(self.sys)
-        Ad, B0, B1, m = lti.c2d_zoh(A, B, 1.0 / self.fs, delay_s=self.delay_s)
+        Ad, B0, B1, m = sim.c2d_zoh(A, B, 1.0 / self.fs, delay_s=self.delay_s)
         return Ad, B0, B1, m, C, D
 
     def init(self, rng: np.random.Generator) -> LinearPlantState:

@@ -18,6 +18,7 @@ import numpy as np
 
 import plants
 from plants.effects import ExtraMode
+from workbench import sim
 from workbench.core import lti
 from workbench.io.formats import FrfData, TimeData
 
@@ -162,7 +163,7 @@ def _time_data(true_plant, rng):
     else:
         cfg = ExperimentConfig(kind="open_loop_multisine", n_exp=1, period=2048, periods=5)
     data = run_experiment(true_plant, cfg, rng=rng)
-    y_true = lti.simulate_zoh(
+    y_true = sim.simulate_zoh(
         true_plant.linear_model(), data.u, data.fs, delay_s=true_plant.delay_s
     )
     return data, lti.relative_error_time(data.y, y_true)
@@ -207,7 +208,7 @@ def make_case(
         nominal_error = lti.relative_error_frf(data.G, lti.frf(nominal, data.freq))
     else:
         data, floor = _time_data(true_plant, rng)
-        nominal_error = lti.relative_error_time(data.y, lti.simulate_zoh(nominal, data.u, data.fs))
+        nominal_error = lti.relative_error_time(data.y, sim.simulate_zoh(nominal, data.u, data.fs))
     size = "+".join(s for _, s in effects) or "-"
     return Case(
         case_id=f"{plant}_{data_kind}_{'+'.join(names) or 'none'}_{size}_{seed}",

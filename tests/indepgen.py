@@ -37,6 +37,7 @@ import numpy as np
 import scipy.linalg
 import scipy.signal
 
+from workbench import sim
 from workbench.core import lti
 from workbench.io.formats import FrfData, TimeData
 
@@ -605,11 +606,11 @@ def _build(base_plant, effects, params, strengths, kind, rng_seed, opts):
             period=period,
         )
         floor = lti.relative_error_time(y, y0)
-        nom_err = lti.relative_error_time(y, lti.simulate_zoh(nominal, u, fs))
+        nom_err = lti.relative_error_time(y, sim.simulate_zoh(nominal, u, fs))
         if truth.nl:
             lin = Truth(P, truth.delay_s, truth.act_cut, truth.sen_cut, truth.T_out, truth.T_in)
             A, B, C, D = lin.ss_mats()
-            y_lin = lti.simulate_zoh(control.ss(A, B, C, D), u, fs, delay_s=truth.delay_s)
+            y_lin = sim.simulate_zoh(control.ss(A, B, C, D), u, fs, delay_s=truth.delay_s)
             for a, e in zip(answers, effects):
                 if e == "nonlinearity":
                     a["level"] = float(min(np.sum((y0 - y_lin) ** 2) / np.sum(y**2), 1.0))

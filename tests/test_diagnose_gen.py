@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import control
 import numpy as np
 
+from workbench import sim
 from workbench.core import lti
 from workbench.io.formats import FrfData, TimeData
 
@@ -237,7 +238,7 @@ def time_case(
     shape = {"tilt": 1.5} if closed else {"k_min": 5}
     r = np.tile(multisine(plant.n_u, period, fs, 0.3 * fs, rng, **shape), (n_periods, 1))
     N = r.shape[0]
-    Ad, B0, B1, m = lti.c2d_zoh(true.A, true.B, 1 / fs, delay_s=delay)
+    Ad, B0, B1, m = sim.c2d_zoh(true.A, true.B, 1 / fs, delay_s=delay)
     C, D = np.asarray(true.C), np.asarray(true.D)
     noise = rng.standard_normal((N, plant.n_y))
     w = 2 * np.pi * 10.0
@@ -270,7 +271,7 @@ def time_case(
         fs=fs, u=u, y=y, r=r if closed else None, loop="closed" if closed else "open", period=period
     )
     floor = lti.relative_error_time(y, y0)
-    nom_err = lti.relative_error_time(y, lti.simulate_zoh(nominal, u, fs))
+    nom_err = lti.relative_error_time(y, sim.simulate_zoh(nominal, u, fs))
     return Case(nominal, data, effect, p, floor, nom_err / floor)
 
 

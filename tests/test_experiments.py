@@ -8,7 +8,7 @@ import pytest
 
 from controllers import tune_pid
 from plants.base import LinearPlant
-from workbench.core import lti
+from workbench import sim
 from workbench.core.errors import InputError
 from workbench.experiments import (
     ExperimentConfig,
@@ -59,7 +59,7 @@ def test_linear_and_step_paths_agree(stage):
     np.testing.assert_allclose(u1, u2, atol=1e-9 * np.abs(u1).max())
     np.testing.assert_allclose(y1, y2, atol=1e-9 * np.abs(y1).max())
     # u = r + K e with e = -y (set point 0): the controller's own discrete model replays it
-    uc = lti.simulate_zoh(K.statespace(), -y1, FS)
+    uc = sim.simulate_zoh(K.statespace(), -y1, FS)
     np.testing.assert_allclose(u1 - r, uc, atol=1e-9 * np.abs(uc).max())
     assert np.all(u1[0] == r[0])  # one-sample controller delay: nothing fed back at k = 0
 

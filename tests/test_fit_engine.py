@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from test_diagnose_gen import beam, frf_case, stage
 
+from workbench import sim
 from workbench.core import lti
 from workbench.diagnosis.effects import MissingMode, TimeDelay
 from workbench.diagnosis.fit import fit, fit_joint
@@ -49,7 +50,7 @@ def test_modal_simulation_equals_lti(delay_s):
     sys = beam().build()
     em = decompose(sys).replace(delay_s=delay_s)
     u = np.random.default_rng(0).standard_normal((3000, 3))
-    y_ref = lti.simulate_zoh(control.ss(sys.A, sys.B, sys.C, 0 * sys.D), u, 5000.0, delay_s=delay_s)
+    y_ref = sim.simulate_zoh(control.ss(sys.A, sys.B, sys.C, 0 * sys.D), u, 5000.0, delay_s=delay_s)
     em0 = em.replace(D=0 * em.D)
     y = em0.simulate(u, 5000.0)
     assert np.max(np.abs(y - y_ref)) < 1e-7 * np.max(np.abs(y_ref))

@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 from conftest import SHARED_EXAMPLES, require_shared
 
+from workbench import sim
 from workbench.cli.main import main
 from workbench.core import lti
 from workbench.io import formats
@@ -445,7 +446,7 @@ def test_shared_example_nominal_error_is_reproduced(case):
     if data.kind == "frf":
         err = lti.relative_error_frf(data.G, lti.frf(model, data.freq))
     else:
-        err = lti.relative_error_time(data.y, lti.simulate_zoh(model, data.u, data.fs))
+        err = lti.relative_error_time(data.y, sim.simulate_zoh(model, data.u, data.fs))
     assert err == pytest.approx(answer["nominal_error"], rel=1e-4, abs=2e-6)
 
 
@@ -461,7 +462,7 @@ def test_shared_example_true_model_reaches_noise_floor(case):
         err = lti.relative_error_frf(data.G, lti.frf(true, data.freq, delay_s=delay_s))
     else:
         err = lti.relative_error_time(
-            data.y, lti.simulate_zoh(true, data.u, data.fs, delay_s=delay_s)
+            data.y, sim.simulate_zoh(true, data.u, data.fs, delay_s=delay_s)
         )
     assert err == pytest.approx(answer["noise_floor_error"], rel=1e-3, abs=2e-6)
 

@@ -12,6 +12,7 @@ import pytest
 
 from controllers import tune_pid
 from plants.base import LinearPlant
+from workbench import sim
 from workbench.cli.main import main
 from workbench.core import lti
 from workbench.core.errors import InputError
@@ -150,7 +151,7 @@ class CubicOutputPlant:
         return getattr(self.lin, name)
 
     def simulate(self, u, *, rng):
-        x = lti.simulate_zoh(self.lin.sys, u, self.lin.fs) * 1e6  # um
+        x = sim.simulate_zoh(self.lin.sys, u, self.lin.fs) * 1e6  # um
         y = (x + self.a * x**3) * 1e-6
         return y + rng.standard_normal(y.shape) * self.lin.noise_std
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import plants
-from workbench.core import lti
+from workbench import sim
 from workbench.diagnosis.nonlinear import PortNonlinearity, simulate_nonlinear
 from workbench.experiments import ExperimentConfig, run_experiment
 
@@ -21,7 +21,7 @@ def test_without_nonlinearity_equals_the_linear_zoh_simulation(stage_model):
     u = rng.standard_normal((400, 6))
     nl = PortNonlinearity(friction_force=np.zeros(6), substeps=3)
     y = simulate_nonlinear(stage_model, u, 5000.0, nl, delay_s=2e-4)
-    ref = lti.simulate_zoh(stage_model, u, 5000.0, delay_s=2e-4)
+    ref = sim.simulate_zoh(stage_model, u, 5000.0, delay_s=2e-4)
     assert np.max(np.abs(y - ref)) <= 1e-9 * np.max(np.abs(ref))
 
 
@@ -30,7 +30,7 @@ def test_saturation_equals_the_linear_response_to_the_clipped_input(stage_model)
     u = 3.0 * rng.standard_normal((300, 6))
     nl = PortNonlinearity(friction_force=np.zeros(6), saturation=np.full(6, 2.0), substeps=2)
     y = simulate_nonlinear(stage_model, u, 5000.0, nl)
-    ref = lti.simulate_zoh(stage_model, np.clip(u, -2.0, 2.0), 5000.0)
+    ref = sim.simulate_zoh(stage_model, np.clip(u, -2.0, 2.0), 5000.0)
     assert np.max(np.abs(y - ref)) <= 1e-9 * np.max(np.abs(ref))
 
 

@@ -8,6 +8,7 @@ import pytest
 import plants
 from plants import Effects, ExtraMode, Plant
 from plants.wafer_stage import stage_geometry
+from workbench import sim
 from workbench.core import lti
 from workbench.core.errors import InputError
 
@@ -129,7 +130,7 @@ def test_simulation_matches_plain_state_recursion(name):
     )
     u = np.random.default_rng(2).standard_normal((2000, plant.n_u))
     y = plant.simulate(u, rng=np.random.default_rng(0))
-    y_ref = lti.simulate_zoh(plant.linear_model(), u, plant.fs, delay_s=plant.delay_s)
+    y_ref = sim.simulate_zoh(plant.linear_model(), u, plant.fs, delay_s=plant.delay_s)
     assert np.max(np.abs(y - y_ref)) < 1e-9 * np.max(np.abs(y_ref))
 
 

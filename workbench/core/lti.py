@@ -3,8 +3,7 @@
 Frequency responses in the one layout of the project, (n_f, n_y, n_u), and
 the two relative-error measures of the exchange spec (section 3), so that
 ``compare`` and ``diagnose`` compute them alike. ZOH discretization and
-simulation are in :mod:`workbench.sim`; ``lti.c2d_zoh`` and
-``lti.simulate_zoh`` resolve to them.
+simulation are in :mod:`workbench.sim` (the one simulator).
 """
 
 from __future__ import annotations
@@ -127,13 +126,3 @@ def relative_error_time(Y: np.ndarray, Y_model: np.ndarray) -> float:
     """Spec measure for time data: ||Y - Y_model||_F / ||Y||_F."""
     den = np.linalg.norm(Y)
     return float(np.linalg.norm(Y - Y_model) / den) if den > 0 else float("inf")
-
-
-def __getattr__(name: str):
-    # ZOH discretization and simulation live in workbench.sim (one implementation);
-    # resolved lazily because workbench.sim imports as_matrices from here.
-    if name in ("c2d_zoh", "simulate_zoh"):
-        from workbench import sim
-
-        return getattr(sim, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -22,13 +22,7 @@ import numpy as np
 from workbench.core.blas import limited_blas
 from workbench.core.errors import InputError
 from workbench.core.jsonutil import jsonable
-from workbench.core.lti import (
-    as_matrices,
-    frf,
-    relative_error_frf,
-    relative_error_time,
-    simulate_zoh,
-)
+from workbench.core.lti import as_matrices, frf, relative_error_frf, relative_error_time
 from workbench.diagnosis import detect
 from workbench.diagnosis.effects import candidate_structures
 from workbench.diagnosis.explain import explain
@@ -36,6 +30,7 @@ from workbench.diagnosis.fit import FitResult, fit, fit_joint, screen
 from workbench.diagnosis.modal import ExtendedModel, decompose
 from workbench.diagnosis.problem import make_problem
 from workbench.io.formats import FrfData, TimeData, check_model_matches
+from workbench.sim import simulate_zoh
 
 __all__ = ["Finding", "Diagnosis", "diagnose"]
 

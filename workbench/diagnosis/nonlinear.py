@@ -76,7 +76,7 @@ def simulate_nonlinear(
     ``sys`` is a continuous square model (``StateSpace`` or ``LTIModel``); an
     ``LTIModel``'s own delay is applied and ``delay_s`` (s) adds to it, as in
     :func:`workbench.sim.simulate_zoh`; the total is rounded to whole samples.
-    Without any nonlinearity this equals :func:`workbench.core.lti.simulate_zoh`
+    Without any nonlinearity this equals :func:`workbench.core.sim.simulate_zoh`
     for integer-sample delays.
     """
     A, B, C, D = _ports(sys)
@@ -172,7 +172,7 @@ def fit_friction(
     def residual(theta):
         return (model(theta)[1] - y).ravel() / np.linalg.norm(y)
 
-    before = lti.relative_error_time(y, lti.simulate_zoh(sys, u, fs))
+    before = lti.relative_error_time(y, sim.simulate_zoh(sys, u, fs))
     # coarse grid on the common level, 1 mN .. 10 N, then least squares
     grid = np.log(np.logspace(-3, 1, 9))
     costs = [np.sum(residual(np.full(1, g)) ** 2) for g in grid]

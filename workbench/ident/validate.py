@@ -241,7 +241,7 @@ def _matrices(model):
 
 def simulate(model, u: np.ndarray, x0=None) -> np.ndarray:
     """Output (N, l) of a discrete model for the input ``u`` (N, m) from the state ``x0``."""
-    from workbench.core.lti import simulate_zoh
+    from workbench.sim import simulate_zoh
 
     _, _, _, _, dt = _matrices(model)
     return simulate_zoh(model, np.asarray(u, float), 1.0 / dt, x0=x0)

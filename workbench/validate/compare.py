@@ -14,7 +14,7 @@ and returns a frozen :class:`Comparison`:
 
 Data flow::
 
-    model --lti.frf / lti.simulate_zoh--> G_model / y_model
+    model --lti.frf / sim.simulate_zoh--> G_model / y_model
     data  ----------------------------->  G_meas, G_var / y, u, r
                   |
                   v
@@ -31,6 +31,7 @@ import scipy.optimize
 import scipy.signal
 import scipy.stats
 
+from workbench import sim
 from workbench.core import lti
 from workbench.core.arrays import readonly
 from workbench.io.formats import FrfData, TimeData, check_model_matches
@@ -436,7 +437,7 @@ def kalman_predict(
     if dt > 0:
         Ad, B0, B1, m = A, B, np.zeros_like(B), 0
     else:
-        Ad, B0, B1, m = lti.c2d_zoh(A, B, 1.0 / fs, delay_s=delay_s)
+        Ad, B0, B1, m = sim.c2d_zoh(A, B, 1.0 / fs, delay_s=delay_s)
     um = np.zeros_like(u)
     if m < N:
         um[m:] = u[: N - m]
@@ -529,7 +530,7 @@ def _fit_note(model, data: TimeData, delay_s: float) -> str:
         return "fit with estimated initial state: not computed for a fractional-sample delay"
     A, B, C, D, dt = lti.as_matrices(model)
     if not dt:
-        Ad, Bd, _, _ = lti.c2d_zoh(A, B, 1.0 / data.fs)
+        Ad, Bd, _, _ = sim.c2d_zoh(A, B, 1.0 / data.fs)
         model = control.ss(Ad, Bd, C, D, 1.0 / data.fs)
     try:
         f = simulation_fit(model, data, input_delay=int(round(d)))
@@ -545,7 +546,7 @@ def _compare_time(model, data: TimeData, *, delay_s, window, false_alarm, gap, m
         "a white excitation; with a periodic excitation and coloured noise they are optimistic",
     ]
     y = data.y
-    ym = lti.simulate_zoh(model, data.u, data.fs, delay_s=delay_s)
+    ym = sim.simulate_zoh(model, data.u, data.fs, delay_s=delay_s)
     err = lti.relative_error_time(y, ym)
     notes.append(_fit_note(model, data, delay_s))
     resid = y - ym
