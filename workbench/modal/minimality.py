@@ -239,18 +239,8 @@ def check_minimality(
                 else f"{lemma}: {name}_{c.mode} is linearly dependent on the {name}'s of modes "
                 f"{partners} that share its eigenvalue"
             )
-            failures.append(
-                Failure(
-                    mode=c.mode,
-                    kind=c.kind,
-                    freq_hz=c.freq_hz,
-                    property=prop,
-                    criterion=criterion,
-                    margin=lemma_margin,
-                    severity="fails" if lemma_margin < tol else "weak",
-                    meaning=_MEANING[prop],
-                )
-            )
+            severity = "fails" if lemma_margin < tol else "weak"
+            failures.append(_failure(c, prop, criterion, lemma_margin, severity))
         # cross-check: the PBH rank test must agree with the lemma
         for prop, pbh in (("controllability", c.ctrb_pbh), ("observability", c.obsv_pbh)):
             group_margins = [
@@ -258,22 +248,26 @@ def check_minimality(
             ]
             # PBH is a test per eigenvalue: a group's dependence shows at every member
             if pbh < tol and min(group_margins) >= weak:
-                failures.append(
-                    Failure(
-                        mode=c.mode,
-                        kind=c.kind,
-                        freq_hz=c.freq_hz,
-                        property=prop,
-                        criterion="PBH rank test (the lemma passes: not in modal form?)",
-                        margin=pbh,
-                        severity="fails",
-                        meaning=_MEANING[prop],
-                    )
-                )
+                criterion = "PBH rank test (the lemma passes: not in modal form?)"
+                failures.append(_failure(c, prop, criterion, pbh, "fails"))
     return MinimalityReport(checks=checks, failures=tuple(failures), tol=tol, weak=weak)
 
 
 # ------------------------------------------------------------------ internals
+def _failure(c: ModeCheck, prop: str, criterion: str, margin: float, severity: str) -> Failure:
+    """A failure of mode check ``c`` for ``prop`` ("controllability" or "observability")."""
+    return Failure(
+        mode=c.mode,
+        kind=c.kind,
+        freq_hz=c.freq_hz,
+        property=prop,
+        criterion=criterion,
+        margin=margin,
+        severity=severity,
+        meaning=_MEANING[prop],
+    )
+
+
 def _largest(modes, name: str) -> float:
     return max((np.linalg.norm(getattr(m, name)) for m in modes), default=1.0) or 1.0
 
