@@ -141,43 +141,38 @@ def _screen(model, controller, m: int, f, ms_max: float) -> float:
 def _design_modal_sf(model, fs: float, m: int, ms_max: float):
     """Pole placement at a rigid-body bandwidth + Kalman observer, scanned for the best crossover.
 
-    A mode failing Lemma 1/2 raises InputError from the first design (the
-    minimality check does not depend on the scanned settings).
+    Exactly what :func:`controllers.modal_sf.design_modal_sf` builds with
+    ``feedback="place", observer="kalman"`` and the kept ``bandwidth_hz`` and
+    ``sensor``; its steps are called here one by one so that the design model
+    (and its minimality check: a mode failing Lemma 1/2 is an InputError, a
+    weak one warns once), each feedback gain and each observer gain are
+    computed once for the whole scan.
     """
-    import warnings
-
-    from controllers.modal_sf import design_modal_sf
+    from controllers import modal_sf
     from workbench import loop
 
+    dm = modal_sf.design_model(model, fs, loop_delay_samples=m)
     f = loop._default_grid(fs)
+    observers = {sensor: modal_sf.kalman_gain(dm, sensor=sensor) for sensor in _MODAL_SENSOR}
     best, best_fc = None, 0.0
-    first = True
-    for sensor in _MODAL_SENSOR:
-        for frac in _MODAL_BW_FRACTIONS:
-            try:
-                # a weak mode warns once (the first design), not once per candidate
-                with warnings.catch_warnings():
-                    if not first:
-                        warnings.simplefilter("ignore")
-                    d = design_modal_sf(
-                        model, fs, loop_delay_samples=m, feedback="place", observer="kalman",
-                        bandwidth_hz=frac * fs, sensor=sensor,
-                    )  # fmt: skip
-            except InputError:
-                if first:  # minimality, channels: the model's fault, not the candidate's
-                    raise
-                continue
-            first = False
-            fc = _screen(model, d.controller, m, f, ms_max)
+    for frac in _MODAL_BW_FRACTIONS:
+        try:
+            K = modal_sf.place_gain(dm, modal_sf.modal_poles(dm, bandwidth_hz=frac * fs))
+        except (InputError, ValueError, np.linalg.LinAlgError):
+            continue  # placement failed at this bandwidth: try the others
+        if np.max(np.abs(np.linalg.eigvals(dm.Phi - dm.Gamma @ K))) >= 1:
+            continue
+        for sensor, L in observers.items():
+            controller = modal_sf.observer_controller(dm, K, L)
+            fc = _screen(model, controller, m, f, ms_max)
             if fc > best_fc:
-                best, best_fc = (d, {"bandwidth_hz": frac * fs, "sensor": sensor}), fc
+                best, best_fc = (controller, {"bandwidth_hz": frac * fs, "sensor": sensor}), fc
     if best is None:
         raise InputError(
             f"modal-sf: no stable design meets |S| <= {ms_max:g} on the model (rigid-body "
             f"bandwidths {_MODAL_BW_FRACTIONS[0] * fs:.3g}..{_MODAL_BW_FRACTIONS[-1] * fs:.3g} Hz)"
         )
-    d, settings = best
-    return d.controller, settings
+    return best
 
 
 def run(args) -> int:
