@@ -142,6 +142,21 @@ def test_refusals_are_one_line_exit_2(designs, model_file, tmp_path, capsys, mon
         argv = ["design", "--model", str(model_file), "--method", "hinf", "--fs", str(FS)]
         assert main(argv + ["--out", str(out)]) == 2
         assert "not available yet" in one_line(capsys.readouterr().err)
+    # modal-sf on a mode the actuator cannot move (b = 0): Lemma 1, named, nothing written
+    from workbench.modal.model import ModalModel, Mode
+
+    lemma = tmp_path / "lemma.npz"
+    modes = (
+        Mode("rigid", 0.0, 0.0, b=[0.5], c=[1.0]),
+        Mode("flexible", F_FLEX, Z_FLEX, b=[0.0], c=[1.0]),
+    )
+    LTIModel.from_statespace(ModalModel(modes=modes, D=np.zeros((1, 1))).to_statespace()).write(
+        lemma
+    )
+    argv = ["design", "--model", str(lemma), "--method", "modal-sf", "--fs", str(FS)]
+    assert main(argv + ["--out", str(out)]) == 2
+    assert "mode 2" in (line := one_line(capsys.readouterr().err)) and "Lemma 1" in line
+    assert not out.exists()
     # an |S| bound no design meets: refused, nothing written
     assert main(base + ["--model", str(model_file), "--ms-max", "1.05", "--out", str(out)]) == 2
     one_line(capsys.readouterr().err)
