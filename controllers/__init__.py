@@ -16,6 +16,7 @@ Sign convention (spec section 5): ``u = K e`` with ``e = r - y``; an excitation
 :class:`StateSpaceController` wraps any discrete StateSpace or spec-5 controller file.
 """
 
+from controllers.hinf import HinfReport, design_hinf_mixed, hinf_lmi, mixed_sensitivity, weight
 from controllers.modal_sf import ModalSFDesign, design_modal_sf
 from controllers.pid import DecentralizedController, PidChannel, tune_pid
 from controllers.pid_notch import (
@@ -36,13 +37,18 @@ __all__ = [
     "ControllerState",
     "DecentralizedController",
     "DecentralizedPidNotch",
+    "HinfReport",
     "ModalSFDesign",
     "PidChannel",
     "PidNotchChannel",
     "PidNotchReport",
     "StateSpaceController",
     "StrictlyProper",
+    "design_hinf_mixed",
     "design_modal_sf",
+    "hinf_lmi",
+    "mixed_sensitivity",
     "tune_pid",
     "tune_pid_notch",
+    "weight",
 ]

@@ -1,0 +1,435 @@
+"""Discrete-time H-infinity synthesis by LMIs (cvxpy), mixed-sensitivity plants and weights.
+
+No slycot needed: the synthesis is the convex LMI formulation of the discrete
+bounded real lemma with Scherer's change of variables (Scherer, Gahinet &
+Chilali 1997; the discrete form as in de Oliveira, Geromel & Bernussou), solved
+by cvxpy (CLARABEL if installed, else SCS)::
+
+    W1 = weight(100.0, 20.0, 0.5, fs)          # on S: |W1| = 100 at DC, 1 at 20 Hz, 0.5 at Nyquist
+    P, n_meas, n_ctrl = mixed_sensitivity(G, W1, W3=weight(0.5, 200.0, 100.0, fs))
+    K, report = hinf_lmi(P, n_meas, n_ctrl)     # StateSpaceController e -> u, dt = 1/fs
+
+Generalized plant convention (D22 handled by a loop transformation)::
+
+    x+ = A x + B1 w + B2 u,   z = C1 x + D11 w + D12 u,   v = C2 x + D21 w + D22 u,   u = K v
+
+``hinf_lmi`` minimizes gamma such that ||T_zw||inf < gamma.
+
+Rigid-body trap: a plant with poles on the unit circle (a ZOH double integrator
+has two at z = 1) is not reachable from w at those poles in a mixed-sensitivity
+plant (w enters only the error), so the gamma-optimal LMI solution runs off to
+infinity (X or Y unbounded, the controller ill-conditioned). ``mixed_sensitivity``
+therefore designs on a shifted plant: ``A_G -> rho A_G`` with
+``rho = 1 - pole_shift`` when G has poles with |z| > 1 - pole_shift. This moves
+every plant pole radially inward by the factor rho (an integrator becomes a
+low-pass with corner ~ pole_shift * fs / (2 pi) Hz); above that corner the
+shifted and the true plant agree, so the design holds there, and below it the
+true plant has more gain, so |S| of the true loop is smaller. The true loop's
+stability is not implied by the shift: callers must check it (the tests do, on
+a double integrator 1/(m s^2) with ZOH).
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from controllers.protocol import StateSpaceController
+from workbench.core.errors import InputError
+
+__all__ = [
+    "HinfReport",
+    "design_hinf_mixed",
+    "hinf_lmi",
+    "hinf_norm_grid",
+    "mixed_sensitivity",
+    "weight",
+]
+
+
+@dataclass(frozen=True)
+class HinfReport:
+    """What the synthesis did.
+
+    Attributes
+    ----------
+    gamma : float
+        Guaranteed bound on ||T_zw||inf (the LMI certificate of the returned controller).
+    gamma_opt : float
+        The minimized gamma of the first LMI pass of the attempt that gave the
+        controller (gamma >= gamma_opt; with X, Y bounded it may exceed the
+        true optimum slightly).
+    solver, status : str
+        cvxpy solver and its status.
+    time_s : float
+        Wall time of the synthesis, s.
+    pole_shift : float
+        Radial shift applied to the plant for synthesis (0: none); mixed_sensitivity only.
+    """
+
+    gamma: float
+    gamma_opt: float
+    solver: str
+    status: str
+    time_s: float
+    pole_shift: float = 0.0
+
+
+def _solver() -> str:
+    import cvxpy as cp
+
+    for name in ("CLARABEL", "SCS"):
+        if name in cp.installed_solvers():
+            return name
+    raise InputError(
+        f"hinf: expected cvxpy with CLARABEL or SCS installed, got {cp.installed_solvers()}"
+    )
+
+
+def _discrete(sys, name: str):
+    from workbench.core.lti import as_matrices
+
+    try:
+        A, B, C, D, dt = as_matrices(sys)
+    except InputError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - anything not a model is bad input
+        raise InputError(f"{name}: expected a discrete StateSpace or LTIModel, got {exc}") from exc
+    if float(getattr(sys, "delay_s", 0.0) or 0.0):
+        raise InputError(f"{name}: expected no delay_s (put the delay into the states), got one")
+    if not dt or dt <= 0 or dt is True:
+        raise InputError(f"{name}: expected a discrete model (dt > 0), got dt = {dt}")
+    return (np.asarray(A, float), np.asarray(B, float), np.asarray(C, float),
+            np.asarray(D, float), float(dt))  # fmt: skip
+
+
+def hinf_lmi(
+    P,
+    n_meas: int,
+    n_ctrl: int,
+    *,
+    gamma_max: float | None = None,
+    eps: float = 1e-7,
+    backoff: float = 1e-3,
+    xy_bounds: tuple[float, ...] = (1e4, 1e3),
+    input_names=(),
+    output_names=(),
+) -> tuple[StateSpaceController, HinfReport]:
+    """Gamma-minimal discrete H-infinity output-feedback controller by LMIs.
+
+    Parameters
+    ----------
+    P : discrete control.StateSpace or LTIModel
+        Generalized plant [w; u] -> [z; v]; the last ``n_ctrl`` inputs are u,
+        the last ``n_meas`` outputs are v.
+    n_meas, n_ctrl : int
+        Measurements v (controller inputs) and controls u (controller outputs).
+    gamma_max : float, optional
+        Refuse (InputError) when the optimal gamma exceeds this.
+    eps : float
+        Margin for the strict inequalities (LMI >= eps I, scaled problem).
+    backoff : float
+        Relative gamma backoff of the second pass, which fixes gamma at
+        (1 + backoff) gamma_opt and maximizes the coupling margin of X, Y so
+        the reconstructed controller is well conditioned.
+    xy_bounds : tuple of float
+        Bounds on the Lyapunov variables X, Y of the scaled problem (X, Y <= b I),
+        tried in turn when the unbounded problem solves only inaccurately.
+    input_names, output_names : sequence of str
+        Names of the controller's inputs (measurements) and outputs (controls).
+
+    Returns
+    -------
+    (StateSpaceController, HinfReport)
+        Controller v -> u with dt of P; ``report.gamma`` bounds ||T_zw||inf.
+    """
+    import cvxpy as cp
+
+    t0 = time.perf_counter()
+    A, B, C, D, dt = _discrete(P, "P")
+    n = A.shape[0]
+    n_meas, n_ctrl = int(n_meas), int(n_ctrl)
+    nw, nz = B.shape[1] - n_ctrl, C.shape[0] - n_meas
+    if n_meas < 1 or n_ctrl < 1 or nw < 1 or nz < 1:
+        raise InputError(
+            f"P: expected >= 1 exogenous input w, performance output z, control u and "
+            f"measurement v, got {B.shape[1]} inputs / {C.shape[0]} outputs for "
+            f"n_ctrl = {n_ctrl}, n_meas = {n_meas}"
+        )
+    if n == 0:
+        raise InputError("P: expected a plant with states, got a static gain")
+    if not np.all(np.isfinite(np.block([[A, B], [C, D]]))):
+        raise InputError("P: expected finite matrices, got NaN or inf")
+    B1, B2 = B[:, :nw], B[:, nw:]
+    C1, C2 = C[:nz], C[nz:]
+    D11, D12, D21, D22 = D[:nz, :nw], D[:nz, nw:], D[nz:, :nw], D[nz:, nw:]
+
+    # Scaling (why: a ZOH plant at kHz rates has B ~ 1/fs^2; interior-point
+    # solvers then lose digits). States: diagonal balance of A; u, v: unit
+    # column / row norms of [B2; D12] and [C2, D21]. Undone on the controller.
+    from scipy.linalg import matrix_balance
+
+    _, T = matrix_balance(A, permute=False, separate=False)
+    Ti = np.diag(1.0 / np.diag(T))
+    A, B1, B2, C1, C2 = Ti @ A @ T, Ti @ B1, Ti @ B2, C1 @ T, C2 @ T
+    su = 1.0 / np.maximum(np.linalg.norm(np.vstack([B2, D12]), axis=0), 1e-300)
+    sv = 1.0 / np.maximum(np.linalg.norm(np.hstack([C2, D21]), axis=1), 1e-300)
+    B2, D12 = B2 * su, D12 * su
+    C2, D21 = sv[:, None] * C2, sv[:, None] * D21
+    D22s = sv[:, None] * D22 * su
+    sw = max(np.abs(np.block([[B1], [D11], [D21]])).max(), 1e-300)  # w, z scale: gamma unchanged
+    sz = max(np.abs(np.block([[C1, D11, D12]])).max(), 1e-300)
+    B1, D11, D21 = B1 / sw, D11 / (sw * sz), D21 / sw
+    C1, D12 = C1 / sz, D12 / sz
+    gscale = 1.0 / (sw * sz)  # true gamma = gamma_scaled / gscale
+
+    ny, nu = n_meas, n_ctrl
+    X = cp.Variable((n, n), symmetric=True)
+    Y = cp.Variable((n, n), symmetric=True)
+    Ah = cp.Variable((n, n))
+    Bh = cp.Variable((n, ny))
+    Ch = cp.Variable((nu, n))
+    Dh = cp.Variable((nu, ny))
+    g = cp.Variable()
+    In, Iw, Iz = np.eye(n), np.eye(nw), np.eye(nz)
+    M11 = cp.bmat([[X, In], [In, Y]])
+    M12 = cp.bmat([[A @ X + B2 @ Ch, A + B2 @ Dh @ C2], [Ah, Y @ A + Bh @ C2]])
+    Bc = cp.bmat([[B1 + B2 @ Dh @ D21], [Y @ B1 + Bh @ D21]])
+    Cc = cp.bmat([[C1 @ X + D12 @ Ch, C1 + D12 @ Dh @ C2]])
+    Dc = D11 + D12 @ Dh @ D21
+    Z2n_w, Z2n_z = np.zeros((2 * n, nw)), np.zeros((2 * n, nz))
+    big = cp.bmat(
+        [
+            [M11, M12, Bc, Z2n_z],
+            [M12.T, M11, Z2n_w, Cc.T],
+            [Bc.T, Z2n_w.T, g * Iw, Dc.T],
+            [Z2n_z.T, Cc, Dc, g * Iz],
+        ]
+    )
+    m = big.shape[0]
+    sym = 0.5 * (big + big.T)  # symmetric by construction; cvxpy wants it explicit
+    t = cp.Variable()
+    # Attempts: X, Y free first, then bounded (why: singular problems, D12 or
+    # D21 rank deficient as in a W1-only design, have X, Y unbounded at the
+    # optimum and the solver reports an inaccurate solution; a bound costs a
+    # little gamma and keeps the reconstruction well conditioned).
+    # Each attempt has two passes. Pass 1 minimizes gamma. Pass 2 fixes gamma
+    # slightly above that optimum and maximizes the coupling margin t
+    # ([X, I; I, Y] >= t I, so I - X Y is far from singular): a gamma-optimal
+    # solution is degenerate and its controller can even destabilize the loop
+    # in floating point. Each candidate is checked (closed-loop spectral
+    # radius < 1); the backoff grows until one passes.
+    solver = _solver()
+    found, status = False, "not solved"
+    for bound in (None, *xy_bounds):
+        base = [sym >> eps * np.eye(m)]
+        if bound is not None:
+            base += [X << bound * In, Y << bound * In]
+        prob = cp.Problem(cp.Minimize(g), base)
+        try:
+            prob.solve(solver=solver)
+            status = prob.status
+        except cp.error.SolverError:
+            status = "solver_error"
+        if status not in ("optimal", "optimal_inaccurate") or g.value is None:
+            continue
+        if status != "optimal" and bound != xy_bounds[-1]:
+            continue
+        g1 = float(g.value)
+        gamma_opt = g1 / gscale
+        if gamma_max is not None and gamma_opt > gamma_max:
+            raise InputError(
+                f"P: H-inf LMI: expected gamma <= gamma_max = {gamma_max:g}, got optimal "
+                f"gamma = {gamma_opt:.6g}"
+            )
+        if bound is None:  # pass 2 needs bounded X, Y for a finite t
+            bound = 100.0 * max(1.0, float(np.abs(X.value).max()), float(np.abs(Y.value).max()))
+            base += [X << bound * In, Y << bound * In]
+        for bo in (backoff, 1e-2, 5e-2, 0.2):
+            g_fix = g1 * (1.0 + bo) + 1e-9
+            prob2 = cp.Problem(
+                cp.Maximize(t), [g == g_fix, *base, M11 >> t * np.eye(2 * n), t <= 1.0]
+            )
+            try:
+                prob2.solve(solver=solver)
+                status = prob2.status
+            except cp.error.SolverError:
+                status = "solver_error"
+            if status not in ("optimal", "optimal_inaccurate") or X.value is None:
+                continue
+            Xv, Yv = 0.5 * (X.value + X.value.T), 0.5 * (Y.value + Y.value.T)
+            # Reconstruction with N = I, M = I - X Y (M N^T = I - X Y).
+            Mt = In - Yv @ Xv  # M^T
+            Mti = np.linalg.inv(Mt)
+            DK = Dh.value
+            CK = (Ch.value - DK @ C2 @ Xv) @ Mti
+            BK = Bh.value - Yv @ B2 @ DK
+            AK = (Ah.value - BK @ C2 @ Xv - Yv @ B2 @ CK @ Mt - Yv @ (A + B2 @ DK @ C2) @ Xv) @ Mti
+            Acl = np.block([[A + B2 @ DK @ C2, B2 @ CK], [BK @ C2, AK]])
+            if np.all(np.isfinite(Acl)) and np.max(np.abs(np.linalg.eigvals(Acl))) < 1.0:
+                found = True
+                break
+        if found:
+            break
+    if not found:
+        raise InputError(
+            f"P: H-inf LMI infeasible or ill-posed (solver {solver}: {status}): expected a "
+            "plant stabilizable from u and detectable from v, no stabilizing controller found"
+        )
+    # Undo the u / v scaling (state scaling of P does not touch K's ports).
+    AK, BK, CK, DK = AK, BK * sv[None, :], su[:, None] * CK, su[:, None] * DK * sv[None, :]
+    if np.any(D22s):  # u = K0 v0 with v0 = v - D22 u  =>  K = K0 (I + D22 K0)^-1
+        E = np.linalg.inv(np.eye(nu) + DK @ D22)
+        AK2 = AK - BK @ D22 @ E @ CK
+        BK, CK, DK = BK @ (np.eye(ny) - D22 @ E @ DK), E @ CK, E @ DK
+        AK = AK2
+    K = StateSpaceController(
+        AK, BK, CK, DK, fs=1.0 / dt, input_names=tuple(input_names),
+        output_names=tuple(output_names),
+    )  # fmt: skip
+    rep = HinfReport(
+        gamma=g_fix / gscale,
+        gamma_opt=gamma_opt,
+        solver=solver,
+        status=status,
+        time_s=time.perf_counter() - t0,
+    )
+    return K, rep
+
+
+def weight(low_gain: float, crossover_hz: float, high_gain: float, fs: float):
+    """First-order weight with |W| = low_gain at DC, 1 at crossover_hz, high_gain at Nyquist.
+
+    W(s) = (s / M + wc) / (s + wc A) with 1/A = low_gain, 1/M = high_gain (the
+    usual performance weight for S when low > 1 > high, a roll-off weight for
+    T or K S when low < 1 < high), crossing 1 near ``crossover_hz``;
+    discretized by Tustin with prewarping at the crossover, so the discrete
+    weight has exactly the continuous gain at DC and at ``crossover_hz`` and
+    ``high_gain`` at Nyquist.
+
+    Returns
+    -------
+    control.StateSpace
+        SISO, discrete, dt = 1/fs.
+    """
+    import control
+
+    vals = (low_gain, crossover_hz, high_gain, fs)
+    if not all(np.isfinite(v) and v > 0 for v in vals):
+        raise InputError(
+            f"weight: expected low_gain, crossover_hz, high_gain, fs all > 0, got {vals}"
+        )
+    if not crossover_hz < fs / 2:
+        raise InputError(f"weight: expected crossover_hz < fs/2 = {fs / 2:g}, got {crossover_hz}")
+    if (low_gain - 1.0) * (high_gain - 1.0) >= 0:
+        raise InputError(
+            "weight: expected low_gain and high_gain on opposite sides of 1 (a crossover), "
+            f"got {low_gain:g}, {high_gain:g}"
+        )
+    A_, M_ = 1.0 / low_gain, 1.0 / high_gain
+    # |W(j wc')| = 1 fixes the corner: (wc'^2/M^2 + wc^2) = (wc'^2 + wc^2 A^2) with wc' = 2 pi fc.
+    wcp = 2 * np.pi * crossover_hz
+    wc = wcp * np.sqrt((1 - 1 / M_**2) / (1 - A_**2))
+    Wc = control.tf([1.0 / M_, wc], [1.0, wc * A_])
+    Wd = control.sample_system(Wc, 1.0 / fs, method="tustin", prewarp_frequency=wcp)
+    return control.ss(Wd)
+
+
+def mixed_sensitivity(G, W1=None, W2=None, W3=None, *, pole_shift: float = 1e-3):
+    """Generalized plant for min || [W1 S; W2 K S; W3 T] ||inf of the loop e -> u -> y.
+
+    Loop (spec 5 sign): e = r - y, u = K e, y = G u; S = (I + G K)^-1, T = G K S.
+    The plant P has inputs [w (= r, n_y); u (n_u)] and outputs
+    [z1 = W1 e; z2 = W2 u; z3 = W3 y; v = e], built with ``control.augw``.
+
+    Parameters
+    ----------
+    G : discrete control.StateSpace or LTIModel, u (n_u) -> y (n_y)
+    W1, W2, W3 : discrete control.StateSpace or None
+        Weights on S, K S and T (SISO weights are repeated on the diagonal).
+    pole_shift : float
+        Plant poles with |z| > 1 - pole_shift (integrators, rigid-body modes)
+        are moved inward: A_G -> (1 - pole_shift) A_G for the synthesis (see
+        the module doc). 0 disables it.
+
+    Returns
+    -------
+    (P, n_meas, n_ctrl, rho)
+        P a discrete control.StateSpace; rho the factor applied to A_G (1.0 if none).
+    """
+    import control
+
+    A, B, C, D, dt = _discrete(G, "G")
+    if W1 is None and W2 is None and W3 is None:
+        raise InputError("mixed_sensitivity: expected at least one weight W1, W2 or W3, got none")
+    if not 0 <= pole_shift < 0.5:
+        raise InputError(f"pole_shift: expected 0 <= pole_shift < 0.5, got {pole_shift}")
+    rho = 1.0
+    if pole_shift > 0 and A.size and np.max(np.abs(np.linalg.eigvals(A))) > 1 - pole_shift:
+        rho = 1.0 - pole_shift
+    Gs = control.ss(rho * A, B, C, D, dt)
+    ny, nu = C.shape[0], B.shape[1]
+    ws = []
+    for name, W, dim in (("W1", W1, ny), ("W2", W2, nu), ("W3", W3, ny)):
+        if W is None:
+            ws.append(None)
+            continue
+        Wa, Wb, Wc_, Wd, wdt = _discrete(W, name)
+        if not np.isclose(wdt, dt, rtol=1e-9):
+            raise InputError(f"{name}: expected dt = {dt:g} s (the plant's), got {wdt:g}")
+        if np.any(np.abs(np.linalg.eigvals(Wa)) >= 1.0) if Wa.size else False:
+            raise InputError(f"{name}: expected a stable weight (poles inside |z| < 1)")
+        Wss = control.ss(Wa, Wb, Wc_, Wd, dt)
+        if Wss.ninputs == 1 and Wss.noutputs == 1 and dim > 1:
+            Wss = control.append(*([Wss] * dim))
+        if Wss.ninputs != dim:
+            raise InputError(f"{name}: expected {dim} inputs, got {Wss.ninputs}")
+        ws.append(Wss)
+    with warnings.catch_warnings():  # augw uses control.connect (deprecated, still exact)
+        warnings.filterwarnings("ignore", message=".*connect.*", category=FutureWarning)
+        P = control.augw(Gs, *ws)
+    return control.ss(P), ny, nu, rho
+
+
+def design_hinf_mixed(
+    G, W1=None, W2=None, W3=None, *, pole_shift: float = 1e-3, gamma_max: float | None = None
+) -> tuple[StateSpaceController, HinfReport]:
+    """Mixed-sensitivity H-inf controller e -> u for G (dt = 1/fs of G), see mixed_sensitivity.
+
+    The controller is named after G's outputs (inputs) and inputs (outputs).
+    ``report.pole_shift`` is the shift actually applied (0 when G has no pole
+    near the unit circle); the true loop's stability is the caller's to check.
+    """
+    import dataclasses
+
+    P, n_meas, n_ctrl, rho = mixed_sensitivity(G, W1, W2, W3, pole_shift=pole_shift)
+    names = {}
+    for key, attrs in (("input_names", ("output_labels", "output_names")),
+                       ("output_names", ("input_labels", "input_names"))):  # fmt: skip
+        for a in attrs:
+            if getattr(G, a, None):
+                names[key] = tuple(getattr(G, a))
+                break
+    K, rep = hinf_lmi(P, n_meas, n_ctrl, gamma_max=gamma_max, **names)
+    return K, dataclasses.replace(rep, pole_shift=1.0 - rho)
+
+
+def hinf_norm_grid(sys, n: int = 20000) -> float:
+    """||sys||inf of a discrete system on a dense grid of n lines 0..Nyquist (max singular value).
+
+    A lower bound of the true norm (exact up to the grid); inf when unstable.
+    """
+    A, B, C, D, dt = _discrete(sys, "sys")
+    if A.size and np.max(np.abs(np.linalg.eigvals(A))) >= 1.0:
+        return float("inf")
+    w = np.linspace(0.0, np.pi, int(n))
+    z = np.exp(1j * w)
+    In = np.eye(A.shape[0])
+    best = 0.0
+    for zk in z:
+        H = D + (C @ np.linalg.solve(zk * In - A, B) if A.size else 0.0)
+        best = max(best, float(np.linalg.norm(H, 2)))
+    return best

@@ -1,0 +1,148 @@
+"""H-inf synthesis by LMIs: closed form, independent grid norm, double integrator, refusals."""
+
+from __future__ import annotations
+
+import control
+import numpy as np
+import pytest
+
+from controllers.hinf import (
+    design_hinf_mixed,
+    hinf_lmi,
+    hinf_norm_grid,
+    mixed_sensitivity,
+    weight,
+)
+from controllers.protocol import Controller, StateSpaceController
+from workbench.core.errors import InputError
+
+FS = 1000.0
+pytestmark = pytest.mark.filterwarnings("ignore:Solution may be inaccurate")
+
+
+def _one(dt):
+    return control.ss([], [], [], [[1.0]], dt)
+
+
+def _loop(G, K):
+    """S, K S, T of the spec-5 loop (u = K e, e = r - y) as discrete StateSpaces."""
+    Ks = K.statespace()  # closed-loop realizations only (no uncancelled plant poles)
+    return control.feedback(_one(G.dt), G * Ks), control.feedback(Ks, G), control.feedback(G * Ks)
+
+
+def test_first_order_gamma_equals_closed_form():
+    # G = b / (z - p) stable, minimum phase, relative degree 1; W1 stable and
+    # minimum phase. S(inf) = 1 for every proper K, so by the maximum modulus
+    # principle ||W1 S||inf >= |W1(inf)| = |D_W1|, and S = D_W1 / W1 reaches it
+    # (Youla Q = (1 - D_W1/W1)/G is proper and stable): gamma_opt = |D_W1|.
+    G = control.ss(control.tf([0.5], [1.0, -0.9], 1 / FS))
+    W1 = weight(10.0, 20.0, 0.5, FS)
+    gamma_ref = abs(float(W1.D[0, 0]))
+    K, rep = design_hinf_mixed(G, W1)
+    assert isinstance(K, Controller) and K.fs == FS
+    assert rep.pole_shift == 0.0 and rep.solver in ("CLARABEL", "SCS")
+    assert rep.gamma == pytest.approx(gamma_ref, rel=0.02)
+    S, _, _ = _loop(G, K)
+    assert np.max(np.abs(S.poles())) < 1.0
+    achieved = hinf_norm_grid(W1 * S, 4000)
+    assert achieved <= rep.gamma * (1 + 1e-3)
+    assert achieved >= gamma_ref * (1 - 1e-3)  # no controller beats the closed form
+
+
+def test_weight_gains():
+    W = weight(100.0, 20.0, 0.5, FS)
+    mag = lambda f: abs(complex(W(np.exp(2j * np.pi * f / FS)).squeeze()))  # noqa: E731
+    assert mag(0.0) == pytest.approx(100.0, rel=1e-9)
+    assert mag(20.0) == pytest.approx(1.0, rel=1e-9)
+    assert mag(FS / 2) == pytest.approx(0.5, rel=1e-9)
+    with pytest.raises(InputError, match="opposite sides"):
+        weight(2.0, 20.0, 3.0, FS)
+    with pytest.raises(InputError, match="fs/2"):
+        weight(100.0, 600.0, 0.5, FS)
+
+
+def test_mixed_sensitivity_closed_loop_matches_gamma():
+    G = control.ss(control.tf([0.2, 0.1], [1.0, -1.5, 0.7], 1 / FS))  # stable 2nd order
+    W1, W2 = weight(50.0, 15.0, 0.5, FS), control.ss([], [], [], [[0.05]], 1 / FS)
+    W3 = weight(0.5, 150.0, 50.0, FS)
+    K, rep = design_hinf_mixed(G, W1, W2, W3)
+    S, KS, T = _loop(G, K)
+    assert np.max(np.abs(S.poles())) < 1.0
+    nrm = max(
+        hinf_norm_grid(W1 * S, 3000), hinf_norm_grid(W2 * KS, 3000), hinf_norm_grid(W3 * T, 3000)
+    )
+    # The stacked norm is >= each block's norm and <= sqrt(3) times the max.
+    assert nrm <= rep.gamma * (1 + 1e-3)
+    assert nrm >= rep.gamma / np.sqrt(3) * 0.9
+
+
+def test_double_integrator_rigid_body():
+    m = 2.0
+    G = control.sample_system(control.ss(control.tf([1 / m], [1.0, 0.0, 0.0])), 1 / FS, "zoh")
+    W1 = weight(100.0, 10.0, 0.5, FS)
+    W3 = weight(0.5, 200.0, 100.0, FS)
+    K, rep = design_hinf_mixed(G, W1, None, W3)
+    assert rep.pole_shift == pytest.approx(1e-3)
+    S, _, T = _loop(G, K)  # the TRUE plant, integrators on the unit circle
+    assert np.max(np.abs(S.poles())) < 1.0
+    assert hinf_norm_grid(W1 * S, 8000) <= rep.gamma * (1 + 1e-3)
+    assert hinf_norm_grid(W3 * T, 8000) <= rep.gamma * (1 + 1e-3)
+    # A usable design, not just a stable one: W1 asks |S| < 1 below ~10 Hz.
+    f = np.logspace(-1, np.log10(FS / 2.1), 4000)
+    s_mag = np.abs(S(np.exp(2j * np.pi * f / FS)).squeeze())
+    bw_hz = f[np.argmax(s_mag > 1 / np.sqrt(2))]  # -3 dB sensitivity bandwidth (16.2 Hz measured)
+    assert bw_hz > 10.0
+
+
+def test_infeasible_and_bad_input_refused():
+    dt = 1 / FS
+    # Unstable mode (z = 1.2) that u cannot reach: not stabilizable -> infeasible.
+    A = np.diag([1.2, 0.5])
+    B = np.array([[1.0, 0.0], [0.0, 1.0]])  # w reaches the unstable state, u does not
+    C = np.array([[1.0, 1.0], [1.0, 1.0]])
+    D = np.array([[0.0, 1.0], [1.0, 0.0]])
+    with pytest.raises(InputError, match="infeasible") as exc:
+        hinf_lmi(control.ss(A, B, C, D, dt), 1, 1)
+    assert "\n" not in str(exc.value)
+    with pytest.raises(InputError, match="discrete"):
+        hinf_lmi(control.ss(A, B, C, D), 1, 1)
+    with pytest.raises(InputError, match="exogenous"):
+        hinf_lmi(control.ss(A, B, C, D, dt), 1, 2)
+    G = control.ss(control.tf([0.5], [1.0, -0.9], dt))
+    with pytest.raises(InputError, match="gamma_max"):
+        design_hinf_mixed(G, weight(10.0, 20.0, 0.5, FS), gamma_max=0.1)
+    with pytest.raises(InputError, match="dt"):
+        mixed_sensitivity(G, weight(10.0, 20.0, 0.5, 2 * FS))
+    with pytest.raises(InputError, match="at least one weight"):
+        mixed_sensitivity(G)
+
+
+def test_controller_is_statespace_controller():
+    G = control.ss(control.tf([0.5], [1.0, -0.9], 1 / FS), inputs=["f"], outputs=["x"])
+    K, _ = design_hinf_mixed(G, weight(10.0, 20.0, 0.5, FS))
+    assert isinstance(K, StateSpaceController)
+    assert K.input_names == ("x",) and K.output_names == ("f",)
+    u, st = K.step(K.init(), np.array([1.0]))
+    assert u.shape == (1,) and np.all(np.isfinite(u))
+
+
+def test_gamma_against_hinfsyn():
+    pytest.importorskip("slycot")
+    # hinfsyn (slycot sb10ad) is continuous time; the bilinear map z <-> s keeps
+    # the H-inf norm and maps proper controllers to proper controllers, so the
+    # optimal gamma of P and of its Tustin inverse agree.
+    G = control.ss(control.tf([0.2, 0.1], [1.0, -1.5, 0.7], 1 / FS))
+    W1, W2 = weight(50.0, 15.0, 0.5, FS), control.ss([], [], [], [[0.05]], 1 / FS)
+    P, nm, nc, _ = mixed_sensitivity(G, W1, W2)
+    _, rep = hinf_lmi(P, nm, nc)
+    # Inverse Tustin z = (1 + s T/2) / (1 - s T/2), written out (no d2c helper needed).
+    A, B, C, D = (np.asarray(x) for x in (P.A, P.B, P.C, P.D))
+    T = P.dt
+    E = np.linalg.inv(np.eye(A.shape[0]) + A)
+    Ac = (2 / T) * E @ (A - np.eye(A.shape[0]))
+    Bc = (2 / np.sqrt(T)) * E @ B
+    Cc = (2 / np.sqrt(T)) * C @ E
+    Dc = D - C @ E @ B
+    Pc = control.ss(Ac, Bc, Cc, Dc)
+    _, _, gam, _ = control.hinfsyn(Pc, nm, nc)
+    assert rep.gamma_opt == pytest.approx(float(gam), rel=0.03)
