@@ -146,3 +146,17 @@ def test_gamma_against_hinfsyn():
     Pc = control.ss(Ac, Bc, Cc, Dc)
     _, _, gam, _ = control.hinfsyn(Pc, nm, nc)
     assert rep.gamma_opt == pytest.approx(float(gam), rel=0.03)
+
+
+def test_plant_with_feedthrough_d22():
+    # A biproper G gives D22 = -D_G != 0: the synthesis designs for D22 = 0 and
+    # undoes it by the loop transformation K = K0 (I + D22 K0)^-1.
+    G = control.ss(control.tf([0.3, -0.1], [1.0, -0.8], 1 / FS))
+    assert abs(float(G.D[0, 0])) > 0
+    W1, W2 = weight(10.0, 20.0, 0.5, FS), control.ss([], [], [], [[0.1]], 1 / FS)
+    K, rep = design_hinf_mixed(G, W1, W2)
+    S, KS, _ = _loop(G, K)
+    assert np.max(np.abs(S.poles())) < 1.0
+    nrm = max(hinf_norm_grid(W1 * S, 3000), hinf_norm_grid(W2 * KS, 3000))
+    assert nrm <= rep.gamma * (1 + 1e-3)
+    assert nrm >= rep.gamma / np.sqrt(2) * 0.9
