@@ -40,18 +40,6 @@ TRUE_HZ = (913.8, 1032.0)
 TRUE_ZETA = (0.0091, 0.0095)
 
 
-def true_modal_model(plant):
-    """The plant's own modes as a ModalModel (rigid, then flexible), D = 0 (truth side only)."""
-    from workbench.modal.model import ModalModel, Mode
-
-    ms = plant.modes
-    modes = tuple(
-        Mode(kind="rigid" if k == "rigid" else "flexible", freq_hz=f, damping=z, b=b, c=c)
-        for f, z, b, c, k in zip(ms.freq_hz, ms.damping, ms.b, ms.c, ms.kind)
-    )
-    return ModalModel(modes=modes, D=np.zeros((plant.n_y, plant.n_u)))
-
-
 def sensor_noise_cov(plant) -> np.ndarray:
     """Per-sample output noise covariance (n_y, n_y), m^2: raw white noise + q^2/12, decoupled."""
     var = plant.measurement_noise_std**2 + plant.measurement_quantization**2 / 12
@@ -142,7 +130,7 @@ def main() -> None:
     )
     args = p.parse_args()
     plant = plants.get_plant("wafer_stage")
-    true = true_modal_model(plant)
+    true = plant.modes.to_modal()  # the plant's own modes (truth side only)
     noise_cov = sensor_noise_cov(plant)
     rows = {}
     t0 = time.perf_counter()

@@ -495,18 +495,6 @@ def part_realdata(args) -> None:
     )
 
 
-def true_modal_model(plant):
-    """The plant's own modes as a ModalModel (rigid, then flexible), D = 0."""
-    from workbench.modal.model import ModalModel, Mode
-
-    ms = plant.modes
-    modes = tuple(
-        Mode(kind="rigid" if k == "rigid" else "flexible", freq_hz=f, damping=z, b=b, c=c)
-        for f, z, b, c, k in zip(ms.freq_hz, ms.damping, ms.b, ms.c, ms.kind)
-    )
-    return ModalModel(modes=modes, D=np.zeros((plant.n_y, plant.n_u)))
-
-
 def flexible_errors(model) -> tuple[list[float], list[float], int]:
     """Frequency (Hz) and relative damping errors of the two flexible modes; rigid count."""
     flex = model.modes_of_kind("flexible")
@@ -542,7 +530,7 @@ def part_refine(args) -> None:
     )
     plant = wafer_stage()
     quiet = plant.with_effects(noise_std=0.0, quantization=0.0)
-    true = true_modal_model(plant)
+    true = plant.modes.to_modal()  # the plant's own modes (truth side only)
     # white sensor noise on the 9 raw axes, quantization as uniform noise q^2/12,
     # through the decoupling: per-sample covariance of the 6 outputs
     var = plant.measurement_noise_std**2 + plant.measurement_quantization**2 / 12
