@@ -18,6 +18,7 @@ Sign convention (spec section 5): ``u = K e`` with ``e = r - y``; an excitation
 
 from controllers.hinf import HinfReport, design_hinf_mixed, hinf_lmi, mixed_sensitivity, weight
 from controllers.modal_sf import ModalSFDesign, design_modal_sf
+from controllers.mpc import LinearMPC
 from controllers.pid import DecentralizedController, PidChannel, tune_pid
 from controllers.pid_notch import (
     DecentralizedPidNotch,
@@ -38,6 +39,7 @@ __all__ = [
     "DecentralizedController",
     "DecentralizedPidNotch",
     "HinfReport",
+    "LinearMPC",
     "ModalSFDesign",
     "PidChannel",
     "PidNotchChannel",
