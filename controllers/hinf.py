@@ -78,6 +78,17 @@ class HinfReport:
     pole_shift: float = 0.0
 
 
+def _solve(problem, solver: str) -> str:
+    """Solve a cvxpy problem; its status, or "solver_error" when the solver gave up."""
+    import cvxpy as cp
+
+    try:
+        problem.solve(solver=solver)
+    except cp.error.SolverError:
+        return "solver_error"
+    return problem.status
+
+
 def _solver() -> str:
     import cvxpy as cp
 
@@ -228,12 +239,7 @@ def hinf_lmi(
         base = [sym >> eps * np.eye(m)]
         if bound is not None:
             base += [X << bound * In, Y << bound * In]
-        prob = cp.Problem(cp.Minimize(g), base)
-        try:
-            prob.solve(solver=solver)
-            status = prob.status
-        except cp.error.SolverError:
-            status = "solver_error"
+        status = _solve(cp.Problem(cp.Minimize(g), base), solver)
         if status not in ("optimal", "optimal_inaccurate") or g.value is None:
             continue
         if status != "optimal" and bound != xy_bounds[-1]:
@@ -253,11 +259,7 @@ def hinf_lmi(
             prob2 = cp.Problem(
                 cp.Maximize(t), [g == g_fix, *base, M11 >> t * np.eye(2 * n), t <= 1.0]
             )
-            try:
-                prob2.solve(solver=solver)
-                status = prob2.status
-            except cp.error.SolverError:
-                status = "solver_error"
+            status = _solve(prob2, solver)
             if status not in ("optimal", "optimal_inaccurate") or X.value is None:
                 continue
             Xv, Yv = 0.5 * (X.value + X.value.T), 0.5 * (Y.value + Y.value.T)

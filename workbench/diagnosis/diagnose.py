@@ -157,12 +157,9 @@ def _spec_error(model, data, delay_s: float = 0.0) -> float:
     """The spec error of a model as given (python-control StateSpace, continuous or discrete)."""
     if isinstance(data, FrfData):
         return relative_error_frf(data.G, frf(model, data.freq, delay_s=delay_s))
-    if delay_s and as_matrices(model)[4] > 0:
-        # a discrete model with a delay: shift by whole samples, the rest is not representable
-        y = simulate_zoh(model, data.u, data.fs)
-        m = int(round(delay_s * data.fs))
-        y = np.concatenate([np.zeros((m, y.shape[1])), y[: y.shape[0] - m]]) if m else y
-        return relative_error_time(data.y, y)
+    if as_matrices(model)[4] > 0:
+        # a discrete model delays by whole samples: the rest of the delay is not representable
+        delay_s = round(delay_s * data.fs) / data.fs
     return relative_error_time(data.y, simulate_zoh(model, data.u, data.fs, delay_s=delay_s))
 
 
