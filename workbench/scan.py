@@ -203,8 +203,8 @@ def point_to_point(
     Examples
     --------
     >>> p = point_to_point(0.01, ScanLimits(0.25, 10.0, 2e3, 1e6), 5000.0)
-    >>> float(p.position[-1]), bool(abs(p.velocity).max() <= 0.25)
-    (0.01, True)
+    >>> float(p.position[-1]), round(float(abs(p.velocity).max()), 12)
+    (0.01, 0.25)
     """
     d = _positive("distance", distance)
     if not isinstance(limits, ScanLimits):
