@@ -21,6 +21,8 @@ Data flow, and the package that owns each concept::
     validate    compare a model with a measurement
     diagnosis   which physical effect is missing; augment the model with it
     loop        L, S, T, crossovers and margins of a plant with a controller
+    scan        4th-order scan setpoints, MA / MSD tracking figures
+    testing     pytest assertions: stable, margins, bandwidth, tracking
     cli         the command line, its commands and the scenario pipeline
 """
 
@@ -65,6 +67,10 @@ _EXPORTS = {
     "augment": "workbench.diagnosis.augment",
     "load_scenario": "workbench.io.scenario",
     "run_scenario": "workbench.cli.pipeline",
+    "ScanLimits": "workbench.scan",
+    "point_to_point": "workbench.scan",
+    "tracking_figures": "workbench.scan",
+    "testing": "workbench.testing",  # the module: wb.testing.assert_stable(...)
 }
 
 __all__ = ["__version__", *_EXPORTS]
@@ -74,7 +80,8 @@ def __getattr__(name: str):
     module = _EXPORTS.get(name)
     if module is None:
         raise AttributeError(f"module 'workbench' has no attribute {name!r}")
-    value = getattr(importlib.import_module(module), name)
+    mod = importlib.import_module(module)
+    value = mod if mod.__name__ == f"{__name__}.{name}" else getattr(mod, name)
     globals()[name] = value  # later look-ups skip this function
     return value
 
