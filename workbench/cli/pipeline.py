@@ -14,6 +14,9 @@ Data flow::
     [model] (a user's model file, or the nominal plant model) ─► [compare] ─►
     [diagnose] ─► [augment] ─► compare again
 
+    modal model ─► [design] controllers (pid-notch, modal-sf, ...) ─► [evaluate] on the
+    TRUE plant: loop figures per DOF, scan tracking (MA / MSD), bandwidth gain
+
 Every stage writes JSON figures and PNG plots into the results folder,
 atomically, and returns what later stages consume. The run draws all its
 randomness from one generator seeded by ``[scenario] seed``.
@@ -48,8 +51,10 @@ class RunState:
     frf: Any = None  # FrfData
     ident: Any = None  # SubspaceResult
     modal: Any = None  # ModalModel
+    modal_model: Any = None  # the modal model as an LTIModel with the identified delay
     model: Any = None  # the user's model (LTIModel, with its delay) for compare/diagnose
     diagnosis: Any = None  # workbench.diagnosis.Diagnosis
+    designs: dict[str, Any] = field(default_factory=dict)  # [design]: name -> Design
     summary: dict[str, Any] = field(default_factory=dict)
     files: list[str] = field(default_factory=list)
 
@@ -185,6 +190,7 @@ def stage_modes(st: RunState, table: dict) -> None:
         st.modal = refined.model
     # the modal model is the identified model's rational part: it takes the same delay
     modal_model = LTIModel.from_statespace(st.modal.to_statespace(), delay_s=st.ident.delay_s)
+    st.modal_model = modal_model
     modal_model.write(st.path("model_modal.npz"))
     st.write_json("modes.json", json.loads(st.modal.to_json()))
     plot_model_bode(st.modal, st.path("modal_model_bode.png"), title="identified modal model")
@@ -302,10 +308,11 @@ def stage_functions() -> dict:
     """Every stage a scenario can name -> the function that runs it.
 
     Built on each call, explicitly: no registry filled as a side effect of an import. The
-    model-versus-measurement stages live in :mod:`workbench.cli.loop_stages`, which imports
-    :class:`RunState` from here, hence the import inside the function.
+    model-versus-measurement stages live in :mod:`workbench.cli.loop_stages`, the design and
+    evaluation stages in :mod:`workbench.cli.design_stages`; both import :class:`RunState`
+    from here, hence the import inside the function.
     """
-    from workbench.cli import loop_stages
+    from workbench.cli import design_stages, loop_stages
 
     return {
         "plant": stage_plant,
@@ -318,6 +325,8 @@ def stage_functions() -> dict:
         "compare": loop_stages.stage_compare,
         "diagnose": loop_stages.stage_diagnose,
         "augment": loop_stages.stage_augment,
+        "design": design_stages.stage_design,
+        "evaluate": design_stages.stage_evaluate,
     }
 
 

@@ -12,6 +12,10 @@ present::
     [minimality]   minimality report
     [model]        a user's (nominal) model to check against the data
     [compare], [diagnose], [augment]   the model-versus-measurement loop
+    [design]       controllers designed on the identified modal model
+    [evaluate]     every design on the true plant: loop figures, scan tracking
+
+and ``[regress]`` (tolerances of ``workbench regress``), which runs no stage.
 
 Unknown tables and keys are refused with one line, so a typo never silently
 changes an experiment.
@@ -38,7 +42,11 @@ STAGES = (
     "compare",
     "diagnose",
     "augment",
+    "design",
+    "evaluate",
 )
+#: tables that configure a command rather than run a stage (``[regress]``: workbench regress)
+SETTINGS_TABLES = ("regress",)
 
 
 @dataclass(frozen=True)
@@ -91,10 +99,11 @@ def load_scenario(path: str | os.PathLike, *, results: str | os.PathLike | None 
     head = raw.pop("scenario", None)
     if not isinstance(head, dict):
         raise InputError(f"{path}: missing table [scenario] (name, seed, results)")
-    unknown = sorted(set(raw) - set(STAGES))
+    unknown = sorted(set(raw) - set(STAGES) - set(SETTINGS_TABLES))
     if unknown:
         raise InputError(
-            f"{path}: unknown table [{unknown[0]}]; expected some of: {', '.join(STAGES)}"
+            f"{path}: unknown table [{unknown[0]}]; expected some of: "
+            f"{', '.join(STAGES + SETTINGS_TABLES)}"
         )
     extra = sorted(set(head) - {"name", "seed", "results", "description"})
     if extra:

@@ -33,6 +33,8 @@ def _digest(summary: dict) -> str:
     lines = [f"scenario {summary['scenario']['name']} (seed {summary['scenario']['seed']})"]
     if "modes" in summary and "text" in summary["modes"]:
         lines.append(summary["modes"]["text"])
+    if "evaluate" in summary:  # the designs on the true plant: the table the scenario exists for
+        lines.append(summary["evaluate"]["text"])
     for key in ("identify", "minimality", "compare", "diagnose", "augment"):
         if key in summary:
             short = {k: v for k, v in summary[key].items() if k not in ("singular_values", "text")}
