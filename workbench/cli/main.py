@@ -29,6 +29,7 @@ COMMANDS = (
     "augment",
     "design",
     "loop",
+    "regress",
 )
 
 
