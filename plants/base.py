@@ -9,6 +9,7 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from workbench import sim
+from workbench.compiled import SampledStep
 from workbench.core import lti
 
 
@@ -129,3 +130,21 @@ class LinearPlant:
         y = self._measure(y[None, :], state.rng)[0]
         x_next = Ad @ state.x + B0 @ hist[m] + B1 @ hist[m + 1]
         return y, LinearPlantState(x_next, hist, state.rng)
+
+    def sampled_step(self) -> SampledStep:
+        """What :meth:`step` does, as matrices (compiled closed loop); no saturation."""
+        Ad, B0, B1, m, C, D = self._discrete
+        n_y = C.shape[0]
+        return SampledStep(
+            A=Ad,
+            B0=B0,
+            B1=B1,
+            m=m,
+            C=C,
+            D=D,
+            saturation=np.full(self.n_u, np.inf),
+            raw_map=np.eye(n_y),
+            decouple=np.eye(n_y),
+            noise_std=np.broadcast_to(np.asarray(self.noise_std, float), (n_y,)),
+            quantization=self.quantization,
+        )

@@ -22,6 +22,7 @@ from typing import Any
 import control
 import numpy as np
 
+from workbench.compiled import SampledStep
 from workbench.core.errors import InputError, describe
 
 from .effects import Effects, as_channel_vector
@@ -291,6 +292,30 @@ class MechanicalPlant:
         else:
             x_next = Ad @ state.x + B0 @ d.saturate(hist[m]) + B1 @ d.saturate(hist[m + 1])
         return y, MechanicalPlantState(x_next, hist, state.rng)
+
+    def sampled_step(self) -> SampledStep | None:
+        """What :meth:`step` does, as matrices and static nonlinearities (compiled closed loop).
+
+        None when a port force (friction, cubic spring) needs the substep loop.
+        """
+        d = self.discrete
+        if d.nonlinear:
+            return None
+        Ad, B0, B1, m = d.zoh
+        C = self.chain.matrices["C"]
+        return SampledStep(
+            A=Ad,
+            B0=B0,
+            B1=B1,
+            m=m,
+            C=C,
+            D=np.zeros((C.shape[0], self.n_u)),  # step() reads y = C x
+            saturation=d.saturation,
+            raw_map=self.raw_map,
+            decouple=self.decouple,
+            noise_std=self.measurement_noise_std,
+            quantization=self.measurement_quantization,
+        )
 
 
 def check_field_names(cls, fields: dict[str, Any], label: str) -> None:

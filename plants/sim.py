@@ -94,6 +94,11 @@ class DiscreteChain:
         nl = self._nl
         return bool(np.any(nl["fc"] > 0) or np.any(nl["k3"] > 0))
 
+    @property
+    def saturation(self) -> np.ndarray:
+        """Symmetric saturation of each delayed input, (n_u,), N (inf = none)."""
+        return self._nl["sat"].copy()
+
     def saturate(self, u: np.ndarray) -> np.ndarray:
         sat = self._nl["sat"]
         return np.clip(u, -sat, sat) if np.any(np.isfinite(sat)) else u

@@ -245,3 +245,141 @@ def test_discrete_model_delays_by_whole_samples_only():
     np.testing.assert_array_equal(y3[:3], 0.0)
     with pytest.raises(InputError, match="whole samples"):
         sim.simulate_zoh(sysd, u, FS, delay_s=0.5 / FS)
+
+
+# ------------------------------------------------------------------ compiled closed loop
+def _random_plant_and_controller(rng, *, n=9, n_c=7, n_u=2, n_y=3):
+    """A random stable continuous plant (fractional delay, noise, quantization) and a random
+    stable discrete controller scaled so that the loop gain stays below 1 (small-gain stable)."""
+    A = rng.standard_normal((n, n))
+    A -= (np.max(np.linalg.eigvals(A).real) + 200.0) * np.eye(n)  # poles left of -200 rad/s
+    G = control.ss(A, rng.standard_normal((n, n_u)), rng.standard_normal((n_y, n)), 0.0)
+    G = control.ss(G.A, G.B, G.C, rng.standard_normal((n_y, n_u)) * 1e-3)
+    quant = 1e-5 * np.abs(G(0)).max()  # about 1e-5 of the static gain: a few hundred levels
+    plant = LinearPlant(sys=G, fs=FS, delay_s=1.4 * T, noise_std=3 * quant, quantization=quant)
+    Kd = _random_stable(rng, n=n_c, n_u=n_y, n_y=n_u, dt=T, feedthrough=False)
+    gain = np.abs(G(0)).sum() * np.abs(control.ss(Kd.A, Kd.B, Kd.C, 0, T)(1.0)).sum()
+    K = StateSpaceController(Kd.A, Kd.B, 0.5 * Kd.C / gain, Kd.D, fs=FS)
+    return plant, K
+
+
+@pytest.mark.parametrize("delay_samples", [0, 1, 3], ids=["no-loop-delay", "1", "3"])
+def test_compiled_loop_equals_python_step_loop_on_a_random_plant(delay_samples):
+    """Kernel vs plant.step / controller.step: same noise draws, quantization, delay; 1e-12."""
+    rng = np.random.default_rng(20 + delay_samples)
+    plant, K = _random_plant_and_controller(rng)
+    N = 3000
+    d = rng.standard_normal((N, 2))
+    r = rng.standard_normal((N, 3)) * 1e-3
+    kw = dict(r=r, d=d, delay_samples=delay_samples, method="step")
+    u1, y1 = sim.closed_loop(plant, K, rng=np.random.default_rng(5), engine="compiled", **kw)
+    u2, y2 = sim.closed_loop(plant, K, rng=np.random.default_rng(5), engine="python", **kw)
+    np.testing.assert_allclose(y1, y2, rtol=0, atol=1e-12 * np.abs(y2).max())
+    np.testing.assert_allclose(u1, u2, rtol=0, atol=1e-12 * np.abs(u2).max())
+    q = plant.quantization
+    assert np.allclose(y1 / q, np.round(y1 / q), atol=1e-6)  # the outputs are quantized
+
+
+def test_compiled_loop_equals_python_on_the_stage_with_saturation_and_quantization():
+    """The true stage (modes above Nyquist, fractional delay, saturation, noise, quantization)."""
+    import plants
+    from workbench.experiments import default_controller
+
+    stage = plants.wafer_stage(
+        residual_max_hz=12e3, delay_s=1.3 / FS, saturation=4.0, quantization=1e-9
+    )
+    K = default_controller(stage, crossover_hz=80.0)
+    rng = np.random.default_rng(30)
+    d = rng.standard_normal((2000, 6)) * 3.0
+    kw = dict(d=d, delay_samples=1, method="step")
+    u1, y1 = sim.closed_loop(stage, K, rng=np.random.default_rng(2), engine="compiled", **kw)
+    u2, y2 = sim.closed_loop(stage, K, rng=np.random.default_rng(2), engine="python", **kw)
+    assert np.mean(np.abs(u1) > 4.0) > 0.05  # the saturation is active
+    np.testing.assert_allclose(y1, y2, rtol=0, atol=1e-12 * np.abs(y2).max())
+    np.testing.assert_allclose(u1, u2, rtol=0, atol=1e-12 * np.abs(u2).max())
+    # "auto" takes the compiled loop for this linear controller on a quantized plant
+    u3, y3 = sim.closed_loop(stage, K, rng=np.random.default_rng(2), d=d, delay_samples=1)
+    np.testing.assert_array_equal(y3, y1)
+
+
+def test_compiled_loop_on_a_model_equals_the_linear_path():
+    rng = np.random.default_rng(31)
+    G, K = _plant_and_controller(rng)
+    Ks = StateSpaceController(K.A, K.B, K.C, np.zeros_like(K.D), fs=FS)  # strictly proper
+    r = rng.standard_normal((2000, 1)) * 1e-6
+    u1, y1 = sim.closed_loop(G, Ks, r=r, delay_samples=0, method="linear")
+    u2, y2 = sim.closed_loop(G, Ks, r=r, delay_samples=0, method="step", engine="compiled")
+    np.testing.assert_allclose(y2, y1, rtol=0, atol=1e-10 * np.abs(y1).max())
+    np.testing.assert_allclose(u2, u1, rtol=0, atol=1e-10 * np.abs(u1).max())
+
+
+def test_compiled_loop_refusals_and_the_python_engine():
+    rng = np.random.default_rng(32)
+    G, K = _plant_and_controller(rng)
+    plant = LinearPlant(sys=G, fs=FS)
+    d = np.ones((10, 1))
+    with pytest.raises(InputError, match="direct feedthrough"):  # D != 0 and no loop delay
+        sim.closed_loop(plant, K, d=d, rng=rng, method="step", engine="compiled")
+    with pytest.raises(InputError, match="engine: expected"):
+        sim.closed_loop(plant, K, d=d, rng=rng, engine="numba")
+
+    class Clipped(StateSpaceController):  # a nonlinear controller: the compiled loop refuses
+        @property
+        def linear(self):
+            return False
+
+    Kn = Clipped(K.A, K.B, K.C, K.D, fs=FS)
+    with pytest.raises(InputError, match="engine: 'compiled' needs a linear controller"):
+        sim.closed_loop(plant, Kn, d=d, rng=rng, delay_samples=1, engine="compiled")
+    u, _ = sim.closed_loop(plant, Kn, d=d, rng=rng, delay_samples=1)  # steps in Python
+    assert u.shape == (10, 1)
+
+
+def test_a_missing_numba_fails_loudly_unless_the_python_engine_is_asked(monkeypatch):
+    import sys
+
+    import workbench
+
+    rng = np.random.default_rng(33)
+    plant, K = _random_plant_and_controller(rng)
+    d = rng.standard_normal((50, 2))
+    monkeypatch.setitem(sys.modules, "numba", None)  # as if numba were not installed
+    monkeypatch.delitem(sys.modules, "workbench._kernels", raising=False)
+    monkeypatch.delattr(workbench, "_kernels", raising=False)  # re-import on the next use
+    with pytest.raises(ImportError, match="numba"):
+        sim.closed_loop(plant, K, d=d, rng=np.random.default_rng(1), delay_samples=1)
+    u, y = sim.closed_loop(
+        plant, K, d=d, rng=np.random.default_rng(1), delay_samples=1, engine="python"
+    )
+    assert np.all(np.isfinite(y))
+
+
+def test_sparse_realization_is_a_similarity_with_small_blocks():
+    from scipy.linalg import block_diag
+
+    from workbench.compiled import sparse_realization
+
+    rng = np.random.default_rng(34)
+    # three integrators (a defective triple eigenvalue at 1: one Jordan block) and a random
+    # part, states scaled over 9 decades (m vs nm, as a controller's states) and permuted
+    J = np.eye(3) + np.diag([1.0, 1.0], 1)
+    R = rng.standard_normal((8, 8)) * 0.3
+    Dsc = np.diag(10.0 ** rng.uniform(-6, 3, 11))
+    A = Dsc @ block_diag(J, R) @ np.linalg.inv(Dsc)
+    P = np.eye(11)[rng.permutation(11)]
+    A = P @ A @ P.T
+    sr = sparse_realization(A)
+    np.testing.assert_allclose(
+        np.linalg.solve(sr.S, A @ sr.S), sr.A, atol=1e-10 * np.abs(sr.A).max()
+    )
+    assert sum(sr.blocks) == 11 and max(sr.blocks) <= 3  # the Jordan block stays together
+    start = np.cumsum((0,) + sr.blocks)
+    mask = np.zeros((11, 11), bool)
+    for a, b in zip(start[:-1], start[1:]):
+        mask[a:b, a:b] = True
+    assert np.all(sr.A[~mask] == 0)
+    np.testing.assert_allclose(
+        np.sort_complex(np.linalg.eigvals(sr.A)),
+        np.sort_complex(np.linalg.eigvals(A)),
+        atol=1e-4,  # a defective eigenvalue moves by eps^(1/3)
+    )

@@ -10,6 +10,8 @@ Data flow::
 
     closed_loop(plant, controller, r=, d=):  e = r - y,  u = d + u_c[k - delay_samples]
         linear plant and linear controller -> one discrete LTI system driven by [r, d, v] (dlsim)
+        linear controller, plant.sampled_step() (quantization, saturation, delay: static
+            nonlinearities)                -> one numba kernel (workbench.compiled)
         otherwise                          -> plant.step / controller.step sample by sample
 
 Every simulator of the project calls these functions: ``workbench.core.lti`` re-exports
@@ -461,6 +463,25 @@ class _ModelPlant:
         A, B, C, D = self.abcd
         return C @ x + D @ u_k, A @ x + B @ u_k
 
+    def sampled_step(self):
+        from workbench.compiled import SampledStep
+
+        A, B, C, D = self.abcd
+        n_y = C.shape[0]
+        return SampledStep(
+            A=A,
+            B0=B,
+            B1=np.zeros_like(B),
+            m=0,
+            C=C,
+            D=D,
+            saturation=np.full(B.shape[1], np.inf),
+            raw_map=np.eye(n_y),
+            decouple=np.eye(n_y),
+            noise_std=np.zeros(n_y),
+            quantization=0.0,
+        )
+
 
 def _is_plant_object(plant) -> bool:
     return hasattr(plant, "step") and hasattr(plant, "linear_model")
@@ -501,6 +522,7 @@ def closed_loop(
     rng: np.random.Generator | None = None,
     delay_samples: int = 0,
     method: Literal["auto", "linear", "step"] = "auto",
+    engine: Literal["auto", "compiled", "python"] = "auto",
 ) -> tuple[np.ndarray, np.ndarray]:
     """Closed-loop response from rest of any plant with any :class:`controllers.Controller`.
 
@@ -528,6 +550,15 @@ def closed_loop(
         and ``controller.step`` sample by sample; u[k] must not depend on y[k]:
         needs ``delay_samples >= 1`` or a controller with ``output(state)``
         (no direct feedthrough).
+    engine : {"auto", "compiled", "python"}
+        How ``"step"`` runs. ``"compiled"``: one numba kernel
+        (:mod:`workbench.compiled`) for a linear controller on a plant that
+        describes its step (``plant.sampled_step()``: matrices, delay,
+        saturation, noise, quantization), same result as ``"python"`` to
+        rounding; ``"python"``: ``plant.step`` / ``controller.step``;
+        ``"auto"``: compiled where it applies (a nonlinear controller such as MPC,
+        or friction in the plant, steps in Python). numba is a dependency: a
+        broken install is an ImportError, never a silent fallback.
 
     Returns
     -------
@@ -539,6 +570,8 @@ def closed_loop(
     if isinstance(delay_samples, bool) or int(delay_samples) != delay_samples or delay_samples < 0:
         raise InputError(f"delay_samples: expected an integer >= 0, got {delay_samples!r}")
     delay_samples = int(delay_samples)
+    if engine not in ("auto", "compiled", "python"):
+        raise InputError(f"engine: expected 'auto', 'compiled' or 'python', got {engine!r}")
     model = not _is_plant_object(plant)
     if model:
         plant = _ModelPlant(plant, float(controller.fs))
@@ -597,8 +630,26 @@ def closed_loop(
         out = dlsim(A, B, C, D, np.hstack([r, d, v]))
         return out[:, :n_u], out[:, n_u:]
     if method == "step":
+        step = _sampled_step(plant, controller) if engine != "python" else None
+        if step is not None:
+            from workbench.compiled import run_compiled_loop
+
+            K = controller.statespace()
+            return run_compiled_loop(step, (K.A, K.B, K.C, K.D), r, d, rng, delay_samples)
+        if engine == "compiled":
+            raise InputError(
+                "engine: 'compiled' needs a linear controller and a plant with sampled_step() "
+                "(no friction or cubic spring); use engine='python'"
+            )
         return _step_loop(plant, controller, r, d, rng, delay_samples)
     raise InputError(f"method: expected 'auto', 'linear' or 'step', got {method!r}")
+
+
+def _sampled_step(plant, controller):
+    """The plant's ``SampledStep`` when the compiled loop applies, else None."""
+    if not controller.linear or not hasattr(plant, "sampled_step"):
+        return None
+    return plant.sampled_step()
 
 
 def _step_loop(plant, controller, r, d, rng, delay_samples: int):

@@ -1,0 +1,288 @@
+"""The compiled closed loop: a linear controller on a plant that describes its own sampled step.
+
+Data flow::
+
+    plant.sampled_step() -> SampledStep (A, B0, B1, m, C, D, saturation, raw map, noise,
+                                         quantization, decoupling: what plant.step does)
+    controller.statespace() -> (A_c, B_c, C_c, D_c)
+        |  sparse_realization: exact power-of-2 balancing, real Schur, block
+        |  diagonalization (Bavely-Stewart) while the transformation stays well conditioned
+        v
+    workbench._kernels.closed_loop_kernel (numba, one pass over the N samples) -> u, y
+
+The noise is drawn from the caller's generator exactly as ``plant.step`` draws it
+(one ``standard_normal(n_raw)`` per sample, i.e. one ``(N, n_raw)`` draw), so the
+compiled loop and ``plant.step`` / ``controller.step`` give the same u and y to
+rounding (tested). The plant's description is the plant's own business (it may
+read its own settings); identification code never sees it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg
+
+from workbench.core.errors import InputError
+
+__all__ = ["SampledStep", "SparseRealization", "sparse_realization", "run_compiled_loop"]
+
+#: Largest entry of a Sylvester solution accepted when splitting off a diagonal block: the
+#: transformation's condition number (and the rounding difference to the original
+#: coordinates) grows with it.
+_MAX_COUPLING = 100.0
+
+
+@dataclass(frozen=True)
+class SampledStep:
+    """What one ``plant.step`` does, as matrices and static nonlinearities.
+
+    At sample k, with ``u_s[j] = clip(u[j], -saturation, saturation)``::
+
+        raw  = raw_map (C x + D u_s[k-m]) + noise_std * w[k]   (w ~ N(0, 1), drawn when any std > 0)
+        raw  = quantization * round(raw / quantization)       (when quantization > 0)
+        y[k] = decouple raw
+        x   <- A x + B0 u_s[k-m] + B1 u_s[k-m-1]
+
+    Parameters
+    ----------
+    A : (n, n) array
+        Discrete state matrix over one sample.
+    B0, B1 : (n, n_u) arrays
+        Inputs u[k-m] and u[k-m-1] (fractional delay), N -> state.
+    m : int
+        Whole samples of the input delay.
+    C : (n_y, n) array, D : (n_y, n_u) array
+        Noise-free outputs, m.
+    saturation : (n_u,) array
+        Symmetric saturation of each delayed input, N (inf = none).
+    raw_map : (n_raw, n_y) array
+        Outputs to raw sensors.
+    decouple : (n_y, n_raw) array
+        Raw sensors to measured outputs.
+    noise_std : (n_raw,) array
+        White noise on each raw sensor, m.
+    quantization : float
+        Raw sensor resolution, m (0 = none).
+    """
+
+    A: np.ndarray
+    B0: np.ndarray
+    B1: np.ndarray
+    m: int
+    C: np.ndarray
+    D: np.ndarray
+    saturation: np.ndarray
+    raw_map: np.ndarray
+    decouple: np.ndarray
+    noise_std: np.ndarray
+    quantization: float
+
+    def __post_init__(self):
+        arrays = {k: np.array(getattr(self, k), float) for k in _ARRAYS}
+        n = arrays["A"].shape[0]
+        n_u = arrays["B0"].shape[1]
+        n_y = arrays["C"].shape[0]
+        n_raw = arrays["raw_map"].shape[0]
+        want = {
+            "A": (n, n),
+            "B0": (n, n_u),
+            "B1": (n, n_u),
+            "C": (n_y, n),
+            "D": (n_y, n_u),
+            "saturation": (n_u,),
+            "raw_map": (n_raw, n_y),
+            "decouple": (n_y, n_raw),
+            "noise_std": (n_raw,),
+        }
+        for k, shape in want.items():
+            if arrays[k].shape != shape:
+                raise InputError(f"SampledStep.{k}: expected shape {shape}, got {arrays[k].shape}")
+        if int(self.m) != self.m or self.m < 0:
+            raise InputError(f"SampledStep.m: expected an integer >= 0, got {self.m!r}")
+        if not self.quantization >= 0:
+            raise InputError(
+                f"SampledStep.quantization: expected >= 0 m, got {self.quantization!r}"
+            )
+        for k, a in arrays.items():
+            a.setflags(write=False)
+            object.__setattr__(self, k, a)
+        object.__setattr__(self, "m", int(self.m))
+        object.__setattr__(self, "quantization", float(self.quantization))
+
+
+_ARRAYS = ("A", "B0", "B1", "C", "D", "saturation", "raw_map", "decouple", "noise_std")
+
+
+@dataclass(frozen=True)
+class SparseRealization:
+    """x = S z: A_z = S^-1 A S with nonzeros only in ``A_z[i, lo[i]:hi[i]]``.
+
+    Parameters
+    ----------
+    A, S : (n, n) arrays
+        The realization's state matrix and the transformation (x = S z).
+    blocks : tuple of int
+        Sizes of the diagonal blocks (one block of size n: no split found).
+    cond : float
+        Condition number of the non-diagonal part of S (the exact power-of-2
+        balancing excluded); rounding differences to the original coordinates
+        grow with it.
+    """
+
+    A: np.ndarray
+    S: np.ndarray
+    blocks: tuple[int, ...]
+    cond: float
+
+    def to_z(self, B: np.ndarray) -> np.ndarray:
+        """S^-1 B for an input matrix B (n, n_in)."""
+        return np.linalg.solve(self.S, B)
+
+    def from_z(self, C: np.ndarray) -> np.ndarray:
+        """C S for an output matrix C (n_out, n)."""
+        return C @ self.S
+
+
+def _schur_blocks(T: np.ndarray) -> list[int]:
+    """Start indices of the 1x1 / 2x2 diagonal blocks of a real Schur form, and n."""
+    n = T.shape[0]
+    b, i = [0], 0
+    while i < n:
+        i += 2 if i + 1 < n and T[i + 1, i] != 0 else 1
+        b.append(i)
+    return b
+
+
+def _cost(A: np.ndarray) -> int:
+    from workbench._kernels import row_ranges
+
+    lo, hi = row_ranges(A)
+    return int(np.sum(hi - lo))
+
+
+def sparse_realization(A: np.ndarray, *, max_coupling: float = _MAX_COUPLING) -> SparseRealization:
+    """A cheap-to-step realization of A: block diagonal where it is well conditioned.
+
+    Parameters
+    ----------
+    A : (n, n) array
+        Discrete state matrix.
+    max_coupling : float
+        Largest entry of a decoupling Sylvester solution (in balanced
+        coordinates) accepted to split off a block.
+
+    Returns
+    -------
+    SparseRealization
+        A itself (S = I) when it already costs no more than the block form.
+
+    Notes
+    -----
+    1. Balance: A_b = D^-1 A D with D a diagonal of powers of 2 (exact, no rounding).
+    2. Real Schur form A_b = Z T Z^T (orthogonal).
+    3. Going down the diagonal, the leading cluster T11 is split from the rest
+       by W = [[I, X], [0, I]], T11 X - X T22 = -T12, when max |X| <= max_coupling;
+       otherwise the cluster grows by the next 1x1 / 2x2 block (close or
+       defective eigenvalues, e.g. several integrators, stay in one block).
+    Bavely & Stewart, An algorithm for computing reducing subspaces by block
+    diagonalization, SIAM J. Numer. Anal. 16 (1979) 359-367.
+    """
+    A = np.asarray(A, float)
+    n = A.shape[0]
+    eye = np.eye(n)
+    if n == 0:
+        return SparseRealization(A=A.copy(), S=eye, blocks=(), cond=1.0)
+    Ab, (Dv, _) = scipy.linalg.matrix_balance(A, permute=False, separate=True)
+    T, Z = scipy.linalg.schur(Ab, output="real")
+    (trsyl,) = scipy.linalg.get_lapack_funcs(("trsyl",), (T,))
+    W = Z.copy()
+    bounds = _schur_blocks(T)
+    blocks, s, idx = [], 0, 1
+    while s < n:
+        e = bounds[idx]
+        while e < n:
+            # T11, T22 are quasi-triangular already: LAPACK's trsyl solves directly
+            X, scale, info = trsyl(T[s:e, s:e], T[e:, e:], -T[s:e, e:], isgn=-1)
+            X = X / scale if info >= 0 and scale > 0 else np.full_like(X, np.inf)
+            if np.all(np.isfinite(X)) and np.max(np.abs(X)) <= max_coupling:
+                T[s:e, e:] = 0.0  # decoupled: W^-1 T W has a zero block here
+                W[:, e:] += W[:, s:e] @ X
+                break
+            idx += 1
+            e = bounds[idx]
+        blocks.append(e - s)
+        s, idx = e, idx + 1
+    cond = float(np.linalg.cond(W))
+    if _cost(T) >= _cost(A):
+        return SparseRealization(A=A.copy(), S=eye, blocks=(n,), cond=1.0)
+    S = Dv[:, None] * W  # x = D W z
+    return SparseRealization(A=T, S=S, blocks=tuple(blocks), cond=cond)
+
+
+def run_compiled_loop(
+    step: SampledStep,
+    controller_abcd,
+    r: np.ndarray,
+    d: np.ndarray,
+    rng: np.random.Generator | None,
+    delay_samples: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The closed loop of :func:`workbench.sim.closed_loop` in the compiled kernel.
+
+    Parameters
+    ----------
+    step : SampledStep
+        The plant's sampled step.
+    controller_abcd : (A, B, C, D)
+        Discrete controller e -> u_c.
+    r : (N, n_y) array, d : (N, n_u) array
+        Reference and input excitation.
+    rng : numpy.random.Generator or None
+        Source of the noise (None only for a noise-free plant).
+    delay_samples : int
+        Loop delay, samples.
+
+    Returns
+    -------
+    u : (N, n_u) array, y : (N, n_y) array
+    """
+    from workbench import _kernels  # numba: an ImportError here is a broken install
+
+    Ac, Bc, Cc, Dc = (np.asarray(a, float) for a in controller_abcd)
+    if delay_samples == 0 and np.any(Dc):
+        raise InputError(
+            "controller: stepping the loop needs delay_samples >= 1 or a controller without "
+            "direct feedthrough (u[k] must not depend on y[k])"
+        )
+    N, n_u = d.shape
+    n_raw = step.raw_map.shape[0]
+    # the draws of plant.step (one standard_normal(n_raw) per sample), scaled in the kernel
+    noisy = bool(np.any(step.noise_std > 0))
+    w = rng.standard_normal((N, n_raw)) if noisy else np.zeros((N, 0))
+    plant = sparse_realization(step.A)
+    ctrl = sparse_realization(Ac)
+
+    def c(a):
+        return np.ascontiguousarray(a, dtype=float)
+
+    def t_or_empty(M, n_cols):  # transposed, or (0, n_cols) when zero: no work in the kernel
+        return c(M.T) if np.any(M) else np.zeros((0, n_cols))
+
+    Cr = plant.from_z(step.raw_map @ step.C)
+    Dr = step.raw_map @ step.D
+    a_lo, a_hi = _kernels.row_ranges(plant.A)
+    c_lo, c_hi = _kernels.row_ranges(ctrl.A)
+    u = np.empty((N, n_u))
+    y = np.empty((N, step.C.shape[0]))
+    _kernels.closed_loop_kernel(
+        c(plant.A), a_lo, a_hi,
+        t_or_empty(plant.to_z(step.B0), plant.A.shape[0]),
+        t_or_empty(plant.to_z(step.B1), plant.A.shape[0]),
+        c(Cr), t_or_empty(Dr, n_raw), step.m, c(step.saturation), c(step.decouple),
+        w, c(step.noise_std), step.quantization,
+        c(ctrl.A), c_lo, c_hi, c(ctrl.to_z(Bc).T), c(ctrl.from_z(Cc)), t_or_empty(Dc, n_u),
+        int(delay_samples), c(r), c(d), u, y,
+    )  # fmt: skip
+    return u, y
