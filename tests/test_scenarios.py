@@ -111,3 +111,49 @@ def test_wafer_stage_bandwidth_designs_judged_on_the_true_stage(runs):
         assert 0 < tracking["ma_max"]["y"] < 20e-9 and 0 < tracking["msd_max"]["y"] < 20e-9
     for name in ("evaluation.txt", "evaluate_sensitivity.png", "evaluate_scan_error.png"):
         assert (folder / name).stat().st_size > 0
+
+
+def test_evaluate_stage_reports_an_unstable_design_and_the_gain(tmp_path):
+    """[evaluate] on hand-made designs (fast, no identification): a sign-flipped controller is
+    unstable on the true plant (no time simulation, noted), the gain is the crossover ratio."""
+    import numpy as np
+
+    import plants
+    from controllers.protocol import StateSpaceController
+    from workbench.cli.design_stages import Design, stage_evaluate
+    from workbench.cli.pipeline import RunState
+    from workbench.core.model import LTIModel
+    from workbench.experiments import default_controller
+    from workbench.io.scenario import Scenario
+
+    plant = plants.wafer_stage()
+    modal = plant.modes.to_modal(
+        delay_s=plant.delay_s, input_names=plant.input_names, output_names=plant.output_names
+    )
+    st = RunState(
+        scenario=Scenario(name="t", seed=0, results=tmp_path),
+        out=tmp_path,
+        rng=np.random.default_rng(0),
+        plant=plant,
+        modal=modal,
+        modal_model=LTIModel.from_statespace(modal.to_statespace(), delay_s=plant.delay_s),
+    )
+    pid = default_controller(plant, crossover_hz=100.0).statespace()
+    pid_fast = default_controller(plant, crossover_hz=150.0).statespace()
+    flipped = StateSpaceController(A=pid.A, B=pid.B, C=-pid.C, D=-pid.D, fs=plant.fs)
+    as_ctrl = lambda s: StateSpaceController(A=s.A, B=s.B, C=s.C, D=s.D, fs=plant.fs)  # noqa: E731
+    st.designs = {
+        "slow": Design("slow", as_ctrl(pid), 0),
+        "fast": Design("fast", as_ctrl(pid_fast), 0),
+        "flipped": Design("flipped", flipped, 0),
+    }
+    stage_evaluate(st, {"baseline": "slow", "scan": {"length": 0.002, "settle_s": 0.01}})
+    ev = json.loads((tmp_path / "evaluation.json").read_text())
+    assert ev["designs"]["flipped"]["analysis"]["stable"] is False
+    assert ev["designs"]["flipped"]["tracking"] is None
+    assert ev["designs"]["slow"]["analysis"]["stable"] is True
+    assert ev["designs"]["fast"]["tracking"]["ma_max"]["y"] > 0
+    x_slow = ev["designs"]["slow"]["analysis"]["loops"][0]["crossover_hz"]
+    x_fast = ev["designs"]["fast"]["analysis"]["loops"][0]["crossover_hz"]
+    assert ev["bandwidth_gain"]["fast"]["crossover"]["x"] == pytest.approx(x_fast / x_slow)
+    assert "bandwidth gain over slow" in (tmp_path / "evaluation.txt").read_text()
