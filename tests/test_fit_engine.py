@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import control
 import numpy as np
 import pytest
@@ -11,8 +13,10 @@ from workbench import sim
 from workbench.core import lti
 from workbench.diagnosis.effects import MissingMode, TimeDelay
 from workbench.diagnosis.fit import fit, fit_joint
-from workbench.diagnosis.modal import Term, decompose, zoh_filter
+from workbench.diagnosis.modal import decompose
 from workbench.diagnosis.problem import make_problem
+from workbench.modal.model import ModalModel, Mode
+from workbench.modal.simulate import zoh_filter
 
 
 @pytest.mark.parametrize("make", [stage, beam], ids=["stage", "beam"])
@@ -22,18 +26,17 @@ def test_decompose_reproduces_frf_and_realization(make):
     f = np.geomspace(0.5, 3000, 300)
     G = lti.frf(sys, f)
     assert np.max(np.abs(em.frf(f) - G)) < 1e-9 * np.max(np.abs(G))
-    ss, delay = em.to_statespace()
-    assert delay == 0.0
+    assert isinstance(em, ModalModel) and em.delay_s == 0.0
+    ss = em.to_statespace()
     assert np.max(np.abs(lti.frf(ss, f) - G)) < 1e-9 * np.max(np.abs(G))
 
 
 def test_decompose_finds_rigid_and_flexible_modes():
     em = decompose(stage().build())
-    kinds = [t.kind for t in em.terms]
-    assert kinds == ["rigid", "flex", "flex"]
+    assert em.kinds == ("rigid", "flexible", "flexible")
     # closed form: the template's modes (913.8 Hz, zeta 0.0091; 1032 Hz, 0.0095)
-    assert em.terms[1].freq_hz == pytest.approx(913.8, rel=1e-9)
-    assert em.terms[1].damping == pytest.approx(0.0091, rel=1e-6)
+    assert em.modes[1].freq_hz == pytest.approx(913.8, rel=1e-9)
+    assert em.modes[1].damping == pytest.approx(0.0091, rel=1e-6)
 
 
 def test_discrete_model_is_converted_exactly():
@@ -48,10 +51,10 @@ def test_discrete_model_is_converted_exactly():
 @pytest.mark.parametrize("delay_s", [0.0, 2e-4, 1.3e-4])
 def test_modal_simulation_equals_lti(delay_s):
     sys = beam().build()
-    em = decompose(sys).replace(delay_s=delay_s)
+    em = replace(decompose(sys), delay_s=delay_s)
     u = np.random.default_rng(0).standard_normal((3000, 3))
     y_ref = sim.simulate_zoh(control.ss(sys.A, sys.B, sys.C, 0 * sys.D), u, 5000.0, delay_s=delay_s)
-    em0 = em.replace(D=0 * em.D)
+    em0 = replace(em, D=0 * em.D)
     y = em0.simulate(u, 5000.0)
     assert np.max(np.abs(y - y_ref)) < 1e-7 * np.max(np.abs(y_ref))
 
@@ -66,12 +69,13 @@ def test_zoh_filter_first_order_closed_form():
 
 def test_lags_and_coupling_in_state_space_match_frf():
     em = decompose(stage().build())
-    em = em.replace(
+    em = replace(
+        em,
         tau_in=np.array([1e-4, 0, 0, 2e-4, 0, 0]),
         tau_out=np.array([0, 3e-4, 0, 0, 0, 0]),
         T_out=np.eye(6) + 0.01 * np.eye(6, k=1),
     )
-    ss, _ = em.to_statespace()
+    ss = em.to_statespace()
     f = np.geomspace(1, 2500, 200)
     assert np.allclose(lti.frf(ss, f), em.frf(f), rtol=1e-8, atol=1e-20)
 
@@ -119,7 +123,15 @@ def test_joint_fit_removes_the_bias_of_sequential_fits():
     assert fits[1].error < 1e-6
 
 
-def test_term_mode_constructor():
-    t = Term.mode(100.0, 0.02, np.ones((1, 1)))
-    assert t.freq_hz == pytest.approx(100.0)
-    assert t.damping == pytest.approx(0.02)
+def test_moved_mode_keeps_its_numerator():
+    """Mode.moved (modal mismatch, suspension): the numerator over the new denominator,
+    closed form N0 / (s^2 + 2 z w s + w^2); a rigid mode becomes flexible."""
+    rng = np.random.default_rng(3)
+    b, c = rng.standard_normal(2), rng.standard_normal(3)
+    s = 2j * np.pi * np.geomspace(1, 1000, 50)
+    w = 2 * np.pi * 100.0
+    want = np.outer(c, b)[None] / (s**2 + 2 * 0.02 * w * s + w * w)[:, None, None]
+    for kind in ("rigid", "flexible"):
+        m = Mode(kind, 0.0 if kind == "rigid" else 40.0, 0.0, b, c).moved(100.0, 0.02)
+        assert (m.kind, m.freq_hz, m.damping) == ("flexible", 100.0, 0.02)
+        assert np.max(np.abs(m.response(s) - want)) < 1e-12 * np.max(np.abs(want))

@@ -13,11 +13,12 @@ import numpy as np
 import pytest
 import scipy.linalg
 
+from workbench import sim
 from workbench.core import lti
 from workbench.core.errors import InputError
 from workbench.core.model import LTIModel
-from workbench.diagnosis.modal import ExtendedModel, decompose
-from workbench.modal.model import ModalModel, Mode
+from workbench.diagnosis.modal import decompose
+from workbench.modal.model import ModalModel, Mode, split_rigid_gain
 
 FREQ = np.geomspace(0.3, 3000.0, 400)
 
@@ -134,73 +135,116 @@ def test_exact_form_refuses_a_triple_integrator():
     assert "order above two" in str(exc.value) and "\n" not in str(exc.value)
 
 
-def test_extended_model_round_trip():
+def test_rigid_merged_form_round_trip():
+    """The diagnosis's form of the one modal model: the rigid modes as one mode over s^2
+    with their summed numerator; split again by split_rigid_gain, the oracle's modes."""
     sys, w, zeta, res = chain()
     mm = ModalModel.from_statespace(LTIModel.from_statespace(sys, delay_s=1e-4))
-    em = ExtendedModel.from_modal(mm)
-    assert [t.kind for t in em.terms] == ["rigid", "flex", "flex", "flex"]
-    assert em.delay_s == 1e-4
-    assert rel(em.frf(FREQ), mm.frf(FREQ)) < 1e-12
-    back = em.to_modal()
-    assert back.is_ideal  # ideal terms come back as ideal modes
-    check_against_oracle(back, w, zeta, res)
-    assert rel(back.frf(FREQ), mm.frf(FREQ)) < 1e-12
+    merged = mm.with_rigid_merged()
+    assert isinstance(merged, ModalModel)
+    assert merged.kinds == ("rigid", "flexible", "flexible", "flexible")
+    assert merged.delay_s == 1e-4
+    assert rel(merged.frf(FREQ), mm.frf(FREQ)) < 1e-12
+    assert rel(merged.to_lti().frf(FREQ), mm.frf(FREQ)) < 1e-9
+    N0, N1 = merged.rigid_residue()
+    assert np.allclose(N0, sum(res[w == 0]), rtol=0, atol=1e-9 * np.abs(res).max())
+    assert not np.any(N1)
+    n_r = len(mm.modes_of_kind("rigid"))
+    C, B = split_rigid_gain(N0, n_r)
+    split = ModalModel(
+        modes=tuple(Mode("rigid", 0.0, 0.0, B[k], C[:, k]) for k in range(n_r)) + merged.modes[1:],
+        D=merged.D,
+    )
+    assert split.is_ideal
+    check_against_oracle(split, w, zeta, res)
 
 
 def test_extended_terms_live_in_the_modal_model():
-    """Lags, crosstalk, delay, residual compliance (D), a suspension (the rigid s^2 term
-    given a denominator) and an added mode: ExtendedModel -> ModalModel -> StateSpace and
-    back keep the response, each against the other's independent evaluation."""
-    from workbench.diagnosis.modal import Term
-
+    """Lags, crosstalk, delay, residual compliance (D), a suspension (the rigid s^2 mode
+    moved to a denominator) and an added mode with an exact numerator, all fields of the
+    one ModalModel: its FRF against an independent evaluation (python-control on each
+    part, then the lags, coupling and delay by hand), its realization, its ZOH simulation."""
     sys, w, zeta, res = chain()
     em = decompose(sys)
     rng = np.random.default_rng(2)
-    terms = list(em.terms)
-    terms[0] = terms[0].with_den([2 * 0.1 * 2 * np.pi * 3.0, (2 * np.pi * 3.0) ** 2])
-    terms.append(Term.mode(700.0, 0.03, rng.standard_normal((3, 2)), rng.standard_normal((3, 2))))
-    em = em.replace(
-        terms=tuple(terms),
-        D=em.D + 1e-7 * rng.standard_normal((3, 2)),
-        delay_s=2e-4,
-        tau_in=np.array([1e-4, 0.0]),
-        tau_out=np.array([0.0, 3e-4, 5e-5]),
-        T_out=np.eye(3) + 0.05 * rng.standard_normal((3, 3)),
-        T_in=np.eye(2) + 0.05 * rng.standard_normal((2, 2)),
+    N0, N1 = rng.standard_normal((3, 2)), rng.standard_normal((3, 2))
+    added = Mode("flexible", 700.0, 0.03, np.zeros(2), np.zeros(3), N0=N0, N1=N1, effect="x")
+    modes = (em.modes[0].moved(3.0, 0.1, effect="suspension_stiffness"), *em.modes[1:], added)
+    tau_in, tau_out = np.array([1e-4, 0.0]), np.array([0.0, 3e-4, 5e-5])
+    T_out = np.eye(3) + 0.05 * rng.standard_normal((3, 3))
+    T_in = np.eye(2) + 0.05 * rng.standard_normal((2, 2))
+    D = em.D + 1e-7 * rng.standard_normal((3, 2))
+    mm = ModalModel(
+        modes=modes, D=D, delay_s=2e-4, tau_in=tau_in, tau_out=tau_out, T_in=T_in, T_out=T_out
     )
-    G = em.frf(FREQ)
-    mm = em.to_modal()
     assert mm.has_outer and mm.delay_s == 2e-4 and "rigid" not in mm.kinds
+    assert mm.modes[0].effect == "suspension_stiffness" and mm.modes[1].effect == ""
+    # independent evaluation: the rigid residue over the suspension's denominator, the
+    # chain's flexible modes from python-control (the rigid part removed), the added mode
+    s = 2j * np.pi * FREQ
+    wr = 2 * np.pi * 3.0
+    core = np.einsum("f,yu->fyu", 1 / (s**2 + 2 * 0.1 * wr * s + wr**2), sum(res[w == 0]))
+    for r, wk, zk in zip(res[w > 0], w[w > 0], zeta[w > 0]):
+        core += np.einsum("f,yu->fyu", 1 / (s**2 + 2 * zk * wk * s + wk**2), r)
+    w7 = 2 * np.pi * 700.0
+    core += (N0[None] + s[:, None, None] * N1[None]) / (s**2 + 2 * 0.03 * w7 * s + w7**2)[
+        :, None, None
+    ]
+    core += D[None]
+    Hu = 1 / (1 + s[:, None] * tau_in[None])
+    Hy = 1 / (1 + s[:, None] * tau_out[None])
+    G = np.einsum("ab,fb,fbu,fu,uc->fac", T_out, Hy, core, Hu, T_in)
+    G *= np.exp(-s * 2e-4)[:, None, None]
     assert rel(mm.frf(FREQ), G) < 1e-9
     ss = mm.to_lti()
     assert rel(ss.frf(FREQ), G) < 1e-9
-    ss_em, delay = em.to_statespace()
-    assert ss.n_x <= ss_em.nstates  # the residue realization is minimal per mode
-    back = ExtendedModel.from_modal(mm)
-    assert rel(back.frf(FREQ), G) < 1e-9
+    assert ss.n_x == 2 + 2 * 3 + 2 * 2 + 3  # rigid (rank 1), 3 modes, added (rank 2), 3 lags
+    # ZOH simulation mode by mode = the realization's ZOH simulation
+    u = rng.standard_normal((2000, 2))
+    y_ref = sim.simulate_zoh(ss.without_delay().to_statespace(), u, 5000.0, delay_s=2e-4)
+    assert rel(mm.simulate(u, 5000.0), y_ref) < 1e-7
     # what the modal model cannot hold is refused in one line
     with pytest.raises(InputError) as exc:
         ModalModel(modes=(), D=np.zeros((3, 2)), tau_in=np.array([1e-4]))
     assert "tau_in" in str(exc.value) and "\n" not in str(exc.value)
 
 
+def test_overdamped_moved_mode_is_realized():
+    """A rigid body on a stiff, overdamped suspension (z = 1.5, the diagnosis allows up to 2)
+    with a full-rank residue: the realization reproduces N0 / (s^2 + 2 z w s + w^2)."""
+    rng = np.random.default_rng(4)
+    N0 = rng.standard_normal((2, 2))
+    rigid = Mode("rigid", 0.0, 0.0, np.zeros(2), np.zeros(2), N0=N0, N1=np.zeros((2, 2)))
+    mm = ModalModel(modes=(rigid.moved(20.0, 1.5),), D=np.zeros((2, 2)))
+    s = 2j * np.pi * FREQ
+    w0 = 2 * np.pi * 20.0
+    G = N0[None] / (s**2 + 3.0 * w0 * s + w0**2)[:, None, None]
+    assert rel(mm.frf(FREQ), G) < 1e-12
+    for form in ("companion", "scaled"):
+        ss = mm.to_statespace(form=form)
+        assert ss.nstates == 4 and rel(lti.frf(ss, FREQ), G) < 1e-9
+    with pytest.raises(InputError, match="real pole"):
+        Mode("real", 10.0, 1.0, np.ones(2), np.ones(2)).moved(5.0, 0.1)
+
+
 def test_decompose_is_the_exact_modal_decomposition():
-    """Diagnosis's decompose: the rigid modes as one s^2 term with their summed,
+    """Diagnosis's decompose: the rigid modes as one s^2 mode with their summed,
     full-rank residue (one rigid mode per output DOF here), equal to the oracle."""
     sys, w, zeta, res = chain(n_dof=3)
     sys = control.ss(sys.A, sys.B, sys.C[:2], sys.D[:2])  # 2 outputs
     em = decompose(LTIModel.from_statespace(sys, delay_s=2e-4))
-    assert em.delay_s == 2e-4
+    assert isinstance(em, ModalModel) and em.delay_s == 2e-4
     assert rel(em.frf(FREQ), lti.frf(sys, FREQ, delay_s=2e-4)) < 1e-9
-    assert em.terms[0].kind == "rigid"
-    assert np.allclose(em.terms[0].N0, res[0][:2], atol=1e-9 * np.abs(res).max())
-    for t, wk, zk in zip(em.terms[1:], w[1:], zeta[1:]):
-        assert t.freq_hz == pytest.approx(wk / (2 * np.pi), rel=1e-9)
-        assert t.damping == pytest.approx(zk, rel=1e-6)
+    assert em.modes[0].kind == "rigid"
+    assert np.allclose(em.modes[0].numerator()[0], res[0][:2], atol=1e-9 * np.abs(res).max())
+    for m, wk, zk in zip(em.modes[1:], w[1:], zeta[1:]):
+        assert m.freq_hz == pytest.approx(wk / (2 * np.pi), rel=1e-9)
+        assert m.damping == pytest.approx(zk, rel=1e-6)
     # two rigid bodies: the summed residue has rank two
     sys2 = control.append(control.ss([[0, 1], [0, 0]], [[0], [1]], [[1, 0]], 0), sys[0, 0])
     em2 = decompose(sys2)
-    assert em2.terms[0].kind == "rigid" and np.linalg.matrix_rank(em2.terms[0].N0) == 2
+    assert em2.modes[0].kind == "rigid"
+    assert np.linalg.matrix_rank(em2.modes[0].numerator()[0]) == 2
     assert rel(em2.frf(FREQ), lti.frf(sys2, FREQ)) < 1e-9
 
 

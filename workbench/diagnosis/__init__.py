@@ -2,7 +2,7 @@
 
 Data flow::
 
-    model (StateSpace) ──decompose──> ExtendedModel (modal terms + effect fields)   modal.py
+    model (StateSpace) ──decompose──> ModalModel (modes + effect fields)          modal.py
     data (FrfData | TimeData) ──────> FrfProblem | TimeProblem (weights, linear fits) problem.py
                       │
                       ▼

@@ -21,13 +21,13 @@ from workbench.core.errors import InputError
 from workbench.core.jsonutil import jsonable
 from workbench.core.model import LTIModel, as_model, pade_delay, pade_order, with_pade
 from workbench.diagnosis import LINEAR_EFFECTS, detect
-from workbench.diagnosis.diagnose import _spec_error, base_model
+from workbench.diagnosis.diagnose import _spec_error, base_model, model_notes
 from workbench.diagnosis.effects import candidate_structures
 from workbench.diagnosis.fit import FitResult, fit, screen
-from workbench.diagnosis.modal import ExtendedModel
 from workbench.diagnosis.nonlinear import PortNonlinearity
 from workbench.diagnosis.problem import make_problem
 from workbench.io.formats import FrfData, TimeData, check_model_matches
+from workbench.modal.model import ModalModel
 
 # pade_delay, pade_order, with_pade live in workbench.core.model; kept importable here
 __all__ = ["EFFECTS", "Augmented", "augment", "pade_delay", "pade_order", "with_pade"]
@@ -50,8 +50,9 @@ class Augmented:
         Fitted physical parameters and standard deviations.
     error_before, error_after : float
         The spec error measure before and after.
-    extended : ExtendedModel or None
-        The modal representation (None for nonlinearity).
+    extended : ModalModel or None
+        The modal representation (the diagnosis's form,
+        :func:`workbench.diagnosis.modal.decompose`, with the effect).
     """
 
     model: LTIModel
@@ -60,7 +61,7 @@ class Augmented:
     parameters_std: dict
     error_before: float
     error_after: float
-    extended: ExtendedModel | None = field(default=None, repr=False)
+    extended: ModalModel | None = field(default=None, repr=False)
     note: str = ""
     nonlinear: PortNonlinearity | None = field(default=None, repr=False)
 
@@ -129,10 +130,9 @@ def augment(
             if best is None or r.cost < best.cost:
                 best = r
         params, params_std = best.structure.report(best, problem, base)
-        sys, delay = best.model.to_statespace()
-        note = "; ".join(base.notes)
+        note = "; ".join(model_notes(model))
         return Augmented(
-            LTIModel.from_statespace(sys, delay_s=delay),
+            _lti(best.model),
             effect,
             params,
             params_std,
@@ -143,14 +143,19 @@ def augment(
         )
 
 
+def _lti(model: ModalModel) -> LTIModel:
+    """The modal model's balanced realization (states (w q, dq/dt) per mode) with its delay."""
+    return model.to_lti(form="scaled")
+
+
 def _augment_nonlinearity(model, data, base, problem, error_before) -> Augmented:
     """Nonlinearity: its level (unexcited lines), and Coulomb friction added to the
     simulation model (:mod:`workbench.diagnosis.nonlinear`) when the data are a time record of a
     square model, so the time-domain comparison can run with it."""
     from workbench.diagnosis.nonlinear import fit_friction
 
-    sys, delay = base.to_statespace()
-    lti_model = LTIModel.from_statespace(sys, delay_s=delay)
+    lti_model = _lti(base)
+    sys = lti_model.without_delay().to_statespace()
     nl = detect.nonlinearity(data, problem.predict(base)) if isinstance(data, TimeData) else None
     params: dict = {} if nl is None else {"level": nl.level, "f_stat": nl.f_stat}
     notes = []

@@ -14,7 +14,7 @@ round looks for a second one on top of it.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -27,9 +27,10 @@ from workbench.diagnosis import detect
 from workbench.diagnosis.effects import candidate_structures
 from workbench.diagnosis.explain import explain
 from workbench.diagnosis.fit import FitResult, fit, fit_joint, screen
-from workbench.diagnosis.modal import ExtendedModel, decompose
+from workbench.diagnosis.modal import decompose
 from workbench.diagnosis.problem import make_problem
 from workbench.io.formats import FrfData, TimeData, check_model_matches
+from workbench.modal.model import ModalModel
 from workbench.sim import simulate_zoh
 
 __all__ = ["Finding", "Diagnosis", "diagnose"]
@@ -67,7 +68,7 @@ class Finding:
     parameters_std: dict[str, Any]
     error_after: float
     explanation: str
-    model: ExtendedModel | None = field(default=None, repr=False, compare=False)
+    model: ModalModel | None = field(default=None, repr=False, compare=False)
     fit_status: str = "ok"
     """"ok", or why the least-squares fit stopped without converging."""
 
@@ -123,7 +124,7 @@ class Diagnosis:
         Runner-up explanations of the first round (effect, error_after, delta_bic).
     noise_floor : float or None
         Error expected from the noise alone (FRF data with G_var).
-    model : ExtendedModel
+    model : ModalModel
         The model with every finding added.
     """
 
@@ -133,7 +134,7 @@ class Diagnosis:
     noise_floor: float | None = None
     data_kind: str = "frf"
     notes: tuple[str, ...] = ()
-    model: ExtendedModel | None = field(default=None, repr=False, compare=False)
+    model: ModalModel | None = field(default=None, repr=False, compare=False)
 
     def to_json(self) -> dict:
         out: dict[str, Any] = {
@@ -215,7 +216,7 @@ def diagnose(
         )
 
 
-def base_model(model, data, delay_s: float = 0.0) -> ExtendedModel:
+def base_model(model, data, delay_s: float = 0.0) -> ModalModel:
     """The model as diagnosis and augmentation start from it: its modal decomposition.
 
     ``model`` is the rational part (a ``StateSpace``), ``delay_s`` (s) its
@@ -235,7 +236,17 @@ def base_model(model, data, delay_s: float = 0.0) -> ExtendedModel:
         raise
     except ValueError as exc:
         raise InputError(f"model: {exc}") from None
-    return base.replace(delay_s=float(delay_s)) if delay_s else base
+    return replace(base, delay_s=float(delay_s)) if delay_s else base
+
+
+def model_notes(model) -> tuple[str, ...]:
+    """What the diagnosis did to the model before starting (a discrete model made continuous)."""
+    dt = as_matrices(model)[4]
+    if dt > 0:
+        return (
+            f"discrete model (dt = {dt:g} s) converted to continuous time by the exact ZOH inverse",
+        )
+    return ()
 
 
 def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Diagnosis:
@@ -243,7 +254,7 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Dia
     base = base_model(model, data, delay_s)
     problem = make_problem(data)
     error_before = _spec_error(model, data, delay_s)
-    notes = list(base.notes)
+    notes = list(model_notes(model))
     floor = problem.noise_floor
     n = problem.n_obs
     current = base
@@ -253,7 +264,7 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Dia
     alternatives: list[dict] = []
     exclude: set[str] = set()
     accepted: list[FitResult] = []
-    accepted_bases: list[ExtendedModel] = []
+    accepted_bases: list[ModalModel] = []
     runners: list = []
     cur_err0 = cur_err
     # Closed-loop periodic record: the loop settles within a period, so distortion on the

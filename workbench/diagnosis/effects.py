@@ -1,7 +1,7 @@
 """One parameterized structure per linear effect of the vocabulary.
 
 Each structure maps its nonlinear parameters ``theta`` to an augmented
-:class:`~workbench.diagnosis.modal.ExtendedModel` (solving its linear parts by
+:class:`~workbench.modal.model.ModalModel` (solving its linear parts by
 projection through the problem) and reports physical parameters. Signatures
 that the structures encode:
 
@@ -21,12 +21,12 @@ crosstalk              (I + E) G or G (I + E), E off-diagonal            -      
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from workbench.diagnosis.fit import FitResult, Realized
-from workbench.diagnosis.modal import ExtendedModel, Term
+from workbench.modal.model import ModalModel, Mode
 
 __all__ = [
     "TimeDelay",
@@ -43,10 +43,9 @@ __all__ = [
 _LOG_Z = (np.log(1e-4), np.log(0.7))
 
 
-def _mode_den(theta) -> np.ndarray:
-    w = 2 * np.pi * np.exp(theta[0])
-    z = np.exp(theta[1])
-    return np.array([2 * z * w, w * w])
+def _freq_damping(theta) -> tuple[float, float]:
+    """(Hz, ratio) of theta = (ln f, ln z)."""
+    return float(np.exp(theta[0])), float(np.exp(theta[1]))
 
 
 def _mode_std(fr: FitResult) -> tuple[float, float, float, float]:
@@ -85,7 +84,7 @@ class TimeDelay:
         return np.array([0.0]), np.array([self._max_s(problem) * 1.2e3])
 
     def build(self, theta, problem, base):
-        return Realized(base.replace(delay_s=base.delay_s + theta[0] * 1e-3))
+        return Realized(replace(base, delay_s=base.delay_s + theta[0] * 1e-3))
 
     def n_linear(self, base):
         return 0
@@ -111,16 +110,18 @@ class MissingMode:
         return np.array([np.log(0.7 * f_lo), _LOG_Z[0]]), np.array([np.log(1.3 * f_hi), _LOG_Z[1]])
 
     def build(self, theta, problem, base):
-        den = _mode_den(theta)
-        N0, N1, s0, s1 = problem.fit_new_term(base, den)
+        f, z = _freq_damping(theta)
+        mode = Mode("flexible", f, z, np.zeros(base.n_u), np.zeros(base.n_y))
+        N0, N1, s0, s1 = problem.fit_new_term(base, mode.denominator())
         # one mode: a residue of rank one across channels (the per-channel fit, projected)
-        w = np.sqrt(den[1])
+        w = mode.omega
         U, S, Vt = np.linalg.svd(np.vstack([N0, w * N1]), full_matrices=False)
         R = S[0] * np.outer(U[:, 0], Vt[0])
         N0, N1 = R[: base.n_y], R[base.n_y :] / w
-        term = Term(den=den, N0=N0, N1=N1, kind="added")
+        c, b = U[: base.n_y, 0] * np.sqrt(S[0]), Vt[0] * np.sqrt(S[0])  # c b^T = N0
+        mode = replace(mode, b=b, c=c, N0=N0, N1=N1, effect="missing_mode")
         return Realized(
-            base.replace(terms=base.terms + (term,)), {"N0": N0, "N1": N1}, {"N0": s0, "N1": s1}
+            replace(base, modes=base.modes + (mode,)), {"N0": N0, "N1": N1}, {"N0": s0, "N1": s1}
         )
 
     def n_linear(self, base):
@@ -143,7 +144,7 @@ class ModalMismatch:
     theta_names: tuple[str, ...] = ("log_freq_hz", "log_damping")
 
     def grid(self, problem, base):
-        t = base.terms[self.index]
+        t = base.modes[self.index]
         z0 = max(t.damping, 1e-3)
         # a shifted light peak is a narrow valley of the cost: steps of z0/2 near the model mode
         fine = 1 + np.arange(-0.08, 0.0801, max(z0 / 2, 1e-3))
@@ -154,22 +155,22 @@ class ModalMismatch:
         return [np.log([f, z0 * b]) for f in freqs for b in (0.5, 1.0, 2.0)]
 
     def bounds(self, problem, base):
-        t = base.terms[self.index]
+        t = base.modes[self.index]
         return np.array([np.log(0.5 * t.freq_hz), _LOG_Z[0]]), np.array(
             [np.log(2.0 * t.freq_hz), _LOG_Z[1]]
         )
 
     def build(self, theta, problem, base):
-        terms = list(base.terms)
-        terms[self.index] = terms[self.index].with_den(_mode_den(theta))
-        return Realized(base.replace(terms=tuple(terms)))
+        modes = list(base.modes)
+        modes[self.index] = modes[self.index].moved(*_freq_damping(theta))
+        return Realized(replace(base, modes=tuple(modes)))
 
     def n_linear(self, base):
         return 0
 
     def report(self, fr, problem, base):
         f, z, sf, sz = _mode_std(fr)
-        t = base.terms[self.index]
+        t = base.modes[self.index]
         return (
             {"freq_hz": f, "damping": z, "model_freq_hz": t.freq_hz, "model_damping": t.damping},
             {"freq_hz": sf, "damping": sz},
@@ -182,10 +183,10 @@ class SuspensionStiffness:
     theta_names: tuple[str, ...] = ("log_freq_hz", "log_damping")
 
     def _rigid(self, base) -> int:
-        return next(i for i, t in enumerate(base.terms) if t.kind == "rigid")
+        return next(i for i, m in enumerate(base.modes) if m.kind == "rigid")
 
     def _f_max(self, problem, base) -> float:
-        flex = [t.freq_hz for t in base.terms if t.kind == "flex" and t.freq_hz > 0]
+        flex = [m.freq_hz for m in base.modes if _model_flexible(m) and m.freq_hz > 0]
         return min([problem.band_hz[1]] + [0.7 * f for f in flex])
 
     def grid(self, problem, base):
@@ -205,10 +206,10 @@ class SuspensionStiffness:
         )
 
     def build(self, theta, problem, base):
-        terms = list(base.terms)
+        modes = list(base.modes)
         k = self._rigid(base)
-        terms[k] = terms[k].with_den(_mode_den(theta))
-        return Realized(base.replace(terms=tuple(terms)))
+        modes[k] = modes[k].moved(*_freq_damping(theta), effect=self.effect)
+        return Realized(replace(base, modes=tuple(modes)))
 
     def n_linear(self, base):
         return 0
@@ -236,7 +237,7 @@ class ResidualCompliance(_LinearOnly):
 
     def build(self, theta, problem, base):
         M, S = problem.fit_feedthrough(base)
-        return Realized(base.replace(D=base.D + M), {"matrix": M}, {"matrix": S})
+        return Realized(replace(base, D=base.D + M), {"matrix": M}, {"matrix": S})
 
     def n_linear(self, base):
         return base.n_y * base.n_u
@@ -285,8 +286,8 @@ class _Lag:
     def build(self, theta, problem, base):
         tau = np.asarray(theta, float) / self._scale(problem)
         if self.side == "in":
-            return Realized(base.replace(tau_in=base.tau_in + tau))
-        return Realized(base.replace(tau_out=base.tau_out + tau))
+            return Realized(replace(base, tau_in=base.lags("in") + tau))
+        return Realized(replace(base, tau_out=base.lags("out") + tau))
 
     def n_linear(self, base):
         return 0
@@ -328,9 +329,9 @@ class Crosstalk(_LinearOnly):
         E, S = problem.fit_crosstalk(base, self.side)
         T = np.eye(E.shape[0]) + E
         if self.side == "out":
-            new = base.replace(T_out=T if base.T_out is None else T @ base.T_out)
+            new = replace(base, T_out=T if base.T_out is None else T @ base.T_out)
         else:
-            new = base.replace(T_in=T if base.T_in is None else base.T_in @ T)
+            new = replace(base, T_in=T if base.T_in is None else base.T_in @ T)
         return Realized(new, {"matrix": T}, {"matrix": S})
 
     def n_linear(self, base):
@@ -347,15 +348,24 @@ class Crosstalk(_LinearOnly):
         )
 
 
-def candidate_structures(base: ExtendedModel, problem, *, exclude=()) -> list:
-    """Every structure that applies to ``base`` and ``problem``, minus the excluded effects."""
+def _model_flexible(m: Mode) -> bool:
+    """A flexible mode of the model (moved or not), not one the diagnosis added or suspended."""
+    return m.kind == "flexible" and not m.effect
+
+
+def candidate_structures(base: ModalModel, problem, *, exclude=()) -> list:
+    """Every structure that applies to ``base`` and ``problem``, minus the excluded effects.
+
+    ``base`` is in the diagnosis's form (:func:`workbench.diagnosis.modal.decompose`);
+    structures index its modes.
+    """
     f_lo, f_hi = problem.band_hz
     out: list = [TimeDelay(), MissingMode(), ResidualCompliance()]
     out += [ActuatorDynamics(), SensorDynamics()]
-    for k, t in enumerate(base.terms):
-        if t.kind == "flex" and f_lo / 1.4 <= t.freq_hz <= f_hi * 1.4:
+    for k, m in enumerate(base.modes):
+        if _model_flexible(m) and f_lo / 1.4 <= m.freq_hz <= f_hi * 1.4:
             out.append(ModalMismatch(index=k))
-    if any(t.kind == "rigid" for t in base.terms):
+    if any(m.kind == "rigid" for m in base.modes):
         out.append(SuspensionStiffness())
     if base.n_y > 1:
         out.append(Crosstalk(side="out"))

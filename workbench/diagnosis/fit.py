@@ -26,7 +26,7 @@ from typing import Any, Protocol
 import numpy as np
 import scipy.optimize
 
-from workbench.diagnosis.modal import ExtendedModel
+from workbench.modal.model import ModalModel
 
 __all__ = ["Structure", "Realized", "FitResult", "Screening", "fit", "parameter_std", "screen"]
 
@@ -35,7 +35,7 @@ __all__ = ["Structure", "Realized", "FitResult", "Screening", "fit", "parameter_
 class Realized:
     """A structure evaluated at one theta: the model and the linear parameters it solved."""
 
-    model: ExtendedModel
+    model: ModalModel
     linear: dict[str, Any] = field(default_factory=dict)
     linear_std: dict[str, Any] = field(default_factory=dict)
 
@@ -46,19 +46,19 @@ class Structure(Protocol):
     effect: str
     theta_names: tuple[str, ...]
 
-    def grid(self, problem, base: ExtendedModel) -> list[np.ndarray]:
+    def grid(self, problem, base: ModalModel) -> list[np.ndarray]:
         """Candidate start points, each of shape (n_theta,)."""
 
-    def bounds(self, problem, base: ExtendedModel) -> tuple[np.ndarray, np.ndarray]:
+    def bounds(self, problem, base: ModalModel) -> tuple[np.ndarray, np.ndarray]:
         """Lower and upper bounds of theta."""
 
-    def build(self, theta: np.ndarray, problem, base: ExtendedModel) -> Realized:
+    def build(self, theta: np.ndarray, problem, base: ModalModel) -> Realized:
         """The augmented model at theta, its linear parts solved by projection."""
 
-    def n_linear(self, base: ExtendedModel) -> int:
+    def n_linear(self, base: ModalModel) -> int:
         """Number of linear parameters (for the information criterion)."""
 
-    def report(self, fit_result: FitResult, problem, base: ExtendedModel) -> tuple[dict, dict]:
+    def report(self, fit_result: FitResult, problem, base: ModalModel) -> tuple[dict, dict]:
         """Physical parameters and their standard deviations, JSON-ready."""
 
 
@@ -95,7 +95,7 @@ class FitResult:
     """"ok", or why the least-squares search stopped without converging."""
 
     @property
-    def model(self) -> ExtendedModel:
+    def model(self) -> ModalModel:
         return self.realized.model
 
     @property
@@ -132,7 +132,7 @@ class Screening:
         return iter((self.cost, self.starts))
 
 
-def screen(structure: Structure, problem, base: ExtendedModel) -> Screening:
+def screen(structure: Structure, problem, base: ModalModel) -> Screening:
     """Projected cost on the structure's grid, grid points sorted by cost, numerical failures.
 
     A structure without nonlinear parameters is evaluated once (its fit is exact).
@@ -157,7 +157,7 @@ def screen(structure: Structure, problem, base: ExtendedModel) -> Screening:
 def fit(
     structure: Structure,
     problem,
-    base: ExtendedModel,
+    base: ModalModel,
     *,
     starts: list[np.ndarray] | None = None,
     n_starts: int = 2,
@@ -169,7 +169,7 @@ def fit(
     ----------
     structure : Structure
     problem : FrfProblem or TimeProblem
-    base : ExtendedModel
+    base : ModalModel
         The model to augment (the nominal, or the nominal with earlier findings).
     starts : list of (n_theta,) arrays, optional
         Start points sorted best first (from :func:`screen`); by default the grid is screened here.
@@ -277,7 +277,7 @@ class Composite:
     Parameters
     ----------
     parts : tuple of Structure
-    bases : tuple of ExtendedModel
+    bases : tuple of ModalModel
         The model before each part at the start values (for each part's bounds).
     """
 
@@ -335,7 +335,7 @@ _STACK_ORDER = {
 }
 
 
-def stack(parts: list, thetas: list[np.ndarray], problem, base: ExtendedModel):
+def stack(parts: list, thetas: list[np.ndarray], problem, base: ModalModel):
     """Build parts on base in stacking order; returns (model, realized per part in the given "
     "order)."""
     order = sorted(range(len(parts)), key=lambda i: _STACK_ORDER.get(parts[i].effect, 9))
@@ -349,7 +349,7 @@ def stack(parts: list, thetas: list[np.ndarray], problem, base: ExtendedModel):
 
 
 def fit_joint(
-    parts: list, thetas: list[np.ndarray], problem, base: ExtendedModel, *, max_nfev: int = 60
+    parts: list, thetas: list[np.ndarray], problem, base: ModalModel, *, max_nfev: int = 60
 ):
     """Refit ``parts`` jointly from ``thetas``; returns one FitResult per part and their bases.
 

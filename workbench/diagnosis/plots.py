@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from workbench.diagnosis.modal import ExtendedModel
 from workbench.io.formats import FrfData, TimeData
+from workbench.modal.model import ModalModel
 from workbench.plotting import new_figure, save_png
 
 __all__ = ["write_plots"]
@@ -26,8 +26,8 @@ def _freq(data) -> np.ndarray:
 def write_plots(
     folder: str | Path,
     data: FrfData | TimeData,
-    before: ExtendedModel,
-    after: ExtendedModel,
+    before: ModalModel,
+    after: ModalModel,
     *,
     title: str,
 ) -> list[Path]:

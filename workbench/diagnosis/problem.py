@@ -2,10 +2,10 @@
 
 A *problem* holds one measurement and knows, in its own domain, how to
 
-- predict the data from an :class:`~workbench.diagnosis.modal.ExtendedModel`
-  (the FRF at the measured lines, or a ZOH simulation from rest driven by the
-  recorded input), with a cache of per-term contributions so that a fit that
-  changes one term does not recompute the others;
+- predict the data from a :class:`~workbench.modal.model.ModalModel` (the
+  FRF at the measured lines, or a ZOH simulation from rest driven by the
+  recorded input), with a cache of per-mode contributions so that a fit that
+  changes one mode does not recompute the others;
 - turn the misfit into a weighted real residual vector (FRF with ``G_var``:
   (G - G_model)/sqrt(G_var), a chi-square statistic per line that averages
   about 1 when the model is right; FRF without: per-line relative weighting
@@ -22,8 +22,9 @@ from __future__ import annotations
 import numpy as np
 
 from workbench.core.lti import relative_error_frf, relative_error_time
-from workbench.diagnosis.modal import ExtendedModel
 from workbench.io.formats import FrfData, TimeData
+from workbench.modal.model import ModalModel, Mode
+from workbench.modal.simulate import filtered_inputs
 
 __all__ = ["FrfProblem", "TimeProblem", "make_problem"]
 
@@ -70,45 +71,45 @@ class FrfProblem:
         self._cache: dict = {}
 
     # ------------------------------------------------------------ prediction
-    def _term(self, t) -> np.ndarray:
-        k = _key(t.den, t.N0, t.N1)
+    def _mode_response(self, m: Mode) -> np.ndarray:
+        k = _key(m.denominator(), *m.numerator())
         out = self._cache.get(k)
         if out is None:
-            out = t.response(self.s)
+            out = m.response(self.s)
             if len(self._cache) > 400:
                 self._cache.clear()
             self._cache[k] = out
         return out
 
-    def core(self, model: ExtendedModel) -> np.ndarray:
+    def core(self, model: ModalModel) -> np.ndarray:
         G = np.broadcast_to(model.D, (self.freq.size,) + model.D.shape).astype(complex)
-        for t in model.terms:
-            G = G + self._term(t)
+        for m in model.modes:
+            G = G + self._mode_response(m)
         return G
 
-    def predict(self, model: ExtendedModel) -> np.ndarray:
+    def predict(self, model: ModalModel) -> np.ndarray:
         """Model FRF at the measured lines, (n_f, n_y, n_u)."""
         return model.outer(self.freq, self.core(model))
 
-    def residual(self, model: ExtendedModel) -> np.ndarray:
+    def residual(self, model: ModalModel) -> np.ndarray:
         e = (self.data.G - self.predict(model)) * self.w
         return e.view(float).ravel()
 
-    def cost(self, model: ExtendedModel) -> float:
+    def cost(self, model: ModalModel) -> float:
         e = (self.data.G - self.predict(model)) * self.w
         return float(np.sum(e.real**2 + e.imag**2))
 
-    def error(self, model: ExtendedModel) -> float:
+    def error(self, model: ModalModel) -> float:
         return relative_error_frf(self.data.G, self.predict(model))
 
-    def line_chi2(self, model: ExtendedModel) -> np.ndarray:
+    def line_chi2(self, model: ModalModel) -> np.ndarray:
         """Weighted squared misfit per line, summed over channels, (n_f,)."""
         e = (self.data.G - self.predict(model)) * self.w
         return np.sum(e.real**2 + e.imag**2, axis=(1, 2))
 
     # --------------------------------------------------------- linear parts
-    def fit_new_term(self, model: ExtendedModel, den: np.ndarray):
-        """Real numerators N0, N1 of an added term (N1 s + N0)/den(s), per channel.
+    def fit_new_term(self, model: ModalModel, den: np.ndarray):
+        """Real numerators N0, N1 of an added mode (N1 s + N0)/den(s), per channel.
 
         Returns N0, N1 (n_y, n_u) and their standard deviations (unit noise scale).
         """
@@ -131,7 +132,7 @@ class FrfProblem:
         std = np.sqrt(np.abs(np.stack([cov[..., 0, 0], cov[..., 1, 1]], -1)))
         return x[..., 0], x[..., 1] / wr, std[..., 0], std[..., 1] / wr
 
-    def fit_feedthrough(self, model: ExtendedModel):
+    def fit_feedthrough(self, model: ModalModel):
         """Real matrix added to D, per channel; returns dD and its std (unit noise scale)."""
         e = self.data.G - self.predict(model)
         h = model.channel_factor(self.freq)
@@ -139,7 +140,7 @@ class FrfProblem:
         r = np.sum(self.w2 * (np.conj(h) * e).real, axis=0)
         return r / m, 1.0 / np.sqrt(m)
 
-    def fit_crosstalk(self, model: ExtendedModel, side: str):
+    def fit_crosstalk(self, model: ModalModel, side: str):
         """Off-diagonal static coupling E with G = (I + E) G_model (side "out") or G_model (I + "
         "E)."""
         Gm = self.predict(model)
@@ -167,11 +168,11 @@ class FrfProblem:
                 E[others, j], S[others, j] = _lstsq_std(Xr, br)
         return E, S
 
-    def residual_peaks(self, model: ExtendedModel, n: int = 6) -> list[float]:
+    def residual_peaks(self, model: ModalModel, n: int = 6) -> list[float]:
         """Frequencies (Hz) of the n largest separated peaks of the misfit per line."""
         return _peaks(self.freq, self.line_chi2(model), n)
 
-    def model_frf(self, model: ExtendedModel, freq=None) -> np.ndarray:
+    def model_frf(self, model: ModalModel, freq=None) -> np.ndarray:
         return model.frf(self.freq if freq is None else freq)
 
 
@@ -221,11 +222,11 @@ class TimeProblem:
         self.band_hz = _time_band(data)
         self._cache: dict = {}
 
-    def _part(self, model: ExtendedModel, den, N0, N1, u_in) -> np.ndarray:
+    def _part(self, model: ModalModel, den, N0, N1, u_in) -> np.ndarray:
         k = _key(den, N0, N1, [model.delay_s], model.tau_in, model.tau_out, model.T_in)
         out = self._cache.get(k)
         if out is None:
-            X, groups = model.filtered_inputs(den, u_in, self.fs)
+            X, groups = filtered_inputs(model, den, u_in, self.fs)
             out = np.zeros(self.y.shape)
             for g, rows in enumerate(groups):
                 out[:, rows] = X[g, :, :, 0] @ N0[rows].T
@@ -236,28 +237,28 @@ class TimeProblem:
             self._cache[k] = out
         return out
 
-    def _u_in(self, model: ExtendedModel) -> np.ndarray:
+    def _u_in(self, model: ModalModel) -> np.ndarray:
         return self.u if model.T_in is None else self.u @ model.T_in.T
 
-    def predict(self, model: ExtendedModel) -> np.ndarray:
+    def predict(self, model: ModalModel) -> np.ndarray:
         """Simulated output (N, n_y)."""
         u_in = self._u_in(model)
         y = np.zeros(self.y.shape)
         if np.any(model.D):
             y += self._part(model, None, model.D, None, u_in)
-        for t in model.terms:
-            y += self._part(model, t.den, t.N0, t.N1, u_in)
+        for m in model.modes:
+            y += self._part(model, m.denominator(), *m.numerator(), u_in)
         if model.T_out is not None:
             y = y @ model.T_out.T
         return y
 
-    def residual(self, model: ExtendedModel) -> np.ndarray:
+    def residual(self, model: ModalModel) -> np.ndarray:
         return ((self.y - self.predict(model)) / self.scale).ravel()
 
-    def cost(self, model: ExtendedModel) -> float:
+    def cost(self, model: ModalModel) -> float:
         return float(np.sum(((self.y - self.predict(model)) / self.scale) ** 2))
 
-    def error(self, model: ExtendedModel) -> float:
+    def error(self, model: ModalModel) -> float:
         return relative_error_time(self.y, self.predict(model))
 
     # --------------------------------------------------------- linear parts
@@ -273,19 +274,19 @@ class TimeProblem:
                 coef[i], std[i] = _lstsq_std(Xg, e[:, i])
         return coef, std
 
-    def fit_new_term(self, model: ExtendedModel, den: np.ndarray):
-        X, groups = model.filtered_inputs(den, self._u_in(model), self.fs)
+    def fit_new_term(self, model: ModalModel, den: np.ndarray):
+        X, groups = filtered_inputs(model, den, self._u_in(model), self.fs)
         n_u = model.n_u
         Xc = np.concatenate([X[..., 0], X[..., 1]], axis=-1)  # [u_0..u_{n-1} | s u_0..]
         coef, std = self._regress(model, Xc, groups)
         return coef[:, :n_u], coef[:, n_u:], std[:, :n_u], std[:, n_u:]
 
-    def fit_feedthrough(self, model: ExtendedModel):
-        X, groups = model.filtered_inputs(None, self._u_in(model), self.fs)
+    def fit_feedthrough(self, model: ModalModel):
+        X, groups = filtered_inputs(model, None, self._u_in(model), self.fs)
         coef, std = self._regress(model, X[..., 0], groups)
         return coef, std
 
-    def fit_crosstalk(self, model: ExtendedModel, side: str):
+    def fit_crosstalk(self, model: ModalModel, side: str):
         ym = self.predict(model)
         e = (self.y - ym) / self.scale
         n_y, n_u = model.n_y, model.n_u
@@ -299,10 +300,10 @@ class TimeProblem:
         # input side: regressor of E[j, k] = column j of the model driven by u_k
         u_in = self._u_in(model)
         parts = [(None, model.D, None)] if np.any(model.D) else []
-        parts += [(t.den, t.N0, t.N1) for t in model.terms]
+        parts += [(m.denominator(), *m.numerator()) for m in model.modes]
         R = np.zeros((self.y.shape[0], n_y, n_u, n_u))  # (N, n_y, j, k)
         for den, N0, N1 in parts:
-            X, groups = model.filtered_inputs(den, u_in, self.fs)
+            X, groups = filtered_inputs(model, den, u_in, self.fs)
             for g, rows in enumerate(groups):
                 R[:, rows] += np.einsum("nk,ij->nijk", X[g, :, :, 0], N0[rows])
                 if N1 is not None and np.any(N1):
@@ -318,7 +319,7 @@ class TimeProblem:
             E[j, k], S[j, k] = xv, sv
         return E, S
 
-    def residual_peaks(self, model: ExtendedModel, n: int = 6) -> list[float]:
+    def residual_peaks(self, model: ModalModel, n: int = 6) -> list[float]:
         """Peaks (Hz) of the residual spectrum over the input spectrum, a crude |dG|^2."""
         e = self.y - self.predict(model)
         P = self.data.period
@@ -343,7 +344,7 @@ class TimeProblem:
             return []
         return _peaks(f[ok], E[ok] / U[ok], n)
 
-    def model_frf(self, model: ExtendedModel, freq=None) -> np.ndarray:
+    def model_frf(self, model: ModalModel, freq=None) -> np.ndarray:
         f = np.geomspace(*self.band_hz, 400) if freq is None else freq
         return model.frf(f)
 

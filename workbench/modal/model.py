@@ -20,14 +20,18 @@ lossless (each mode keeps its exact numerator ``N1 s + N0``); the model also
 holds the delay and the diagnosis's lags and coupling. Conversions:
 ``to_statespace`` / ``to_lti`` (with the delay) and ``from_statespace`` (a
 ``StateSpace`` or :class:`workbench.core.model.LTIModel`, continuous or discrete);
-``workbench.diagnosis.modal.ExtendedModel.from_modal`` / ``.to_modal`` (the
-diagnosis's term view); ``plants.modal.ModalSet.to_modal`` (the plants' modes).
+``plants.modal.ModalSet.to_modal`` (the plants' modes). The diagnosis works on
+this type too: :meth:`ModalModel.with_rigid_merged` (the rigid modes as the one
+``s^2`` term it fits), :meth:`Mode.moved` (a mode moved, a rigid body
+suspended), :attr:`Mode.effect` (which effect added a mode), :meth:`core_frf`,
+:meth:`channel_factor`, :meth:`simulate` (exact ZOH, :mod:`workbench.modal.simulate`).
+Refinement packs and unpacks the parameters through :mod:`workbench.modal.params`.
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Literal
 
 import numpy as np
@@ -42,6 +46,7 @@ __all__ = [
     "ModalModel",
     "apply_outer",
     "lag_factor",
+    "split_rigid_gain",
     "wrap_outer",
     "plot_model_bode",
     "plot_mode_superposition",
@@ -77,6 +82,10 @@ class Mode:
         fitted terms); None: the ideal ``N0 = c b^T``, ``N1 = 0``. Rigid modes
         share the denominator ``s^2``: only their sum is defined, so the
         cluster's ``1/s`` coefficient (single integrators) sits on the first.
+    effect : str
+        The diagnosis effect that added this mode or made it (``"missing_mode"``,
+        ``"suspension_stiffness"``: a rigid body on a spring); "" for a mode of
+        the model as given (a ``"modal_mismatch"`` moves a mode and keeps it "").
     """
 
     kind: str
@@ -87,6 +96,7 @@ class Mode:
     residual: float = 0.0
     N0: np.ndarray | None = None
     N1: np.ndarray | None = None
+    effect: str = ""
 
     def __post_init__(self):
         if self.kind not in ("rigid", "flexible", "real"):
@@ -134,6 +144,23 @@ class Mode:
         """True when the numerator is ``c b^T`` (no exact N0, N1 kept)."""
         return self.N0 is None and self.N1 is None
 
+    def moved(self, freq_hz: float, damping: float, *, effect: str | None = None) -> Mode:
+        """This mode at another natural frequency (Hz) and damping ratio, numerator kept.
+
+        A rigid mode becomes a flexible one: its numerator over
+        ``s^2 + 2 z w s + w^2`` (a rigid body on a spring). ``effect``: see
+        :attr:`effect` (None keeps this mode's).
+        """
+        if self.kind == "real":
+            raise InputError("mode: a real pole has no (frequency, damping) pair to move")
+        return replace(
+            self,
+            kind="flexible",
+            freq_hz=freq_hz,
+            damping=damping,
+            effect=self.effect if effect is None else effect,
+        )
+
     def numerator(self) -> tuple[np.ndarray, np.ndarray]:
         """(N0, N1), (n_y, n_u) each: the numerator ``N1 s + N0`` of this mode."""
         N0 = np.outer(self.c, self.b) if self.N0 is None else self.N0
@@ -169,8 +196,9 @@ class Mode:
             den = s - self.pole.real
         else:
             den = s**2 + 2 * z * w * s + w**2
-        if self.is_ideal:
-            return (1.0 / den)[:, None, None] * np.outer(self.c, self.b)[None]
+        if self.N1 is None or not np.any(self.N1):
+            N0 = np.outer(self.c, self.b) if self.N0 is None else self.N0
+            return N0[None] / den[:, None, None]
         N0, N1 = self.numerator()
         return (N0[None] + s[:, None, None] * N1[None]) / den[:, None, None]
 
@@ -355,15 +383,69 @@ class ModalModel:
             self.T_out is not None
         )
 
+    def core_frf(self, freq_hz, modes=None, *, with_d: bool = True) -> np.ndarray:
+        """``D + sum_k`` of ``modes`` (default: all) at ``freq_hz`` (Hz): (n_f, n_y, n_u).
+
+        Without lags, coupling or delay (see :meth:`frf`).
+        """
+        s = 2j * np.pi * np.atleast_1d(np.asarray(freq_hz, float))
+        G = np.zeros((s.size, self.n_y, self.n_u), complex)
+        if with_d:
+            G += self.D[None]
+        for m in self.modes if modes is None else modes:
+            G += m.response(s)
+        return G
+
+    def channel_factor(self, freq_hz) -> np.ndarray:
+        """Per-channel outer factor ``Hy_i Hu_j exp(-s delay_s)``, (n_f, n_y, n_u); no coupling."""
+        s = 2j * np.pi * np.atleast_1d(np.asarray(freq_hz, float))
+        h = lag_factor(s, self.lags("out"))[:, :, None] * lag_factor(s, self.lags("in"))[:, None, :]
+        return h * np.exp(-s * self.delay_s)[:, None, None]
+
+    def lags(self, side: Literal["in", "out"]) -> np.ndarray:
+        """Lag time constants of the inputs (n_u,) or outputs (n_y,), s; zeros where none."""
+        tau = self.tau_in if side == "in" else self.tau_out
+        n = self.n_u if side == "in" else self.n_y
+        return np.zeros(n) if tau is None else np.asarray(tau)
+
+    def with_rigid_merged(self) -> ModalModel:
+        """The rigid modes as one rigid mode holding their summed numerator; the rest by frequency.
+
+        The rigid modes share ``s^2``, so the response defines only their sum
+        (:meth:`rigid_residue`, full rank with one rigid mode per DOF): the
+        diagnosis fits and edits that one term (a suspension moves its
+        denominator, :meth:`Mode.moved`). The merged mode keeps the exact
+        numerator; its ``b``, ``c`` are the rank-one part of ``N0``. The other
+        modes follow by frequency (flexible and real poles together, a stable
+        sort), the order in which the diagnosis indexes them. Same FRF.
+        """
+        rigid = self.modes_of_kind("rigid")
+        rest = sorted((m for m in self.modes if m.kind != "rigid"), key=lambda m: m.freq_hz)
+        if not rigid:
+            return replace(self, modes=tuple(rest))
+        N0, N1 = self.rigid_residue()
+        C, B = split_rigid_gain(N0, 1, "svd")
+        merged = Mode("rigid", 0.0, 0.0, B[0], C[:, 0], N0=N0, N1=N1)
+        return replace(self, modes=(merged, *rest), transform=None)
+
+    def simulate(self, u, fs: float) -> np.ndarray:
+        """Zero-order-hold response from rest to ``u`` (N, n_u) sampled at ``fs`` (Hz): (N, n_y).
+
+        Exact for every part, the delay included (:mod:`workbench.modal.simulate`).
+        """
+        from workbench.modal.simulate import simulate
+
+        return simulate(self, u, fs)
+
     def frf(self, freq_hz, *, with_delay: bool = True) -> np.ndarray:
         """Frequency response (n_f, n_y, n_u): modes plus D, through lags, coupling and delay."""
         f = np.atleast_1d(np.asarray(freq_hz, float))
-        s = 2j * np.pi * f
-        G = np.broadcast_to(self.D.astype(complex), (s.size,) + self.D.shape).copy()
-        for m in self.modes:
-            G += m.response(s)
+        return self.outer(f, self.core_frf(f), with_delay=with_delay)
+
+    def outer(self, freq_hz, G: np.ndarray, *, with_delay: bool = True) -> np.ndarray:
+        """The lags, coupling and delay applied to a core response ``G`` (n_f, n_y, n_u)."""
         return apply_outer(
-            f,
+            freq_hz,
             G,
             tau_in=self.tau_in,
             tau_out=self.tau_out,
@@ -605,30 +687,72 @@ def _lag_abcd(tau: np.ndarray):
     return A, B, C, D
 
 
+def _series(first, second):
+    """(A, B, C, D) of ``second`` driven by ``first``'s output; states (first's, second's)."""
+    A1, B1, C1, D1 = first
+    A2, B2, C2, D2 = second
+    A = np.block([[A1, np.zeros((A1.shape[0], A2.shape[0]))], [B2 @ C1, A2]])
+    return A, np.vstack([B1, B2 @ D1]), np.hstack([D2 @ C1, C2]), D2 @ D1
+
+
 def wrap_outer(A, B, C, D, tau_in=None, tau_out=None, T_in=None, T_out=None):
     """(A, B, C, D) of ``T_out Hy (A, B, C, D) Hu T_in`` (see :func:`apply_outer`).
 
     States: actuator lags (lagged inputs only), the core, sensor lags.
     """
     if tau_in is not None and np.any(tau_in):
-        Al, Bl, Cl, Dl = _lag_abcd(np.asarray(tau_in, float))
-        n0, nl = A.shape[0], Al.shape[0]
-        A = np.block([[Al, np.zeros((nl, n0))], [B @ Cl, A]])
-        B = np.vstack([Bl, B @ Dl])
-        C = np.hstack([D @ Cl, C])
-        D = D @ Dl
+        A, B, C, D = _series(_lag_abcd(np.asarray(tau_in, float)), (A, B, C, D))
     if tau_out is not None and np.any(tau_out):
-        Al, Bl, Cl, Dl = _lag_abcd(np.asarray(tau_out, float))
-        n0, nl = A.shape[0], Al.shape[0]
-        A = np.block([[A, np.zeros((n0, nl))], [Bl @ C, Al]])
-        B = np.vstack([B, Bl @ D])
-        C = np.hstack([Dl @ C, Cl])
-        D = Dl @ D
+        A, B, C, D = _series((A, B, C, D), _lag_abcd(np.asarray(tau_out, float)))
     if T_in is not None:
         B, D = B @ T_in, D @ T_in
     if T_out is not None:
         C, D = T_out @ C, T_out @ D
     return A, B, C, D
+
+
+def split_rigid_gain(
+    P: np.ndarray, n_r: int, basis: Literal["auto", "outputs", "svd"] = "auto"
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rigid modes from their summed gain ``P = sum_k c_k b_k^T`` of ``1/s^2``.
+
+    Parameters
+    ----------
+    P : (n_y, n_u) array
+    n_r : int
+        Number of rigid modes.
+    basis : {"auto", "outputs", "svd"}
+        ``"outputs"``: one mode per output DOF, ``c_k = d_k e_k``, ``d_k =
+        sqrt(|P[k]|)`` (needs ``n_r = n_y``); ``"svd"``: orthogonal ``c_k``,
+        ``b_k`` of equal norm from the SVD of ``P``, zero modes beyond its
+        size; ``"auto"``: outputs when ``n_r = n_y`` and no row of ``P`` is
+        below ``1e-9`` of the largest, else svd.
+
+    Returns
+    -------
+    C : (n_y, n_r) array, columns ``c_k``; B : (n_r, n_u) array, rows ``b_k``.
+    """
+    n_y = P.shape[0]
+    row_norm = np.linalg.norm(P, axis=1)
+    if basis == "outputs" and n_r != n_y:
+        raise InputError(
+            f"rigid_basis 'outputs': expected as many rigid modes as outputs ({n_y}), "
+            f"got {n_r}; use 'svd'"
+        )
+    use_outputs = basis == "outputs" or (
+        basis == "auto" and n_r == n_y and np.all(row_norm > 1e-9 * max(row_norm.max(), 1e-300))
+    )
+    if use_outputs:
+        d = np.sqrt(row_norm)
+        return np.diag(d), P / np.where(d > 0, d, 1.0)[:, None]
+    U, s, Vt = np.linalg.svd(P)
+    k = min(n_r, s.size)
+    C = U[:, :k] * np.sqrt(s[:k])
+    B = np.sqrt(s[:k])[:, None] * Vt[:k]
+    if k < n_r:  # fewer singular values than modes (n_y or n_u < n_r): zero modes
+        B = np.vstack([B, np.zeros((n_r - k, B.shape[1]))])
+        C = np.hstack([C, np.zeros((n_y, n_r - k))])
+    return C, B
 
 
 # ------------------------------------------------------------------ internals
@@ -682,6 +806,16 @@ def _mode_blocks(m: Mode, form: str = "companion"):
     # component phi psi^T a real 2-state block in (Re z, Im z), then put into the companion
     # form by x_c = O x_r with O = [e1^T; e1^T A_r] (an observable pair for Im lam != 0)
     lam = m.pole
+    if not lam.imag > 0:
+        # overdamped (z >= 1, e.g. a stiff suspension fitted by the diagnosis): per rank of
+        # [N0; N1] a block [[0, w], [-w, -2 z w]] on states (w q, dq/dt), C [L0 / w, L1]
+        a1, a0 = m.denominator()
+        L, R = _rank_split(np.vstack([N0, N1]))
+        r, w = R.shape[0], np.sqrt(a0)
+        s1 = w if form == "scaled" else 1.0
+        I_r, Z = np.eye(r), np.zeros((r, r))
+        A = np.block([[Z, s1 * I_r], [-a0 / s1 * I_r, -a1 * I_r]])
+        return A, np.vstack([np.zeros((r, n_u)), R]), np.hstack([L[:n_y] / s1, L[n_y:]])
     Res = (N1 * lam + N0) / (2j * lam.imag)
     phi, psi = _rank_split(Res)
     As, Bs, Cs = [], [], []
@@ -719,28 +853,8 @@ def _rigid_modes(A1, B1, C1, w_r, basis, *, exact=False):
         n_r = max(n_r, 1)
         if basis == "auto" and n_r != n_y:
             basis = "svd"
-    row_norm = np.linalg.norm(P, axis=1)
-    use_outputs = basis == "outputs" or (
-        basis == "auto" and n_r == n_y and np.all(row_norm > 1e-9 * max(row_norm.max(), 1e-300))
-    )
-    if basis == "outputs" and n_r != n_y:
-        raise InputError(
-            f"rigid_basis 'outputs': expected as many rigid modes as outputs ({n_y}), "
-            f"got {n_r}; use 'svd'"
-        )
-    if use_outputs:
-        d = np.sqrt(row_norm)
-        Cr = np.diag(d)  # c_k = d_k e_k
-        Br = P / np.where(d > 0, d, 1.0)[:, None]  # rows b_k^T
-    else:
-        U, s, Vt = np.linalg.svd(P)
-        k = min(n_r, s.size)
-        Cr = U[:, :k] * np.sqrt(s[:k])
-        Br = np.sqrt(s[:k])[:, None] * Vt[:k]
+    Cr, Br = split_rigid_gain(P, n_r, basis)
     resid = float(np.linalg.norm(N1) * w_r / max(np.linalg.norm(P), 1e-300))
-    if Br.shape[0] < n_r:  # svd of a P with fewer rows than modes (n_y < n_r)
-        Br = np.vstack([Br, np.zeros((n_r - Br.shape[0], Br.shape[1]))])
-        Cr = np.hstack([Cr, np.zeros((n_y, n_r - Cr.shape[1]))])
     exact_num = [(None, None)] * n_r
     if exact:
         # the rigid modes share s^2: the part their c_k b_k^T miss (P beyond rank n_r,
