@@ -509,9 +509,10 @@ def flexible_errors(model) -> tuple[list[float], list[float], int]:
 
 def refine_frf(model, spec, *, input_delay: int) -> np.ndarray:
     """Discrete FRF (n_l, n_y, n_u) of the model's exact ZOH on the lines of ``spec``."""
-    from workbench.ident.refine import _frf_on, _layout
+    from workbench.ident.refine import _frf_on
+    from workbench.modal.params import pack
 
-    lay, theta = _layout(model, True)
+    lay, theta = pack(model, feedthrough=True)
     return _frf_on(lay, theta, spec.z, 1 / spec.fs, input_delay, model.n_u)
 
 

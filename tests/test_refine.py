@@ -151,11 +151,12 @@ def test_zoh_mode_response_matches_c2d_and_finite_differences(omega, zeta):
 
 
 def test_model_jacobian_matches_finite_differences():
-    from workbench.ident.refine import _layout, _model_jacobian
+    from workbench.ident.refine import _model_jacobian
+    from workbench.modal.params import pack
 
     rng = np.random.default_rng(3)
     model = two_by_two()
-    lay, theta = _layout(model, True)
+    lay, theta = pack(model, feedthrough=True)
     theta = theta + 0.01 * rng.standard_normal(theta.shape) * np.maximum(np.abs(theta), 1e-3)
     z = np.exp(2j * np.pi * np.arange(3, 130, 2) / PERIOD)
     U = rng.standard_normal((z.size, 2)) + 1j * rng.standard_normal((z.size, 2))

@@ -42,7 +42,8 @@ import scipy.optimize
 from workbench.core.arrays import readonly
 from workbench.core.errors import InputError
 from workbench.io.formats import TimeData
-from workbench.modal.model import ModalModel, Mode
+from workbench.modal.model import ModalModel
+from workbench.modal.params import ParameterLayout, pack
 
 __all__ = [
     "PeriodicSpectra",
@@ -300,88 +301,8 @@ def _zoh_rigid(z: np.ndarray, T: float) -> np.ndarray:
     return T * T * (z + 1) / (2 * (z - 1) ** 2)
 
 
-# ------------------------------------------------------ the parametrization
-@dataclass(frozen=True)
-class _Layout:
-    """Where each mode's parameters sit in theta, and how to rebuild the model."""
-
-    kinds: tuple[str, ...]  # per entry: "rigid_full", "rigid", "flexible", "real"
-    slices: tuple[dict, ...]
-    d_slice: slice | None
-    n_par: int
-    n_u: int
-    n_y: int
-    n_rigid: int
-    names: tuple[str, ...]
-
-
-def _layout(model: ModalModel, feedthrough: bool) -> tuple[_Layout, np.ndarray]:
-    n_u, n_y = model.n_u, model.n_y
-    rigid = model.modes_of_kind("rigid")
-    kinds, slices, theta, names = [], [], [], []
-    k = 0
-
-    def take(n, label):
-        nonlocal k
-        s = slice(k, k + n)
-        k += n
-        names.extend(f"{label}[{i}]" for i in range(n)) if n > 1 else names.append(label)
-        return s
-
-    full_rigid = len(rigid) >= min(n_u, n_y) and len(rigid) > 0
-    if full_rigid:
-        P = sum(np.outer(m.c, m.b) for m in rigid)
-        kinds.append("rigid_full")
-        slices.append({"P": take(n_y * n_u, "rigid P")})
-        theta.append(P.ravel())
-    j = 0
-    for m in model.modes:
-        j += 1
-        if m.kind == "rigid":
-            if full_rigid:
-                continue
-            kinds.append("rigid")
-            slices.append({"c": take(n_y, f"mode {j} c"), "b": take(n_u, f"mode {j} b")})
-            theta += [m.c, m.b]
-        elif m.kind == "flexible":
-            kinds.append("flexible")
-            slices.append(
-                {
-                    "f": take(1, f"mode {j} freq_hz"),
-                    "zeta": take(1, f"mode {j} damping"),
-                    "c": take(n_y, f"mode {j} c"),
-                    "b": take(n_u, f"mode {j} b"),
-                }
-            )
-            theta += [[m.freq_hz], [m.damping], m.c, m.b]
-        else:
-            kinds.append("real")
-            slices.append(
-                {
-                    "s": take(1, f"mode {j} pole"),
-                    "c": take(n_y, f"mode {j} c"),
-                    "b": take(n_u, f"mode {j} b"),
-                }
-            )
-            theta += [[m.pole.real], m.c, m.b]
-    d_slice = None
-    if feedthrough:
-        d_slice = take(n_y * n_u, "D")
-        theta.append(model.D.ravel())
-    lay = _Layout(
-        kinds=tuple(kinds),
-        slices=tuple(slices),
-        d_slice=d_slice,
-        n_par=k,
-        n_u=n_u,
-        n_y=n_y,
-        n_rigid=len(rigid),
-        names=tuple(names),
-    )
-    return lay, np.concatenate([np.ravel(t) for t in theta]).astype(float)
-
-
-def _model_jacobian(lay: _Layout, theta, z, U, T, delay):
+# ------------------------------------------------------ the model on the lines
+def _model_jacobian(lay: ParameterLayout, theta, z, U, T, delay):
     """``G(theta, z_l) U_l`` (n_l, n_y) and its Jacobian (n_l, n_y, n_par), with z^-delay."""
     n_l = z.shape[0]
     n_y, n_u = lay.n_y, lay.n_u
@@ -422,116 +343,6 @@ def _model_jacobian(lay: _Layout, theta, z, U, T, delay):
             J[:, i, idx[i]] = U
     zd = z ** (-int(delay))
     return GU * zd[:, None], J * zd[:, None, None]
-
-
-def _to_model(lay: _Layout, theta, template: ModalModel) -> ModalModel:
-    n_y, n_u = lay.n_y, lay.n_u
-    modes: list[Mode] = []
-    for kind, sl in zip(lay.kinds, lay.slices):
-        if kind == "rigid_full":
-            P = theta[sl["P"]].reshape(n_y, n_u)
-            modes += _split_rigid(P, lay.n_rigid)
-            continue
-        c, b = theta[sl["c"]].copy(), theta[sl["b"]].copy()
-        nc, nb = np.linalg.norm(c), np.linalg.norm(b)
-        if nc > 0 and nb > 0:  # |b| = |c|, the largest entry of c positive (as modal.py)
-            a = np.sqrt(nb / nc)
-            c, b = c * a, b / a
-            if c[np.argmax(np.abs(c))] < 0:
-                c, b = -c, -b
-        if kind == "rigid":
-            modes.append(Mode(kind="rigid", freq_hz=0.0, damping=0.0, b=b, c=c))
-        elif kind == "flexible":
-            f, zeta = theta[sl["f"]][0], theta[sl["zeta"]][0]
-            modes.append(Mode(kind="flexible", freq_hz=abs(f), damping=zeta, b=b, c=c))
-        else:
-            s = theta[sl["s"]][0]
-            modes.append(
-                Mode(
-                    kind="real",
-                    freq_hz=abs(s) / (2 * np.pi),
-                    damping=1.0 if s < 0 else -1.0,
-                    b=b,
-                    c=c,
-                )
-            )
-    order = {"rigid": 0, "flexible": 1, "real": 2}
-    modes.sort(key=lambda m: (order[m.kind], m.freq_hz))
-    D = theta[lay.d_slice].reshape(n_y, n_u) if lay.d_slice is not None else template.D
-    return ModalModel(
-        modes=tuple(modes),
-        D=D,
-        transform=None,
-        rigid_poles=np.zeros(2 * lay.n_rigid, complex),
-        input_names=template.input_names,
-        output_names=template.output_names,
-    )
-
-
-def _split_rigid(P: np.ndarray, n_r: int) -> list[Mode]:
-    """Rigid modes from the gain P of 1/s^2: one per output DOF if n_r = n_y, else by SVD."""
-    n_y = P.shape[0]
-    row = np.linalg.norm(P, axis=1)
-    if n_r == n_y and np.all(row > 1e-9 * max(row.max(), 1e-300)):
-        d = np.sqrt(row)
-        return [
-            Mode(kind="rigid", freq_hz=0.0, damping=0.0, b=P[k] / d[k], c=d[k] * np.eye(n_y)[k])
-            for k in range(n_r)
-        ]
-    U, s, Vt = np.linalg.svd(P)
-    n = min(n_r, s.size)
-    modes = [
-        Mode(
-            kind="rigid",
-            freq_hz=0.0,
-            damping=0.0,
-            b=np.sqrt(s[k]) * Vt[k],
-            c=U[:, k] * np.sqrt(s[k]),
-        )
-        for k in range(n)
-    ]
-    modes += [
-        Mode(kind="rigid", freq_hz=0.0, damping=0.0, b=np.zeros(P.shape[1]), c=np.zeros(n_y))
-        for _ in range(n_r - n)
-    ]
-    return modes
-
-
-def _per_mode_std(lay: _Layout, cov: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Standard deviations of frequency (Hz) and damping per entry of the rebuilt model."""
-    f_std, z_std = [], []
-    for kind, sl in zip(lay.kinds, lay.slices):
-        if kind == "rigid_full":
-            f_std += [np.nan] * lay.n_rigid
-            z_std += [np.nan] * lay.n_rigid
-            continue
-        if kind == "rigid":
-            f_std.append(np.nan)
-            z_std.append(np.nan)
-        elif kind == "flexible":
-            i, j = sl["f"].start, sl["zeta"].start
-            f_std.append(np.sqrt(max(cov[i, i], 0.0)))
-            z_std.append(np.sqrt(max(cov[j, j], 0.0)))
-        else:
-            i = sl["s"].start
-            f_std.append(np.sqrt(max(cov[i, i], 0.0)) / (2 * np.pi))
-            z_std.append(0.0)
-    return np.array(f_std), np.array(z_std)
-
-
-def _mode_order(lay: _Layout, theta) -> np.ndarray:
-    """Permutation from layout order to the rebuilt model's order (rigid, flexible, real)."""
-    keys = []
-    for kind, sl in zip(lay.kinds, lay.slices):
-        if kind == "rigid_full":
-            keys += [(0, 0.0)] * lay.n_rigid
-        elif kind == "rigid":
-            keys.append((0, 0.0))
-        elif kind == "flexible":
-            keys.append((1, abs(theta[sl["f"]][0])))
-        else:
-            keys.append((2, abs(theta[sl["s"]][0]) / (2 * np.pi)))
-    return np.array(sorted(range(len(keys)), key=lambda i: keys[i]), int)
 
 
 def _covariance(Jr: np.ndarray) -> np.ndarray:
@@ -622,7 +433,7 @@ def _local_noise(
     return C, kappa
 
 
-def _frf_on(lay: _Layout, theta, z, T, delay, n_u) -> np.ndarray:
+def _frf_on(lay: ParameterLayout, theta, z, T, delay, n_u) -> np.ndarray:
     """The model's discrete FRF (n, n_y, n_u) at z, delay included."""
     cols = []
     for j in range(n_u):
@@ -951,7 +762,7 @@ def refine_modal_model(
     input_delay = int(input_delay)
     if input_delay < 0:
         raise InputError(f"input_delay: expected an integer >= 0 samples, got {input_delay}")
-    lay, theta0 = _layout(model, feedthrough)
+    lay, theta0 = pack(model, feedthrough=feedthrough)
     notes: list[str] = []
     if noise_cov is None:
         spec = _drop_transient(
@@ -1026,10 +837,10 @@ def refine_modal_model(
     # the noise model says (misfit > 1) widen it by the misfit, never narrow it
     variance_factor = float(np.median(kappa)) * max(1.0, misfit)
     cov = _covariance(Jr) * variance_factor
-    f_std, z_std = _per_mode_std(lay, cov)
-    perm = _mode_order(lay, theta)
+    f_std, z_std = lay.mode_std(cov)
+    perm = lay.mode_order(theta)
     f_std, z_std = f_std[perm], z_std[perm]
-    refined = _to_model(lay, theta, model)
+    refined = lay.unpack(theta, model)
     if not sol.success:
         notes.append(f"the optimizer stopped without convergence: {sol.message}")
     for m in refined.modes:
@@ -1135,14 +946,14 @@ def modal_crb(
             f"got {type(spectra).__name__}"
         )
     _check_model(model, spectra)
-    lay, theta = _layout(model, feedthrough)
+    lay, theta = pack(model, feedthrough=feedthrough)
     C1 = _line_cov(spectra, noise_cov)
     _, J = _model_jacobian(lay, theta, spectra.z, spectra.U, 1.0 / spectra.fs, int(input_delay))
     Winv = _whiteners(C1[None])[0]
     Jw = np.sqrt(spectra.n_avg)[:, None, None] * np.einsum("ij,ljp->lip", Winv, J)
     Jr = np.concatenate([Jw.real.reshape(-1, lay.n_par), Jw.imag.reshape(-1, lay.n_par)])
     cov = _covariance(Jr)
-    f_std, z_std = _per_mode_std(lay, cov)
+    f_std, z_std = lay.mode_std(cov)
     # layout order: the model's, except that a shared rigid gain P puts every rigid mode first
     kinds = [m.kind for m in model.modes]
     where = list(range(len(kinds)))
