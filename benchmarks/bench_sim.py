@@ -4,7 +4,9 @@
 experiments, BLAS threads limited to 1. Printed (best of ``--repeat``):
 
 - ``sim.closed_loop`` on the stage as configured (0.15 nm quantization: a
-  nonlinear plant, so the loop is stepped sample by sample in Python);
+  nonlinear plant, so the loop is stepped sample by sample, in the compiled
+  kernel of ``workbench.compiled``; benchmarks/bench_closed_loop.py compares it
+  with the Python step loop);
 - ``sim.closed_loop`` on the same stage without quantization (linear path: one
   discrete LTI system driven by [r, d, v]), with where its time goes;
 - ``control.forced_response`` and ``scipy.signal.dlsim`` on that same discrete
@@ -70,7 +72,7 @@ def main(argv=None) -> None:
     rows = []
     with threadpool_limits(1):
         t_step, _ = best(lambda: run(stage, "auto"), 1)  # the step path is slow: once
-        rows.append(("closed_loop, quantized stage (step path)", t_step))
+        rows.append(("closed_loop, quantized stage (compiled step loop)", t_step))
         t_auto, (u_lin, y_lin) = best(lambda: run(linear_stage, "auto"), args.repeat)
         rows.append(("closed_loop, linear stage, auto (probe + linear)", t_auto))
         t_lin, _ = best(lambda: run(linear_stage, "linear"), args.repeat)

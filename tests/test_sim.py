@@ -328,6 +328,9 @@ def test_compiled_loop_refusals_and_the_python_engine():
         def linear(self):
             return False
 
+    hot = tune_pid([2.0], crossover_hz=700.0, fs=FS)  # 3 samples of delay: no phase left
+    with pytest.raises(InputError, match="unstable"):  # a linear loop is checked before it runs
+        sim.closed_loop(plant, hot, d=d, rng=rng, delay_samples=3, engine="compiled")
     Kn = Clipped(K.A, K.B, K.C, K.D, fs=FS)
     with pytest.raises(InputError, match="engine: 'compiled' needs a linear controller"):
         sim.closed_loop(plant, Kn, d=d, rng=rng, delay_samples=1, engine="compiled")

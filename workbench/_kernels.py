@@ -9,10 +9,10 @@ Data flow of one sample k (the same as ``plant.step`` / ``controller.step`` in
     u_c[k] = C_c x_c + D_c e;   x_c <- A_c x_c + B_c e
     x <- A x + B0 sat(u[k-m]) + B1 sat(u[k-m-1])
 
-The state matrices A and A_c are passed with a row range per row
-(``lo[i]:hi[i]`` holds every nonzero of row i): a block-diagonal, block-triangular
-or quasi-triangular (real Schur) matrix then costs what its nonzeros cost, and
-each row is one contiguous dot product that the compiler vectorizes.
+The state matrices A and A_c are passed in banded storage
+(``workbench.compiled.banded``): their tridiagonal part, which holds all of a
+block-diagonal matrix with 1x1 / 2x2 blocks (the real modal form), plus the
+few rows with entries further out, each one contiguous dot product.
 
 numba is a dependency of the project; importing this module without it is an
 ImportError on purpose (``engine="python"`` is the explicit way around it).
@@ -23,41 +23,38 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["row_ranges", "closed_loop_kernel"]
+__all__ = ["closed_loop_kernel"]
 
 # reassociation lets the short dot products use SIMD; the result moves by rounding only
 _FAST = {"reassoc", "contract"}
 
 
-def row_ranges(A: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per row i, [lo[i], hi[i]) covering its nonzeros (lo = hi = 0 for a zero row).
-
-    Parameters
-    ----------
-    A : (n, n_cols) array
-
-    Returns
-    -------
-    lo, hi : (n,) int64 arrays
-    """
-    nz = np.asarray(A) != 0
-    any_nz = nz.any(axis=1)
-    lo = np.where(any_nz, np.argmax(nz, axis=1), 0)
-    hi = np.where(any_nz, nz.shape[1] - np.argmax(nz[:, ::-1], axis=1), 0)
-    return lo.astype(np.int64), hi.astype(np.int64)
-
-
 @numba.njit(cache=True, fastmath=_FAST, inline="always")
-def _rows_matvec(A, lo, hi, x, out):
-    """out = A x over the row ranges (as slices: a loop over range(lo[i], hi[i]) stays scalar)."""
-    for i in range(A.shape[0]):
-        a = lo[i]
-        Ai = A[i, a:]
+def _banded_matvec(tri, rows, lo, hi, E, x, out):
+    """out = A x, A = tridiagonal part ``tri`` + the rows ``rows`` of the remainder E.
+
+    ``tri`` (3, n): A[i, i-1], A[i, i], A[i, i+1]; row ``rows[r]`` of E is nonzero
+    in columns lo[r]:hi[r] only (one contiguous dot product per listed row).
+    """
+    n = x.shape[0]
+    sub = tri[0]
+    dia = tri[1]
+    sup = tri[2]
+    if n == 1:
+        out[0] = dia[0] * x[0]
+    elif n > 1:
+        out[0] = dia[0] * x[0] + sup[0] * x[1]
+        for i in range(1, n - 1):
+            out[i] = sub[i] * x[i - 1] + dia[i] * x[i] + sup[i] * x[i + 1]
+        out[n - 1] = sub[n - 1] * x[n - 2] + dia[n - 1] * x[n - 1]
+    for r in range(rows.shape[0]):
+        a = lo[r]
+        Ei = E[rows[r], a:]
         xa = x[a:]
         s = 0.0
-        for j in range(hi[i] - a):
-            s += Ai[j] * xa[j]
-        out[i] = s
+        for j in range(hi[r] - a):
+            s += Ei[j] * xa[j]
+        out[rows[r]] += s
 
 
 @numba.njit(cache=True, fastmath=_FAST, inline="always")
@@ -83,16 +80,17 @@ def _matvec_add_t(Mt, x, out):
 
 @numba.njit(cache=True, fastmath=_FAST)
 def closed_loop_kernel(
-    A, a_lo, a_hi, B0t, B1t, Cr, Drt, m, sat, T, w, noise_std, q,
-    Ac, c_lo, c_hi, Bct, Cc, Dct, delay,
+    a_tri, a_rows, a_lo, a_hi, a_E, B0t, B1t, Cr, Drt, m, sat, T, w, noise_std, q,
+    c_tri, c_rows, c_lo, c_hi, c_E, Bct, Cc, Dct, delay,
     r, d, u, y,
 ):  # fmt: skip
     """Run the loop of the module docstring over N samples, writing ``u`` and ``y``.
 
     Parameters
     ----------
-    A : (n, n) array, a_lo, a_hi : (n,) int64
-        Plant state matrix (discrete, one sample) and its row ranges.
+    a_tri, a_rows, a_lo, a_hi, a_E
+        Plant state matrix (discrete, one sample) in banded storage
+        (``workbench.compiled.banded``): tridiagonal part (3, n) + listed rows of the rest.
     B0t, B1t : (n_u, n) arrays
         Transposed inputs of u[k-m] and u[k-m-1] (saturated); B1t may be (0, n) (none).
     Cr : (n_raw, n) array, Drt : (n_u, n_raw) or (0, n_raw) array
@@ -109,8 +107,8 @@ def closed_loop_kernel(
         Noise standard deviation of each raw sensor, m.
     q : float
         Raw sensor resolution, m (0 = none).
-    Ac : (n_c, n_c) array, c_lo, c_hi : (n_c,) int64
-        Controller state matrix and its row ranges.
+    c_tri, c_rows, c_lo, c_hi, c_E
+        Controller state matrix in banded storage.
     Bct : (n_y, n_c), Cc : (n_u, n_c), Dct : (n_y, n_u) or (0, n_u) arrays
         Controller input (transposed), output and feedthrough (transposed).
     delay : int
@@ -121,8 +119,8 @@ def closed_loop_kernel(
         Outputs, overwritten.
     """
     N = r.shape[0]
-    n = A.shape[0]
-    n_c = Ac.shape[0]
+    n = a_tri.shape[1]
+    n_c = c_tri.shape[1]
     n_u = Cc.shape[0]
     n_raw = Cr.shape[0]
     n_y = T.shape[0]
@@ -178,11 +176,11 @@ def closed_loop_kernel(
         uk[:] = 0.0
         _matvec_add_t(Dct, e, uk)
         _matvec_add(Cc, xc, uk)
-        _rows_matvec(Ac, c_lo, c_hi, xc, xcn)
+        _banded_matvec(c_tri, c_rows, c_lo, c_hi, c_E, xc, xcn)
         _matvec_add_t(Bct, e, xcn)
         xc, xcn = xcn, xc
         # plant
-        _rows_matvec(A, a_lo, a_hi, x, xn)
+        _banded_matvec(a_tri, a_rows, a_lo, a_hi, a_E, x, xn)
         _matvec_add_t(B0t, um, xn)
         _matvec_add_t(B1t, um1, xn)
         x, xn = xn, x

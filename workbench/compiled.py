@@ -26,7 +26,13 @@ import scipy.linalg
 
 from workbench.core.errors import InputError
 
-__all__ = ["SampledStep", "SparseRealization", "sparse_realization", "run_compiled_loop"]
+__all__ = [
+    "SampledStep",
+    "SparseRealization",
+    "sparse_realization",
+    "banded",
+    "run_compiled_loop",
+]
 
 #: Largest entry of a Sylvester solution accepted when splitting off a diagonal block: the
 #: transformation's condition number (and the rounding difference to the original
@@ -117,7 +123,7 @@ _ARRAYS = ("A", "B0", "B1", "C", "D", "saturation", "raw_map", "decouple", "nois
 
 @dataclass(frozen=True)
 class SparseRealization:
-    """x = S z: A_z = S^-1 A S with nonzeros only in ``A_z[i, lo[i]:hi[i]]``.
+    """x = S z: A_z = S^-1 A S block diagonal (or A itself when that is cheaper).
 
     Parameters
     ----------
@@ -155,11 +161,50 @@ def _schur_blocks(T: np.ndarray) -> list[int]:
     return b
 
 
-def _cost(A: np.ndarray) -> int:
-    from workbench._kernels import row_ranges
+def banded(A: np.ndarray):
+    """A in the kernel's banded storage: its tridiagonal part and the rows with more.
 
-    lo, hi = row_ranges(A)
-    return int(np.sum(hi - lo))
+    Parameters
+    ----------
+    A : (n, n) array
+
+    Returns
+    -------
+    tri : (3, n) array
+        A[i, i-1], A[i, i], A[i, i+1] (zero outside the matrix).
+    rows : (r,) int64 array
+        Rows with a nonzero outside the tridiagonal band.
+    lo, hi : (r,) int64 arrays
+        Columns lo:hi of the remainder E hold every nonzero of those rows.
+    E : (n, n) array
+        A with its tridiagonal band set to zero.
+    """
+    A = np.asarray(A, float)
+    n = A.shape[0]
+    tri = np.zeros((3, n))
+    tri[1] = np.diagonal(A)
+    tri[0, 1:] = np.diagonal(A, -1)
+    tri[2, :-1] = np.diagonal(A, 1)
+    i, j = np.indices((n, n))
+    E = np.where(np.abs(i - j) <= 1, 0.0, A)
+    nz = E != 0
+    rows = np.flatnonzero(nz.any(axis=1))
+    lo = np.argmax(nz[rows], axis=1)
+    hi = n - np.argmax(nz[rows, ::-1], axis=1)
+    as_int = np.int64
+    return tri, rows.astype(as_int), lo.astype(as_int), hi.astype(as_int), np.ascontiguousarray(E)
+
+
+def _identity(A: np.ndarray) -> SparseRealization:
+    """A kept as it is (x = z)."""
+    n = A.shape[0]
+    return SparseRealization(A=np.array(A, float), S=np.eye(n), blocks=(n,), cond=1.0)
+
+
+def _cost(A: np.ndarray) -> int:
+    """Multiply-adds of one product A x in banded storage."""
+    _, _, lo, hi, _ = banded(A)
+    return 3 * A.shape[0] + int(np.sum(hi - lo))
 
 
 def sparse_realization(A: np.ndarray, *, max_coupling: float = _MAX_COUPLING) -> SparseRealization:
@@ -191,9 +236,8 @@ def sparse_realization(A: np.ndarray, *, max_coupling: float = _MAX_COUPLING) ->
     """
     A = np.asarray(A, float)
     n = A.shape[0]
-    eye = np.eye(n)
     if n == 0:
-        return SparseRealization(A=A.copy(), S=eye, blocks=(), cond=1.0)
+        return SparseRealization(A=A.copy(), S=np.eye(0), blocks=(), cond=1.0)
     Ab, (Dv, _) = scipy.linalg.matrix_balance(A, permute=False, separate=True)
     T, Z = scipy.linalg.schur(Ab, output="real")
     (trsyl,) = scipy.linalg.get_lapack_funcs(("trsyl",), (T,))
@@ -216,7 +260,7 @@ def sparse_realization(A: np.ndarray, *, max_coupling: float = _MAX_COUPLING) ->
         s, idx = e, idx + 1
     cond = float(np.linalg.cond(W))
     if _cost(T) >= _cost(A):
-        return SparseRealization(A=A.copy(), S=eye, blocks=(n,), cond=1.0)
+        return _identity(A)
     S = Dv[:, None] * W  # x = D W z
     return SparseRealization(A=T, S=S, blocks=tuple(blocks), cond=cond)
 
@@ -261,7 +305,7 @@ def run_compiled_loop(
     # the draws of plant.step (one standard_normal(n_raw) per sample), scaled in the kernel
     noisy = bool(np.any(step.noise_std > 0))
     w = rng.standard_normal((N, n_raw)) if noisy else np.zeros((N, 0))
-    plant = sparse_realization(step.A)
+    plant = sparse_realization(step.A) if _cost(step.A) > 3 * step.A.shape[0] else _identity(step.A)
     ctrl = sparse_realization(Ac)
 
     def c(a):
@@ -272,17 +316,15 @@ def run_compiled_loop(
 
     Cr = plant.from_z(step.raw_map @ step.C)
     Dr = step.raw_map @ step.D
-    a_lo, a_hi = _kernels.row_ranges(plant.A)
-    c_lo, c_hi = _kernels.row_ranges(ctrl.A)
     u = np.empty((N, n_u))
     y = np.empty((N, step.C.shape[0]))
     _kernels.closed_loop_kernel(
-        c(plant.A), a_lo, a_hi,
+        *banded(plant.A),
         t_or_empty(plant.to_z(step.B0), plant.A.shape[0]),
         t_or_empty(plant.to_z(step.B1), plant.A.shape[0]),
         c(Cr), t_or_empty(Dr, n_raw), step.m, c(step.saturation), c(step.decouple),
         w, c(step.noise_std), step.quantization,
-        c(ctrl.A), c_lo, c_hi, c(ctrl.to_z(Bc).T), c(ctrl.from_z(Cc)), t_or_empty(Dc, n_u),
+        *banded(ctrl.A), c(ctrl.to_z(Bc).T), c(ctrl.from_z(Cc)), t_or_empty(Dc, n_u),
         int(delay_samples), c(r), c(d), u, y,
     )  # fmt: skip
     return u, y

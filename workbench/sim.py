@@ -597,6 +597,13 @@ def closed_loop(
     d = _signal(d, n_u, N, "d")
     r = np.zeros((N, n_y)) if r is None else r
     d = np.zeros((N, n_u)) if d is None else d
+    compiled = None
+    if engine != "python" and method in ("auto", "step"):
+        compiled = _sampled_step(plant, controller)
+    if method == "auto" and compiled is not None:
+        if delay_samples or not np.any(controller.statespace().D):
+            # exact for linear and nonlinear plants alike: no linearity probe needed
+            method = "step"
     if method == "auto":
         linear = bool(controller.linear)
         if linear and not model:
@@ -617,12 +624,7 @@ def closed_loop(
         )
         K = controller.statespace()
         A, B, C, D = closed_loop_matrices(P, (K.A, K.B, K.C, K.D), delay_samples=delay_samples)
-        rho = np.max(np.abs(np.linalg.eigvals(A))) if A.size else 0.0
-        if rho >= 1:
-            raise InputError(
-                f"controller: the closed loop is unstable (spectral radius {rho:.4f} >= 1); "
-                "lower the crossover or add a notch"
-            )
+        _check_stable(A)
         if model:
             v = np.zeros((N, n_y))
         else:
@@ -630,11 +632,19 @@ def closed_loop(
         out = dlsim(A, B, C, D, np.hstack([r, d, v]))
         return out[:, :n_u], out[:, n_u:]
     if method == "step":
-        step = _sampled_step(plant, controller) if engine != "python" else None
-        if step is not None:
+        if compiled is not None:
             from workbench.compiled import run_compiled_loop
 
             K = controller.statespace()
+            step = compiled
+            if step.quantization == 0 and np.all(np.isinf(step.saturation)):
+                # a linear loop: refused when unstable, as the linear path does
+                P = delay_augmented(step.A, step.B0, step.B1, step.m, step.C, step.D)
+                T = step.decouple @ step.raw_map
+                P = (P[0], P[1], T @ P[2], T @ P[3])
+                _check_stable(
+                    closed_loop_matrices(P, (K.A, K.B, K.C, K.D), delay_samples=delay_samples)[0]
+                )
             return run_compiled_loop(step, (K.A, K.B, K.C, K.D), r, d, rng, delay_samples)
         if engine == "compiled":
             raise InputError(
@@ -643,6 +653,15 @@ def closed_loop(
             )
         return _step_loop(plant, controller, r, d, rng, delay_samples)
     raise InputError(f"method: expected 'auto', 'linear' or 'step', got {method!r}")
+
+
+def _check_stable(A: np.ndarray) -> None:
+    rho = np.max(np.abs(np.linalg.eigvals(A))) if A.size else 0.0
+    if rho >= 1:
+        raise InputError(
+            f"controller: the closed loop is unstable (spectral radius {rho:.4f} >= 1); "
+            "lower the crossover or add a notch"
+        )
 
 
 def _sampled_step(plant, controller):
