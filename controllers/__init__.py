@@ -16,9 +16,17 @@ Sign convention (spec section 5): ``u = K e`` with ``e = r - y``; an excitation
 :class:`StateSpaceController` wraps any discrete StateSpace or spec-5 controller file.
 """
 
-from controllers.hinf import HinfReport, design_hinf_mixed, hinf_lmi, mixed_sensitivity, weight
+from controllers.hinf import (
+    HinfDesign,
+    HinfReport,
+    design_hinf_mixed,
+    hinf_lmi,
+    mixed_sensitivity,
+    tune_hinf,
+    weight,
+)
 from controllers.modal_sf import ModalSFDesign, design_modal_sf
-from controllers.mpc import LinearMPC
+from controllers.mpc import LinearMPC, MPCController, design_mpc
 from controllers.pid import DecentralizedController, PidChannel, tune_pid
 from controllers.pid_notch import (
     DecentralizedPidNotch,
@@ -38,8 +46,10 @@ __all__ = [
     "ControllerState",
     "DecentralizedController",
     "DecentralizedPidNotch",
+    "HinfDesign",
     "HinfReport",
     "LinearMPC",
+    "MPCController",
     "ModalSFDesign",
     "PidChannel",
     "PidNotchChannel",
@@ -47,10 +57,12 @@ __all__ = [
     "StateSpaceController",
     "StrictlyProper",
     "design_hinf_mixed",
+    "design_mpc",
     "design_modal_sf",
     "hinf_lmi",
     "mixed_sensitivity",
     "tune_pid",
+    "tune_hinf",
     "tune_pid_notch",
     "weight",
 ]

@@ -41,11 +41,14 @@ from controllers.protocol import StateSpaceController
 from workbench.core.errors import InputError
 
 __all__ = [
+    "HinfDesign",
     "HinfReport",
     "design_hinf_mixed",
     "hinf_lmi",
     "hinf_norm_grid",
     "mixed_sensitivity",
+    "channel_plant",
+    "tune_hinf",
     "weight",
 ]
 
@@ -117,6 +120,39 @@ def _discrete(sys, name: str):
             np.asarray(D, float), float(dt))  # fmt: skip
 
 
+def _inverse_tustin(A, B, C, D, dt: float):
+    """Continuous (A, B, C, D) whose Tustin map with step dt is the discrete one.
+
+    ``z = (1 + s dt/2) / (1 - s dt/2)``, so ``G_c(j w) = G_d(e^{j theta})``
+    with ``w = (2/dt) tan(theta/2)``: the H-inf norm and stability are kept.
+    With ``E = (I + A)^-1``: ``Ac = (2/dt) E (A - I)``, ``Bc = (2/sqrt(dt)) E B``,
+    ``Cc = (2/sqrt(dt)) C E``, ``Dc = D - C E B`` (B and C split evenly);
+    :func:`_tustin` is its exact inverse. Needs no pole at z = -1.
+    """
+    n = A.shape[0]
+    In = np.eye(n)
+    if n and np.min(np.abs(np.linalg.eigvals(A) + 1.0)) < 1e-9:
+        raise InputError("P: expected no pole at z = -1 (Nyquist) for the bilinear map")
+    E = np.linalg.inv(In + A)
+    k = 2.0 / np.sqrt(dt)
+    return (2.0 / dt) * E @ (A - In), k * E @ B, k * C @ E, D - C @ E @ B
+
+
+def _tustin(A, B, C, D, dt: float):
+    """Discrete (A, B, C, D) of a continuous one by Tustin; inverse of :func:`_inverse_tustin`.
+
+    ``F = (I - A dt/2)^-1``: ``Ad = 2 F - I``, ``Bd = sqrt(dt) F B``,
+    ``Cd = sqrt(dt) C F``, ``Dd = D + (dt/2) C F B``.
+    """
+    n = A.shape[0]
+    M = np.eye(n) - A * dt / 2
+    if n and np.min(np.abs(np.linalg.eigvals(M))) < 1e-12:
+        raise InputError("controller: a pole at s = 2/dt has no Tustin image")
+    F = np.linalg.inv(M) if n else M
+    r = np.sqrt(dt)
+    return 2.0 * F - np.eye(n), r * F @ B, r * C @ F, D + (dt / 2) * C @ F @ B
+
+
 def _state_scaling(A: np.ndarray, B: np.ndarray, C: np.ndarray) -> np.ndarray:
     """Diagonal state scaling t (n,) for the LMI: x = diag(t) x_scaled.
 
@@ -159,6 +195,7 @@ def hinf_lmi(
     eps: float = 1e-7,
     backoff: float = 1e-3,
     xy_bounds: tuple[float, ...] = (1e4, 1e3),
+    bilinear: bool = False,
     input_names=(),
     output_names=(),
 ) -> tuple[StateSpaceController, HinfReport]:
@@ -182,6 +219,13 @@ def hinf_lmi(
     xy_bounds : tuple of float
         Bounds on the Lyapunov variables X, Y of the scaled problem (X, Y <= b I),
         tried in turn when the unbounded problem solves only inaccurately.
+    bilinear : bool
+        Solve the continuous-time LMIs of the bilinear (Tustin) image of P and
+        map the controller back (:func:`_inverse_tustin`). The map keeps the
+        H-inf norm and stability exactly, so gamma and the controller are
+        those of the discrete problem; why: sampled fast (dynamics at
+        f << fs, poles near z = 1) the discrete LMIs are ill-conditioned
+        (their Lyapunov terms scale like 1 / (1 - |z|)), the continuous ones not.
     input_names, output_names : sequence of str
         Names of the controller's inputs (measurements) and outputs (controls).
 
@@ -213,15 +257,17 @@ def hinf_lmi(
     # double integrator reaches a 30 % lower gamma with it than with the second.
     from scipy.linalg import matrix_balance
 
+    Ps = _inverse_tustin(A, B, C, D, dt) if bilinear else (A, B, C, D)
     scalings = (
-        np.diag(matrix_balance(A, permute=False, separate=False)[1]).copy(),
+        np.diag(matrix_balance(Ps[0], permute=False, separate=False)[1]).copy(),
         _state_scaling(A, B, C),
     )
+    D22 = Ps[3][nz:, nw:]
     best, status = None, "not solved"
-    for tvec in scalings:
+    for tvec in scalings:  # a diagonal similarity commutes with the bilinear map
         got = _synthesize(
-            A, B, C, D, n_meas, n_ctrl, tvec, solver=solver, eps=eps, backoff=backoff,
-            xy_bounds=xy_bounds,
+            *Ps, n_meas, n_ctrl, tvec, solver=solver, eps=eps, backoff=backoff,
+            xy_bounds=xy_bounds, continuous=bilinear,
         )  # fmt: skip
         if isinstance(got, str):
             status = got
@@ -245,6 +291,8 @@ def hinf_lmi(
         AK2 = AK - BK @ D22 @ E @ CK
         BK, CK, DK = BK @ (np.eye(ny) - D22 @ E @ DK), E @ CK, E @ DK
         AK = AK2
+    if bilinear:
+        AK, BK, CK, DK = _tustin(AK, BK, CK, DK, dt)
     K = StateSpaceController(
         AK, BK, CK, DK, fs=1.0 / dt, input_names=tuple(input_names),
         output_names=tuple(output_names),
@@ -259,8 +307,18 @@ def hinf_lmi(
     return K, rep
 
 
-def _synthesize(A, B, C, D, n_meas, n_ctrl, tvec, *, solver, eps, backoff, xy_bounds):
+def _synthesize(
+    A, B, C, D, n_meas, n_ctrl, tvec, *, solver, eps, backoff, xy_bounds, continuous=False,
+    z_gain=1.0, renormalize=True,
+):  # fmt: skip
     """One LMI synthesis with the state scaling ``x = diag(tvec) x_s``.
+
+    ``continuous``: (A, B, C, D) is a continuous plant (the bilinear image of
+    the discrete one) and the continuous bounded real lemma is used; the
+    change of variables and the reconstruction are the same in both domains.
+    ``z_gain`` divides z further; with ``renormalize``, a first gamma far from 1
+    (scaled problem) makes it solve again with z divided by that gamma (why:
+    eps and the solver tolerances are absolute, a scaled gamma of 1e-3 loses them).
 
     Returns (AK, BK, CK, DK, gamma, gamma_opt, status) of the controller for
     D22 = 0 (ports unscaled), or the last solver status (str) when no
@@ -268,6 +326,7 @@ def _synthesize(A, B, C, D, n_meas, n_ctrl, tvec, *, solver, eps, backoff, xy_bo
     """
     import cvxpy as cp
 
+    A0, B0, C0, D0 = A, B, C, D
     n = A.shape[0]
     nw, nz = B.shape[1] - n_ctrl, C.shape[0] - n_meas
     B1, B2 = B[:, :nw], B[:, nw:]
@@ -284,7 +343,7 @@ def _synthesize(A, B, C, D, n_meas, n_ctrl, tvec, *, solver, eps, backoff, xy_bo
     B2, D12 = B2 * su, D12 * su
     C2, D21 = sv[:, None] * C2, sv[:, None] * D21
     sw = max(np.abs(np.block([[B1], [D11], [D21]])).max(), 1e-300)  # w, z scale: gamma unchanged
-    sz = max(np.abs(np.block([[C1, D11, D12]])).max(), 1e-300)
+    sz = max(np.abs(np.block([[C1, D11, D12]])).max(), 1e-300) * z_gain
     B1, D11, D21 = B1 / sw, D11 / (sw * sz), D21 / sw
     C1, D12 = C1 / sz, D12 / sz
     gscale = 1.0 / (sw * sz)  # true gamma = gamma_scaled / gscale
@@ -304,14 +363,23 @@ def _synthesize(A, B, C, D, n_meas, n_ctrl, tvec, *, solver, eps, backoff, xy_bo
     Cc = cp.bmat([[C1 @ X + D12 @ Ch, C1 + D12 @ Dh @ C2]])
     Dc = D11 + D12 @ Dh @ D21
     Z2n_w, Z2n_z = np.zeros((2 * n, nw)), np.zeros((2 * n, nz))
-    big = cp.bmat(
-        [
-            [M11, M12, Bc, Z2n_z],
-            [M12.T, M11, Z2n_w, Cc.T],
-            [Bc.T, Z2n_w.T, g * Iw, Dc.T],
-            [Z2n_z.T, Cc, Dc, g * Iz],
-        ]
-    )
+    if continuous:  # -[[Acal + Acal', Bcal, Ccal'], [*, -g I, Dcal'], [*, *, -g I]] > 0, M11 > 0
+        big = cp.bmat(
+            [
+                [-(M12 + M12.T), -Bc, -Cc.T],
+                [-Bc.T, g * Iw, -Dc.T],
+                [-Cc, -Dc, g * Iz],
+            ]
+        )
+    else:
+        big = cp.bmat(
+            [
+                [M11, M12, Bc, Z2n_z],
+                [M12.T, M11, Z2n_w, Cc.T],
+                [Bc.T, Z2n_w.T, g * Iw, Dc.T],
+                [Z2n_z.T, Cc, Dc, g * Iz],
+            ]
+        )
     m = big.shape[0]
     sym = 0.5 * (big + big.T)  # symmetric by construction; cvxpy wants it explicit
     t = cp.Variable()
@@ -328,6 +396,8 @@ def _synthesize(A, B, C, D, n_meas, n_ctrl, tvec, *, solver, eps, backoff, xy_bo
     found, status = False, "not solved"
     for bound in (None, *xy_bounds):
         base = [sym >> eps * np.eye(m)]
+        if continuous:
+            base.append(M11 >> eps * np.eye(2 * n))
         if bound is not None:
             base += [X << bound * In, Y << bound * In]
         status = _solve(cp.Problem(cp.Minimize(g), base), solver)
@@ -337,6 +407,11 @@ def _synthesize(A, B, C, D, n_meas, n_ctrl, tvec, *, solver, eps, backoff, xy_bo
             continue
         g1 = float(g.value)
         gamma_opt = g1 / gscale
+        if renormalize and not 0.1 < g1 < 10.0:
+            return _synthesize(
+                A0, B0, C0, D0, n_meas, n_ctrl, tvec, solver=solver, eps=eps, backoff=backoff,
+                xy_bounds=xy_bounds, continuous=continuous, z_gain=z_gain * g1, renormalize=False,
+            )  # fmt: skip
         if bound is None:  # pass 2 needs bounded X, Y for a finite t
             bound = 100.0 * max(1.0, float(np.abs(X.value).max()), float(np.abs(Y.value).max()))
             base += [X << bound * In, Y << bound * In]
@@ -357,7 +432,8 @@ def _synthesize(A, B, C, D, n_meas, n_ctrl, tvec, *, solver, eps, backoff, xy_bo
             BK = Bh.value - Yv @ B2 @ DK
             AK = (Ah.value - BK @ C2 @ Xv - Yv @ B2 @ CK @ Mt - Yv @ (A + B2 @ DK @ C2) @ Xv) @ Mti
             Acl = np.block([[A + B2 @ DK @ C2, B2 @ CK], [BK @ C2, AK]])
-            if np.all(np.isfinite(Acl)) and np.max(np.abs(np.linalg.eigvals(Acl))) < 1.0:
+            ev = np.linalg.eigvals(Acl) if np.all(np.isfinite(Acl)) else np.array([np.inf])
+            if np.max(ev.real) < 0.0 if continuous else np.max(np.abs(ev)) < 1.0:
                 found = True
                 break
         if found:
@@ -464,7 +540,14 @@ def mixed_sensitivity(G, W1=None, W2=None, W3=None, *, pole_shift: float = 1e-3)
 
 
 def design_hinf_mixed(
-    G, W1=None, W2=None, W3=None, *, pole_shift: float = 1e-3, gamma_max: float | None = None
+    G,
+    W1=None,
+    W2=None,
+    W3=None,
+    *,
+    pole_shift: float = 1e-3,
+    gamma_max: float | None = None,
+    bilinear: bool = False,
 ) -> tuple[StateSpaceController, HinfReport]:
     """Mixed-sensitivity H-inf controller e -> u for G (dt = 1/fs of G), see mixed_sensitivity.
 
@@ -482,7 +565,7 @@ def design_hinf_mixed(
             if getattr(G, a, None):
                 names[key] = tuple(getattr(G, a))
                 break
-    K, rep = hinf_lmi(P, n_meas, n_ctrl, gamma_max=gamma_max, **names)
+    K, rep = hinf_lmi(P, n_meas, n_ctrl, gamma_max=gamma_max, bilinear=bilinear, **names)
     return K, dataclasses.replace(rep, pole_shift=1.0 - rho)
 
 
@@ -502,3 +585,249 @@ def hinf_norm_grid(sys, n: int = 20000) -> float:
         H = D + (C @ np.linalg.solve(zk * In - A, B) if A.size else 0.0)
         best = max(best, float(np.linalg.norm(H, 2)))
     return best
+
+
+# ------------------------------------------------------------------ the stage design
+#: tune_hinf's weights, relative to the scanned target fb (Hz): W1 = weight(_W1_LOW,
+#: fb, 1 / ms_max) on S, W2 = _W2 on K S (normalized plant, |G(fb)| = 1: keeps D12
+#: full rank), W3 = weight(1 / ms_max, _W3_RATIO fb, _W3_HIGH) on T (roll-off), rigid
+#: poles shifted to a corner fb / _SHIFT_RATIO. Chosen on the wafer stage's x channel
+#: (a 1-sample-delayed double integrator with two lightly damped modes): W1's low gain
+#: 30 (with corner fb / 30) reached a third of the crossover of 10 (with fb / 10)
+#: because the LMI solution degrades with the wider time-scale spread at 5 kHz.
+_W1_LOW, _W2, _W3_RATIO, _W3_HIGH, _SHIFT_RATIO = 10.0, 1e-2, 2.0, 100.0, 10.0
+
+
+@dataclass(frozen=True)
+class HinfDesign:
+    """Result of :func:`tune_hinf`.
+
+    Attributes
+    ----------
+    controller : StateSpaceController
+        Block-diagonal e -> u (one SISO H-inf controller per DOF), dt = 1/fs.
+    target_hz : tuple of float
+        Per DOF, the W1 crossing (design target) kept, Hz.
+    crossover_hz : tuple of float
+        Per DOF, the crossover of the SISO channel loop on the model, Hz.
+    gamma : tuple of float
+        Per DOF, the certified ||[W1 S; W2 K S; W3 T]||inf of the kept design.
+    analysis : workbench.loop.LoopAnalysis
+        The MIMO loop on the model (loop-at-a-time figures, all loops closed).
+    """
+
+    controller: StateSpaceController
+    target_hz: tuple[float, ...]
+    crossover_hz: tuple[float, ...]
+    gamma: tuple[float, ...]
+    analysis: object
+
+
+def channel_plant(modal, i: int, fs: float, loop_delay_samples: int = 0):
+    """The discrete SISO plant u_i -> y_i of a modal model, with its delay and the loop's.
+
+    Only the modes that show on the channel (``|b_k[i] c_k[i]| > 1e-9`` of the
+    largest) are kept: the others are uncontrollable or unobservable from it,
+    and an LMI on them is ill-posed. Exact ZOH at fs (workbench.loop.discrete_plant).
+    """
+    import dataclasses
+
+    from workbench import loop
+    from workbench.core.model import LTIModel
+
+    res = np.array([abs(md.b[i] * md.c[i]) for md in modal.modes])
+    if not res.size or res.max() <= 0:
+        raise InputError(f"channel {i}: expected a mode that input {i} moves and output {i} sees")
+    keep = tuple(
+        dataclasses.replace(md, b=md.b[[i]], c=md.c[[i]])
+        for md, r in zip(modal.modes, res)
+        if r > 1e-9 * res.max()
+    )
+    sub = dataclasses.replace(
+        modal, modes=keep, D=modal.D[[i]][:, [i]], transform=None,
+        input_names=modal.input_names[i : i + 1], output_names=modal.output_names[i : i + 1],
+    )  # fmt: skip
+    sys = LTIModel.from_statespace(sub.to_statespace(form="scaled"), delay_s=sub.delay_s)
+    return loop.discrete_plant(sys, fs, loop_delay_samples)
+
+
+def _siso_candidate(G, fb: float, fs: float, ms_max: float, f):
+    """(controller StateSpace, gamma, crossover Hz, |S|inf, stable) of one target fb on G."""
+    import control
+
+    from workbench import loop
+    from workbench.core.lti import frf
+
+    g0 = 1.0 / abs(frf(G, [fb])[0, 0, 0])
+    W1 = weight(_W1_LOW, fb, 1.0 / ms_max, fs)
+    W2 = control.ss([], [], [], [[_W2]], 1.0 / fs)
+    W3 = weight(1.0 / ms_max, _W3_RATIO * fb, _W3_HIGH, fs) if _W3_RATIO * fb < fs / 2 else None
+    shift = 2 * np.pi * fb / _SHIFT_RATIO / fs
+    K, rep = design_hinf_mixed(G * g0, W1, W2, W3, pole_shift=min(shift, 0.4))
+    Ks = K.statespace() * g0
+    Acl = control.feedback(G * Ks).A
+    stable = bool(np.max(np.abs(np.linalg.eigvals(Acl))) < 1.0) if Acl.size else True
+    L = frf(G, f)[:, 0, 0] * frf(Ks, f)[:, 0, 0]
+    fc = loop._first_crossing(f, np.abs(L), 1.0, rising=False)
+    return Ks, float(rep.gamma), fc, float(np.max(np.abs(1.0 / (1.0 + L)))), stable
+
+
+def tune_hinf(
+    model,
+    *,
+    ms_max: float = 2.0,
+    loop_delay_samples: int = 0,
+    fs: float | None = None,
+    progress=None,
+    n_scan: int = 6,
+    target_range=(0.01, 0.12),
+) -> HinfDesign:
+    """Per-DOF mixed-sensitivity H-inf design for the highest crossover at |S| <= ms_max.
+
+    Structure (why): the LMI has ~ 2 n^2 + ... unknowns for a generalized plant
+    of order n, so a 6x6 stage model of order 16 with delay and weights
+    (n ~ 30, two passes, two scalings) is slow and ill-conditioned; the stage's
+    DOFs are decoupled by its gain-balancing and sensor matrices, so each
+    diagonal channel u_i -> y_i (:func:`channel_plant`, the modes it shows,
+    its delay and the loop's) gets its own SISO design and the result is the
+    block-diagonal controller, checked on the full MIMO model at the end.
+
+    Per DOF, targets fb log-spaced over ``target_range`` (fractions of fs)
+    are tried upward, stopping at the first rejected one after a kept one
+    (weights: module constants ``_W1_LOW`` ..., the plant normalized
+    to |G(fb)| = 1, rigid poles shifted for the synthesis only); a design is
+    kept when the true (unshifted) channel loop is stable with
+    max |S| <= ms_max, and the DOF keeps the highest crossover. Then
+    :func:`workbench.loop.analyze_loop` on the model: while a loop's |S_ii|
+    (all loops closed) exceeds ms_max or the MIMO loop is unstable, the
+    offending DOFs step down to their next lower kept design.
+
+    Parameters
+    ----------
+    model : LTIModel, control.StateSpace or ModalModel
+        Square plant u -> y (continuous, or discrete with dt = 1/fs), its ``delay_s`` kept.
+    ms_max : float
+        Bound on |S_ii| per loop (ratio, > 1; 2.0 = 6 dB).
+    loop_delay_samples : int
+        Computation delay of the real-time loop, samples (in the plant, not in K).
+    fs : float, optional
+        Controller rate, Hz (default: 1/dt of a discrete model; required otherwise).
+    progress : callable(str), optional
+        Called with one line per DOF and design step.
+    n_scan : int
+        Targets tried per DOF.
+    target_range : (float, float)
+        Lowest and highest target, fractions of fs.
+
+    Returns
+    -------
+    HinfDesign
+
+    Raises
+    ------
+    InputError
+        A non-square model, a DOF where no target gives a stable design with
+        |S| <= ms_max (e.g. ms_max too close to 1), or no MIMO combination
+        meeting the bound.
+    """
+    import scipy.linalg
+
+    from workbench import loop
+    from workbench.core.model import as_model
+    from workbench.modal.model import ModalModel
+
+    ms_max = float(ms_max)
+    if not np.isfinite(ms_max) or ms_max <= 1.0:
+        raise InputError(f"ms_max: expected a bound > 1 on |S|, got {ms_max}")
+    m = loop._delay_check(loop_delay_samples)
+    if isinstance(model, ModalModel):
+        if model.has_outer:
+            raise InputError("model: expected a modal model without lags or coupling terms")
+        modal = model
+        plant = model.to_lti()
+        plant = as_model(plant)
+    else:
+        plant = as_model(model)
+        modal = ModalModel.from_statespace(plant)
+    if plant.n_u != plant.n_y or plant.n_u == 0:
+        raise InputError(
+            f"model: expected a square model (one actuator per measured output), got "
+            f"{plant.n_u} inputs and {plant.n_y} outputs"
+        )
+    if plant.is_discrete:
+        own = 1.0 / plant.dt
+        if fs is not None and abs(float(fs) - own) > 1e-9 * own:
+            raise InputError(f"fs: expected the discrete model's rate {own:g} Hz, got {fs:g}")
+        fs = own
+    elif fs is None or not np.isfinite(fs) or fs <= 0:
+        raise InputError(
+            f"fs: expected a sampling frequency > 0 Hz for a continuous model, got {fs}"
+        )
+    fs = float(fs)
+    lo, hi = (float(x) for x in target_range)
+    if not 0 < lo < hi < 0.25:
+        raise InputError(
+            f"target_range: expected 0 < low < high < 0.25 (of fs), got {target_range}"
+        )
+    say = progress or (lambda _line: None)
+    names = list(loop._names(plant, "output")) or [f"y{i}" for i in range(plant.n_y)]
+    f = loop._default_grid(fs)
+    targets = np.geomspace(lo * fs, hi * fs, int(n_scan))
+    kept = []  # per DOF: designs meeting the bound, best (highest crossover) first
+    for i in range(plant.n_u):
+        G = channel_plant(modal, i, fs, m)
+        ok = []
+        for fb in targets:
+            try:
+                Ks, gam, fc, s_peak, stable = _siso_candidate(G, fb, fs, ms_max, f)
+            except InputError as exc:
+                say(f"hinf {names[i]}: target {fb:.1f} Hz: {exc}")
+                continue
+            good = stable and s_peak <= ms_max and np.isfinite(fc)
+            say(
+                f"hinf {names[i]}: target {fb:.1f} Hz: gamma {gam:.3g}, crossover {fc:.1f} Hz, "
+                f"|S|inf {s_peak:.3f}, stable {stable}" + ("" if good else " (rejected)")
+            )
+            if good:
+                ok.append((fc, fb, gam, Ks))
+            elif ok:  # past the best: higher targets only cost |S| (and each LMI takes seconds)
+                break
+        if not ok:
+            raise InputError(
+                f"hinf: DOF {names[i]}: no stable design meets |S| <= {ms_max:g} on the model "
+                f"(targets {targets[0]:.3g}..{targets[-1]:.3g} Hz)"
+            )
+        kept.append(sorted(ok, key=lambda t: -t[0]))
+    pick = [0] * plant.n_u
+    while True:
+        chosen = [kept[i][pick[i]] for i in range(plant.n_u)]
+        mats = [(Ks.A, Ks.B, Ks.C, Ks.D) for _fc, _fb, _g, Ks in chosen]
+        K = StateSpaceController(
+            scipy.linalg.block_diag(*[a[0] for a in mats]),
+            scipy.linalg.block_diag(*[a[1] for a in mats]),
+            scipy.linalg.block_diag(*[a[2] for a in mats]),
+            scipy.linalg.block_diag(*[a[3] for a in mats]),
+            fs=fs, input_names=tuple(plant.output_names), output_names=tuple(plant.input_names),
+            delay_samples=m,
+        )  # fmt: skip
+        analysis = loop.analyze_loop(plant, K, loop_delay_samples=m)
+        over = [i for i, lp in enumerate(analysis.loops) if lp.s_peak > ms_max * (1 + 1e-9)]
+        if analysis.stable and not over:
+            break
+        step = over if over else list(range(plant.n_u))  # unstable: every DOF steps down
+        if any(pick[i] + 1 >= len(kept[i]) for i in step):
+            raise InputError(
+                f"hinf: no combination of the per-DOF designs meets |S| <= {ms_max:g} with all "
+                f"loops closed (stable = {analysis.stable}, loops over the bound: "
+                f"{[names[i] for i in over]})"
+            )
+        for i in step:
+            pick[i] += 1
+        say(f"hinf: MIMO check: loops {[names[i] for i in step]} step down")
+    return HinfDesign(
+        controller=K,
+        target_hz=tuple(float(c[1]) for c in chosen),
+        crossover_hz=tuple(float(c[0]) for c in chosen),
+        gamma=tuple(float(c[2]) for c in chosen),
+        analysis=analysis,
+    )
