@@ -29,31 +29,27 @@ __all__ = ["closed_loop_kernel"]
 _FAST = {"reassoc", "contract"}
 
 
+# No array slices in the helpers: each slice is a reference-counted view (two atomic
+# operations), which cost more than the short dot products themselves.
 @numba.njit(cache=True, fastmath=_FAST, inline="always")
-def _banded_matvec(tri, rows, lo, hi, E, x, out):
-    """out = A x, A = tridiagonal part ``tri`` + the rows ``rows`` of the remainder E.
+def _banded_matvec(tri, rows, Er, x, out):
+    """out = A x, A = tridiagonal part ``tri`` + the rows ``rows`` of the remainder ``Er``.
 
-    ``tri`` (3, n): A[i, i-1], A[i, i], A[i, i+1]; row ``rows[r]`` of E is nonzero
-    in columns lo[r]:hi[r] only (one contiguous dot product per listed row).
+    ``tri`` (3, n): A[i, i-1], A[i, i], A[i, i+1]; ``Er`` (r, n): row ``rows[r]`` of A
+    outside the tridiagonal band (a full-length dot product, vectorized).
     """
     n = x.shape[0]
-    sub = tri[0]
-    dia = tri[1]
-    sup = tri[2]
     if n == 1:
-        out[0] = dia[0] * x[0]
+        out[0] = tri[1, 0] * x[0]
     elif n > 1:
-        out[0] = dia[0] * x[0] + sup[0] * x[1]
+        out[0] = tri[1, 0] * x[0] + tri[2, 0] * x[1]
         for i in range(1, n - 1):
-            out[i] = sub[i] * x[i - 1] + dia[i] * x[i] + sup[i] * x[i + 1]
-        out[n - 1] = sub[n - 1] * x[n - 2] + dia[n - 1] * x[n - 1]
+            out[i] = tri[0, i] * x[i - 1] + tri[1, i] * x[i] + tri[2, i] * x[i + 1]
+        out[n - 1] = tri[0, n - 1] * x[n - 2] + tri[1, n - 1] * x[n - 1]
     for r in range(rows.shape[0]):
-        a = lo[r]
-        Ei = E[rows[r], a:]
-        xa = x[a:]
         s = 0.0
-        for j in range(hi[r] - a):
-            s += Ei[j] * xa[j]
+        for j in range(n):
+            s += Er[r, j] * x[j]
         out[rows[r]] += s
 
 
@@ -61,10 +57,9 @@ def _banded_matvec(tri, rows, lo, hi, E, x, out):
 def _matvec_add(M, x, out):
     """out += M x, M (n_out, n_in) row-major: for long rows (dot products)."""
     for i in range(M.shape[0]):
-        Mi = M[i]
         s = 0.0
         for j in range(M.shape[1]):
-            s += Mi[j] * x[j]
+            s += M[i, j] * x[j]
         out[i] += s
 
 
@@ -73,22 +68,21 @@ def _matvec_add_t(Mt, x, out):
     """out += Mt.T x, Mt (n_in, n_out) row-major: for short inputs (one AXPY per input)."""
     for j in range(Mt.shape[0]):
         xj = x[j]
-        Mj = Mt[j]
         for i in range(Mt.shape[1]):
-            out[i] += Mj[i] * xj
+            out[i] += Mt[j, i] * xj
 
 
 @numba.njit(cache=True, fastmath=_FAST)
 def closed_loop_kernel(
-    a_tri, a_rows, a_lo, a_hi, a_E, B0t, B1t, Cr, Drt, m, sat, T, w, noise_std, q,
-    c_tri, c_rows, c_lo, c_hi, c_E, Bct, Cc, Dct, delay,
+    a_tri, a_rows, a_Er, B0t, B1t, Cr, Drt, m, sat, T, w, noise_std, q,
+    c_tri, c_rows, c_Er, Bct, Cc, Dct, delay,
     r, d, u, y,
 ):  # fmt: skip
     """Run the loop of the module docstring over N samples, writing ``u`` and ``y``.
 
     Parameters
     ----------
-    a_tri, a_rows, a_lo, a_hi, a_E
+    a_tri, a_rows, a_Er
         Plant state matrix (discrete, one sample) in banded storage
         (``workbench.compiled.banded``): tridiagonal part (3, n) + listed rows of the rest.
     B0t, B1t : (n_u, n) arrays
@@ -107,7 +101,7 @@ def closed_loop_kernel(
         Noise standard deviation of each raw sensor, m.
     q : float
         Raw sensor resolution, m (0 = none).
-    c_tri, c_rows, c_lo, c_hi, c_E
+    c_tri, c_rows, c_Er
         Controller state matrix in banded storage.
     Bct : (n_y, n_c), Cc : (n_u, n_c), Dct : (n_y, n_u) or (0, n_u) arrays
         Controller input (transposed), output and feedthrough (transposed).
@@ -138,7 +132,8 @@ def closed_loop_kernel(
     for k in range(N):
         # the input applied at k
         if delay == 0:
-            ucur[:] = 0.0
+            for i in range(n_u):
+                ucur[i] = 0.0
             _matvec_add(Cc, xc, ucur)
             for i in range(n_u):
                 u[k, i] = d[k, i] + ucur[i]
@@ -159,7 +154,8 @@ def closed_loop_kernel(
             for i in range(n_raw):
                 raw[i] = w[k, i] * noise_std[i]
         else:
-            raw[:] = 0.0
+            for i in range(n_raw):
+                raw[i] = 0.0
         _matvec_add(Cr, x, raw)
         _matvec_add_t(Drt, um, raw)
         if q > 0.0:
@@ -172,15 +168,20 @@ def closed_loop_kernel(
             y[k, i] = s
             e[i] = r[k, i] - s
         # controller
-        uk = uc[k % L]
-        uk[:] = 0.0
-        _matvec_add_t(Dct, e, uk)
-        _matvec_add(Cc, xc, uk)
-        _banded_matvec(c_tri, c_rows, c_lo, c_hi, c_E, xc, xcn)
+        for i in range(n_u):
+            ucur[i] = 0.0
+        _matvec_add_t(Dct, e, ucur)
+        _matvec_add(Cc, xc, ucur)
+        slot = k % L
+        for i in range(n_u):
+            uc[slot, i] = ucur[i]
+        _banded_matvec(c_tri, c_rows, c_Er, xc, xcn)
         _matvec_add_t(Bct, e, xcn)
-        xc, xcn = xcn, xc
+        for i in range(n_c):  # copy, not swap: swapping array variables costs refcounts
+            xc[i] = xcn[i]
         # plant
-        _banded_matvec(a_tri, a_rows, a_lo, a_hi, a_E, x, xn)
+        _banded_matvec(a_tri, a_rows, a_Er, x, xn)
         _matvec_add_t(B0t, um, xn)
         _matvec_add_t(B1t, um1, xn)
-        x, xn = xn, x
+        for i in range(n):
+            x[i] = xn[i]
