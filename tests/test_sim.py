@@ -300,6 +300,11 @@ def test_compiled_loop_equals_python_on_the_stage_with_saturation_and_quantizati
     # "auto" takes the compiled loop for this linear controller on a quantized plant
     u3, y3 = sim.closed_loop(stage, K, rng=np.random.default_rng(2), d=d, delay_samples=1)
     np.testing.assert_array_equal(y3, y1)
+    # friction needs the substep loop: no sampled step, the compiled engine refuses
+    rough = stage.with_effects(friction_force=0.5)
+    assert rough.sampled_step() is None
+    with pytest.raises(InputError, match="engine: 'compiled'"):
+        sim.closed_loop(rough, K, rng=rng, engine="compiled", **kw)
 
 
 def test_compiled_loop_on_a_model_equals_the_linear_path():
@@ -386,3 +391,16 @@ def test_sparse_realization_is_a_similarity_with_small_blocks():
         np.sort_complex(np.linalg.eigvals(A)),
         atol=1e-4,  # a defective eigenvalue moves by eps^(1/3)
     )
+
+
+def test_banded_storage_holds_the_whole_matrix():
+    from workbench.compiled import banded
+
+    rng = np.random.default_rng(35)
+    A = np.diag(rng.standard_normal(6)) + np.diag(rng.standard_normal(5), 1)
+    A[4, 0], A[1, 5] = 2.0, -3.0  # two rows reach beyond the tridiagonal band
+    tri, rows, Er = banded(A)
+    assert list(rows) == [1, 4]
+    back = np.diag(tri[1]) + np.diag(tri[0, 1:], -1) + np.diag(tri[2, :-1], 1)
+    back[rows] += Er
+    np.testing.assert_array_equal(back, A)
