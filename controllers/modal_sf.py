@@ -60,6 +60,8 @@ __all__ = [
     "luenberger_gain",
     "observer_controller",
     "design_modal_sf",
+    "ModalSFTuneReport",
+    "tune_modal_sf",
 ]
 
 
@@ -547,6 +549,24 @@ def observer_controller(dm: DesignModel, K, L) -> StateSpaceController:
 
 
 @dataclass(frozen=True)
+class ModalSFTuneReport:
+    """What :func:`tune_modal_sf` scanned and kept.
+
+    ``settings`` the kept design settings (JSON-ready), ``crossover_hz`` the
+    lowest per-loop crossover on the model (Hz), ``ms_max`` the |S| bound,
+    ``scanned`` the grid (name -> values), ``tried`` / ``feasible`` the
+    candidate counts.
+    """
+
+    settings: dict
+    crossover_hz: float
+    ms_max: float
+    scanned: dict
+    tried: int
+    feasible: int
+
+
+@dataclass(frozen=True)
 class ModalSFDesign:
     """A finished design: the model, the gains and the controller.
 
@@ -559,6 +579,7 @@ class ModalSFDesign:
     K: np.ndarray
     L: np.ndarray
     controller: StateSpaceController
+    report: ModalSFTuneReport | None = None  # set by tune_modal_sf
 
     def design_poles(self) -> tuple[np.ndarray, np.ndarray]:
         """(feedback poles eig(Phi - Gamma K), observer poles eig(Ad - L C)), discrete."""
@@ -637,3 +658,86 @@ def design_modal_sf(
     if rho >= 1:
         raise InputError(f"design: the state feedback is unstable (spectral radius {rho:.4f})")
     return ModalSFDesign(dm=dm, K=K, L=L, controller=ctrl)
+
+
+# ------------------------------------------------------------------ tuning
+# rigid-body bandwidth targets (fractions of fs, log spaced) and Kalman sensor-to-process noise
+# ratios scanned; the design keeps the highest crossover meeting the |S| bound on the model
+_TUNE_BW_FRACTIONS = tuple(np.logspace(np.log10(1e-3), np.log10(0.1), 12))
+_TUNE_SENSOR = (1e-4, 1e-6, 1e-8, 1e-10)
+
+
+def _tune_fs(model, fs) -> float:
+    dt = getattr(model, "dt", None)
+    if dt:  # discrete model: its own rate
+        own = 1.0 / float(dt)
+        if fs is not None and abs(float(fs) - own) > 1e-9 * own:
+            raise InputError(f"fs: expected the discrete model's rate {own:g} Hz, got {fs:g}")
+        return own
+    if fs is None:
+        raise InputError("fs: expected the controller sampling frequency for a continuous model")
+    return float(fs)
+
+
+def tune_modal_sf(
+    model, *, ms_max: float = 2.0, loop_delay_samples: int = 0, fs=None, progress=None
+) -> ModalSFDesign:
+    """Modal SF + observer tuned for the highest crossover meeting ``|S_ii| <= ms_max``.
+
+    Scans placement bandwidths x Kalman noise ratios (``feedback="place",
+    observer="kalman"``); each candidate is scored on the model with the loop
+    delay by :func:`workbench.loop.screen_crossover` and the highest lowest
+    per-loop crossover is kept. The design model (and its minimality check: a
+    mode failing Lemma 1/2 is an InputError, a weak one warns once) and each
+    gain are computed once. ``progress(i, n)`` is called after each candidate.
+    Refused (InputError) when no stable candidate meets the bound.
+    """
+    from workbench import loop
+
+    fs = _tune_fs(model, fs)
+    ms_max = float(ms_max)
+    if not np.isfinite(ms_max) or ms_max <= 1.0:
+        raise InputError(f"ms_max: expected a bound > 1 on |S|, got {ms_max}")
+    m = loop._delay_check(loop_delay_samples)
+    dm = design_model(model, fs, loop_delay_samples=m)
+    f = loop._default_grid(fs)
+    observers = {sensor: kalman_gain(dm, sensor=sensor) for sensor in _TUNE_SENSOR}
+    n_total = len(_TUNE_BW_FRACTIONS) * len(observers)
+    best, best_fc, tried, feasible = None, 0.0, 0, 0
+    for frac in _TUNE_BW_FRACTIONS:
+        try:
+            K = place_gain(dm, modal_poles(dm, bandwidth_hz=frac * fs))
+            ok = np.max(np.abs(np.linalg.eigvals(dm.Phi - dm.Gamma @ K))) < 1
+        except (InputError, ValueError, np.linalg.LinAlgError):
+            ok = False  # placement failed at this bandwidth: try the others
+        for sensor, L in observers.items():
+            tried += 1
+            if ok:
+                ctrl = observer_controller(dm, K, L)
+                fc = loop.screen_crossover(
+                    model, ctrl, loop_delay_samples=m, freq_hz=f, ms_max=ms_max
+                )
+                feasible += fc > 0
+                if fc > best_fc:
+                    best_fc = fc
+                    best = (K, L, ctrl, {"bandwidth_hz": float(frac * fs), "sensor": sensor})
+            if progress is not None:
+                progress(tried, n_total)
+    if best is None:
+        raise InputError(
+            f"modal-sf: no stable design meets |S| <= {ms_max:g} on the model (rigid-body "
+            f"bandwidths {_TUNE_BW_FRACTIONS[0] * fs:.3g}..{_TUNE_BW_FRACTIONS[-1] * fs:.3g} Hz)"
+        )
+    K, L, ctrl, settings = best
+    report = ModalSFTuneReport(
+        settings=settings,
+        crossover_hz=float(best_fc),
+        ms_max=ms_max,
+        scanned={
+            "bandwidth_hz": [float(x * fs) for x in _TUNE_BW_FRACTIONS],
+            "sensor": list(_TUNE_SENSOR),
+        },
+        tried=tried,
+        feasible=int(feasible),
+    )
+    return ModalSFDesign(dm=dm, K=K, L=L, controller=ctrl, report=report)

@@ -47,7 +47,14 @@ import numpy as np
 
 from workbench.core.errors import InputError
 
-__all__ = ["LoopFigures", "LoopAnalysis", "analyze_loop", "loop_frf", "save_loop_plots"]
+__all__ = [
+    "LoopFigures",
+    "LoopAnalysis",
+    "analyze_loop",
+    "loop_frf",
+    "save_loop_plots",
+    "screen_crossover",
+]
 
 
 @dataclass(frozen=True)
@@ -357,6 +364,38 @@ def _loop_figures(name, f, Si, Li, fs, *, count: bool, open_loop_unstable: int) 
         s_peak_hz=float(f[j]),
         unstable_poles=nyquist_unstable_count(f, Li, fs, open_loop_unstable) if count else None,
     )
+
+
+def screen_crossover(
+    plant, controller, *, loop_delay_samples: int = 0, freq_hz=None, ms_max: float = 2.0
+) -> float:
+    """Lowest per-loop crossover (Hz) of a stable loop meeting ``|S_ii| <= ms_max``, else 0.
+
+    The fast score design scans use: closed-loop eigenvalues (the model's
+    exact ZOH loop with the loop delay), then ``|S_ii|`` and the crossover of
+    ``L_i = 1/S_ii - 1`` on the lines (the same figures :func:`analyze_loop`
+    reports, without its margins). 0.0 when unstable, over the bound, or
+    when a loop has no crossover on the lines. Models only (not FRF data).
+    """
+    from workbench.core.lti import as_matrices
+    from workbench.sim import closed_loop_matrices
+
+    m = _delay_check(loop_delay_samples)
+    Ks = _controller_ss(controller)
+    fs = 1.0 / float(Ks.dt)
+    G = discrete_plant(plant, fs, m)
+    Acl = closed_loop_matrices(as_matrices(G)[:4], as_matrices(Ks)[:4])[0]
+    if Acl.size and np.max(np.abs(np.linalg.eigvals(Acl))) >= 1.0:
+        return 0.0
+    f, L = loop_frf(plant, controller, freq_hz, loop_delay_samples=m)
+    S = np.linalg.inv(np.eye(L.shape[1]) + L)
+    Sii = np.diagonal(S, axis1=1, axis2=2)
+    if np.max(np.abs(Sii)) > ms_max:
+        return 0.0
+    fc = [
+        _first_crossing(f, np.abs(1 / Sii[:, i] - 1), 1.0, rising=False) for i in range(L.shape[1])
+    ]
+    return float(np.nanmin(fc)) if np.all(np.isfinite(fc)) else 0.0
 
 
 # ------------------------------------------------------------------ the analysis

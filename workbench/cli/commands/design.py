@@ -27,11 +27,6 @@ from workbench.core.atomic import check_not_input, write_text
 from workbench.core.errors import InputError
 
 METHODS = ("pid-notch", "modal-sf", "hinf")
-# modal-sf: the rigid-body bandwidth targets scanned (fractions of fs, log spaced) and the
-# Kalman sensor-to-process noise ratios tried; the design keeps the highest crossover that
-# meets the |S| bound on the model
-_MODAL_BW_FRACTIONS = np.logspace(np.log10(1e-3), np.log10(0.1), 12)
-_MODAL_SENSOR = (1e-4, 1e-6, 1e-8, 1e-10)
 
 
 def register(subparsers) -> argparse.ArgumentParser:
@@ -106,66 +101,6 @@ def _sample_rate(model, fs) -> float:
     return float(fs)
 
 
-def _screen(model, controller, m: int, f, ms_max: float) -> float:
-    """The lowest per-loop crossover (Hz) of a stable design meeting |S_ii| <= ms_max, else 0."""
-    from workbench import loop
-    from workbench.core.lti import as_matrices
-    from workbench.sim import closed_loop_matrices
-
-    Ks = controller.statespace()
-    G = loop.discrete_plant(model, controller.fs, m)
-    Acl = closed_loop_matrices(as_matrices(G)[:4], as_matrices(Ks)[:4])[0]
-    if Acl.size and np.max(np.abs(np.linalg.eigvals(Acl))) >= 1.0:
-        return 0.0
-    f, L = loop.loop_frf(model, controller, f, loop_delay_samples=m)
-    S = np.linalg.inv(np.eye(L.shape[1]) + L)
-    Sii = np.diagonal(S, axis1=1, axis2=2)
-    if np.max(np.abs(Sii)) > ms_max:
-        return 0.0
-    fc = [
-        loop._first_crossing(f, np.abs(1 / Sii[:, i] - 1), 1.0, rising=False)
-        for i in range(L.shape[1])
-    ]
-    return float(np.nanmin(fc)) if np.all(np.isfinite(fc)) else 0.0
-
-
-def _design_modal_sf(model, fs: float, m: int, ms_max: float):
-    """Pole placement at a rigid-body bandwidth + Kalman observer, scanned for the best crossover.
-
-    Exactly what :func:`controllers.modal_sf.design_modal_sf` builds with
-    ``feedback="place", observer="kalman"`` and the kept ``bandwidth_hz`` and
-    ``sensor``; its steps are called here one by one so that the design model
-    (and its minimality check: a mode failing Lemma 1/2 is an InputError, a
-    weak one warns once), each feedback gain and each observer gain are
-    computed once for the whole scan.
-    """
-    from controllers import modal_sf
-    from workbench import loop
-
-    dm = modal_sf.design_model(model, fs, loop_delay_samples=m)
-    f = loop._default_grid(fs)
-    observers = {sensor: modal_sf.kalman_gain(dm, sensor=sensor) for sensor in _MODAL_SENSOR}
-    best, best_fc = None, 0.0
-    for frac in _MODAL_BW_FRACTIONS:
-        try:
-            K = modal_sf.place_gain(dm, modal_sf.modal_poles(dm, bandwidth_hz=frac * fs))
-        except (InputError, ValueError, np.linalg.LinAlgError):
-            continue  # placement failed at this bandwidth: try the others
-        if np.max(np.abs(np.linalg.eigvals(dm.Phi - dm.Gamma @ K))) >= 1:
-            continue
-        for sensor, L in observers.items():
-            controller = modal_sf.observer_controller(dm, K, L)
-            fc = _screen(model, controller, m, f, ms_max)
-            if fc > best_fc:
-                best, best_fc = (controller, {"bandwidth_hz": frac * fs, "sensor": sensor}), fc
-    if best is None:
-        raise InputError(
-            f"modal-sf: no stable design meets |S| <= {ms_max:g} on the model (rigid-body "
-            f"bandwidths {_MODAL_BW_FRACTIONS[0] * fs:.3g}..{_MODAL_BW_FRACTIONS[-1] * fs:.3g} Hz)"
-        )
-    return best
-
-
 def run(args) -> int:
     from workbench.io.formats import read_model, save_controller
     from workbench.loop import analyze_loop
@@ -197,7 +132,11 @@ def run(args) -> int:
         K, _report = tune_pid_notch(model, fs, ms_max=ms_max, loop_delay_samples=m)
         controller = K.controller
     else:
-        controller, settings = _design_modal_sf(model, fs, m, ms_max)
+        from controllers.modal_sf import tune_modal_sf
+
+        design = tune_modal_sf(model, ms_max=ms_max, loop_delay_samples=m, fs=fs)
+        controller = design.controller
+        settings = dict(design.report.settings)
     analysis = analyze_loop(model, controller, loop_delay_samples=m)
     if not analysis.stable:
         raise InputError(
