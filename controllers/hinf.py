@@ -86,7 +86,11 @@ def _solve(problem, solver: str) -> str:
     import cvxpy as cp
 
     try:
-        problem.solve(solver=solver)
+        # "Solution may be inaccurate": the status says it (optimal_inaccurate), and
+        # the callers check every candidate's closed loop; a warning would only add a line
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="Solution may be inaccurate")
+            problem.solve(solver=solver)
     except cp.error.SolverError:
         return "solver_error"
     return problem.status
@@ -679,8 +683,8 @@ def tune_hinf(
     loop_delay_samples: int = 0,
     fs: float | None = None,
     progress=None,
-    n_scan: int = 6,
-    target_range=(0.01, 0.12),
+    n_scan: int = 9,
+    target_range=(0.002, 0.12),
 ) -> HinfDesign:
     """Per-DOF mixed-sensitivity H-inf design for the highest crossover at |S| <= ms_max.
 

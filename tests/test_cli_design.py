@@ -135,10 +135,6 @@ def test_refusals_are_one_line_exit_2(designs, model_file, tmp_path, capsys, mon
     out = tmp_path / "K.npz"
     assert main(base + ["--model", str(wide), "--out", str(out)]) == 2
     assert "2 inputs and 1 outputs" in one_line(capsys.readouterr().err)
-    # hinf: not wired into the command yet (always refused, never guessed)
-    argv = ["design", "--model", str(model_file), "--method", "hinf", "--fs", str(FS)]
-    assert main(argv + ["--out", str(out)]) == 2
-    assert "not available yet" in one_line(capsys.readouterr().err)
     # modal-sf on a mode the actuator cannot move (b = 0): Lemma 1, named, nothing written
     from workbench.modal.model import ModalModel, Mode
 
@@ -178,3 +174,51 @@ def test_refusals_are_one_line_exit_2(designs, model_file, tmp_path, capsys, mon
     assert "5 inputs (errors) and 3 outputs" in one_line(capsys.readouterr().err)
     assert main(["loop", "--plant", "no_such_plant", "--controller", str(path)]) == 2
     assert "wafer_stage" in one_line(capsys.readouterr().err)
+
+
+# ------------------------------------------------------------------ hinf
+F_HIGH, B_HIGH = 1500.0, 0.05  # a stage-like mode: above the crossover, weakly coupled
+
+
+@pytest.fixture(scope="module")
+def stage_like_file(tmp_path_factory):
+    """The 2 kg mass with one flexible mode at 1500 Hz (residue 0.05 against the rigid 0.5)."""
+    w = 2 * np.pi * F_HIGH
+    g = control.tf([1.0], [M, 0, 0]) + control.tf([B_HIGH], [1, 2 * Z_FLEX * w, w * w])
+    path = tmp_path_factory.mktemp("hinf") / "model.npz"
+    model = LTIModel.from_statespace(control.ss(g), input_names=("F",), output_names=("x",))
+    model.write(path)
+    return path
+
+
+def test_hinf_design_round_trip_meets_the_bound(stage_like_file, tmp_path, capsys):
+    """--method hinf: spec-5 file, report = analyze_loop of the file on the model, |S| <= 2."""
+    model_file = stage_like_file
+    out, rep = tmp_path / "K_hinf.npz", tmp_path / "hinf.json"
+    argv = ["design", "--model", str(model_file), "--method", "hinf", "--fs", str(FS)]
+    argv += ["--loop-delay-samples", "1", "--out", str(out), "--json", str(rep)]
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    arrays = read_npz(out)
+    assert str(arrays["role"]) == "controller" and int(arrays["delay_samples"]) == 1
+    back = StateSpaceController.read(out)
+    assert back.input_names == ("x",) and back.output_names == ("F",) and back.fs == FS
+    report = json.loads(rep.read_text())
+    assert report["method"] == "hinf" and len(report["settings"]["gamma"]) == 1
+    a = analyze_loop(read_model(model_file), back, loop_delay_samples=1)
+    assert a.stable and a.loops[0].s_peak <= 2.0 * (1 + 1e-6)
+    loop = report["analysis"]["loops"][0]
+    assert loop["crossover_hz"] == pytest.approx(a.loops[0].crossover_hz, rel=1e-12)
+    row = next(r for r in text.splitlines() if r.split()[:1] == ["x"])
+    assert row.split()[1] == f"{a.loops[0].crossover_hz:.1f}"
+    assert a.loops[0].crossover_hz > 30.0  # a working loop, not a token one
+
+
+def test_hinf_infeasible_bound_refused_in_one_line(stage_like_file, tmp_path, capsys):
+    # |S| <= 1.01 at every frequency: no loop with a delay meets it (Bode's integral)
+    out = tmp_path / "K.npz"
+    argv = ["design", "--model", str(stage_like_file), "--method", "hinf", "--fs", str(FS)]
+    assert main(argv + ["--ms-max", "1.01", "--out", str(out)]) == 2
+    line = one_line(capsys.readouterr().err)
+    assert "hinf" in line and "1.01" in line
+    assert not out.exists() and not list(tmp_path.glob(".K.*"))

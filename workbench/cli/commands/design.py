@@ -34,8 +34,9 @@ def register(subparsers) -> argparse.ArgumentParser:
         "design",
         help="design a controller on a model file and write it (spec-5 controller file)",
         description=(
-            "Design a decentralized PID + notch (pid-notch) or a modal state feedback with "
-            "observer (modal-sf) on MODEL for the highest crossover at |S| <= --ms-max, print "
+            "Design a decentralized PID + notch (pid-notch), a modal state feedback with "
+            "observer (modal-sf) or per-DOF mixed-sensitivity H-infinity controllers (hinf) on "
+            "MODEL for the highest crossover at |S| <= --ms-max, print "
             "the per-DOF loop table on the model and write the controller e = r - y -> u."
         ),
     )
@@ -112,12 +113,6 @@ def run(args) -> int:
     m = 0 if args.loop_delay_samples is None else int(args.loop_delay_samples)
     if m < 0:
         raise InputError(f"--loop-delay-samples: expected an integer >= 0, got {m}")
-    if args.method == "hinf":
-        # controllers/hinf.py synthesizes from a weighted generalized plant; its weights for a
-        # identified multi-DOF model with a loop delay are not chosen yet: refuse, do not guess
-        raise InputError(
-            "--method hinf: the H-infinity design is not available yet; use pid-notch or modal-sf"
-        )
     model = read_model(args.model)
     if model.n_u != model.n_y or model.n_u == 0:
         raise InputError(
@@ -131,6 +126,12 @@ def run(args) -> int:
 
         K, _report = tune_pid_notch(model, fs, ms_max=ms_max, loop_delay_samples=m)
         controller = K.controller
+    elif args.method == "hinf":
+        from controllers.hinf import tune_hinf
+
+        design = tune_hinf(model, ms_max=ms_max, loop_delay_samples=m, fs=fs)
+        controller = design.controller
+        settings = {"target_hz": list(design.target_hz), "gamma": list(design.gamma)}
     else:
         from controllers.modal_sf import tune_modal_sf
 
