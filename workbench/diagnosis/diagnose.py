@@ -125,7 +125,10 @@ class Diagnosis:
     noise_floor : float or None
         Error expected from the noise alone (FRF data with G_var).
     model : ModalModel
-        The model with every finding added.
+        The model with every finding added, in the diagnosis's form
+        (:func:`workbench.diagnosis.modal.decompose`: rigid modes merged, added
+        modes marked by :attr:`~workbench.modal.model.Mode.effect`); ``.to_lti()``
+        realizes it with its delay.
     """
 
     error_before: float

@@ -170,7 +170,8 @@ def fit(
     structure : Structure
     problem : FrfProblem or TimeProblem
     base : ModalModel
-        The model to augment (the nominal, or the nominal with earlier findings).
+        The model to augment (the nominal, or the nominal with earlier findings), in the
+        diagnosis's form (:func:`workbench.diagnosis.modal.decompose`).
     starts : list of (n_theta,) arrays, optional
         Start points sorted best first (from :func:`screen`); by default the grid is screened here.
     n_starts : int

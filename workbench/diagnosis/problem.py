@@ -223,7 +223,7 @@ class TimeProblem:
         self._cache: dict = {}
 
     def _part(self, model: ModalModel, den, N0, N1, u_in) -> np.ndarray:
-        k = _key(den, N0, N1, [model.delay_s], model.tau_in, model.tau_out, model.T_in)
+        k = _key(den, N0, N1, [model.delay_s], model.lags("in"), model.lags("out"), model.T_in)
         out = self._cache.get(k)
         if out is None:
             X, groups = filtered_inputs(model, den, u_in, self.fs)
