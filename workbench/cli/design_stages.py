@@ -35,7 +35,7 @@ from workbench.core.errors import InputError
 from workbench.io.scenario import refuse_leftovers, take
 
 #: design methods the [design] stage offers (one module of controllers/ each)
-METHODS = ("pid-notch",)
+METHODS = ("pid-notch", "modal-sf", "hinf")
 
 __all__ = ["Design", "METHODS", "stage_design", "stage_evaluate"]
 
@@ -61,7 +61,18 @@ def _tune(method: str, model, fs: float, ms_max: float, m: int):
         from controllers.modal_sf import tune_modal_sf
 
         d = tune_modal_sf(model, ms_max=ms_max, loop_delay_samples=m, fs=fs)
-        return d.controller, {}
+        rep = d.report
+        settings = {} if rep is None else {"kept": rep.settings, "tried": rep.tried}
+        return d.controller, settings
+    if method == "hinf":
+        from controllers.hinf import tune_hinf
+
+        d = tune_hinf(model, ms_max=ms_max, loop_delay_samples=m, fs=fs)
+        return d.controller, {
+            "target_hz": d.target_hz,
+            "crossover_hz": d.crossover_hz,
+            "gamma": d.gamma,
+        }
     raise InputError(
         f"[design] key 'methods': expected some of {', '.join(METHODS)}, got {method!r}"
     )

@@ -67,7 +67,6 @@ def stage_diagnose(st: RunState, table: dict) -> None:
 
 def stage_augment(st: RunState, table: dict) -> None:
     """Add effects to the model: the diagnosis's findings (jointly fitted), or the named ones."""
-    from workbench.core.model import LTIModel
     from workbench.diagnosis.augment import augment
 
     data = _loop_data(st, table, "augment")
@@ -82,8 +81,7 @@ def stage_augment(st: RunState, table: dict) -> None:
         if not found:
             st.summary["augment"] = {"steps": [], "note": "diagnose found nothing to add"}
             return
-        sys, delay_s = found[-1].model.to_statespace()
-        model = LTIModel.from_statespace(sys, delay_s=delay_s)
+        model = found[-1].model.to_lti()  # a ModalModel: its realization with its delay
         steps = [
             {"effect": f.effect, "parameters": f.parameters, "error_after": f.error_after}
             for f in found
