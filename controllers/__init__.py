@@ -11,6 +11,13 @@ observers::
 
     workbench.sim.closed_loop(plant, K, r=..., d=..., rng=...)   # any plant, any Controller
 
+Designs on a model (each result holds a Controller)::
+
+    tune_pid_notch(model, fs, ms_max=2.0)            # decentralized PID + notches
+    tune_modal_sf(model, ms_max=2.0, fs=fs)          # modal state feedback + observer
+    tune_hinf(model, ms_max=2.0, fs=fs).controller   # per-DOF mixed-sensitivity H-inf (LMIs)
+    design_mpc(model, fs, u_max=F_max)               # constrained MPC + Kalman (not linear)
+
 Sign convention (spec section 5): ``u = K e`` with ``e = r - y``; an excitation
 ``d`` adds at the plant input, ``u = d + K e``; the loop gain is ``L = G K``.
 :class:`StateSpaceController` wraps any discrete StateSpace or spec-5 controller file.

@@ -618,6 +618,9 @@ class HinfDesign:
         Per DOF, the certified ||[W1 S; W2 K S; W3 T]||inf of the kept design.
     analysis : workbench.loop.LoopAnalysis
         The MIMO loop on the model (loop-at-a-time figures, all loops closed).
+    scanned : tuple of dict
+        Every synthesis tried, in order: dof, target_hz, gamma, crossover_hz,
+        s_peak, stable, kept (or an ``error`` message when the LMI failed).
     """
 
     controller: StateSpaceController
@@ -625,6 +628,7 @@ class HinfDesign:
     crossover_hz: tuple[float, ...]
     gamma: tuple[float, ...]
     analysis: object
+    scanned: tuple = ()
 
 
 def channel_plant(modal, i: int, fs: float, loop_delay_samples: int = 0):
@@ -697,11 +701,13 @@ def tune_hinf(
     block-diagonal controller, checked on the full MIMO model at the end.
 
     Per DOF, targets fb log-spaced over ``target_range`` (fractions of fs)
-    are tried upward, stopping at the first rejected one after a kept one
+    are tried from the highest down, and the first kept design is taken (why
+    downward: each LMI takes seconds, and the crossover grows with the
+    target until |S| breaks the bound, so the stage's DOFs need one or two)
     (weights: module constants ``_W1_LOW`` ..., the plant normalized
     to |G(fb)| = 1, rigid poles shifted for the synthesis only); a design is
     kept when the true (unshifted) channel loop is stable with
-    max |S| <= ms_max, and the DOF keeps the highest crossover. Then
+    max |S| <= ms_max. Then
     :func:`workbench.loop.analyze_loop` on the model: while a loop's |S_ii|
     (all loops closed) exceeds ms_max or the MIMO loop is unstable, the
     offending DOFs step down to their next lower kept design.
@@ -716,8 +722,8 @@ def tune_hinf(
         Computation delay of the real-time loop, samples (in the plant, not in K).
     fs : float, optional
         Controller rate, Hz (default: 1/dt of a discrete model; required otherwise).
-    progress : callable(str), optional
-        Called with one line per DOF and design step.
+    progress : callable(i, n), optional
+        Called after each synthesis: i done of at most n (the scan stops early).
     n_scan : int
         Targets tried per DOF.
     target_range : (float, float)
@@ -773,38 +779,43 @@ def tune_hinf(
         raise InputError(
             f"target_range: expected 0 < low < high < 0.25 (of fs), got {target_range}"
         )
-    say = progress or (lambda _line: None)
+    say = progress or (lambda _i, _n: None)
     names = list(loop._names(plant, "output")) or [f"y{i}" for i in range(plant.n_y)]
     f = loop._default_grid(fs)
     targets = np.geomspace(lo * fs, hi * fs, int(n_scan))
-    kept = []  # per DOF: designs meeting the bound, best (highest crossover) first
-    for i in range(plant.n_u):
+
+    def designs(i):
+        """DOF i's kept designs (fc, fb, gamma, K), from the highest target down, lazily."""
         G = channel_plant(modal, i, fs, m)
-        ok = []
-        for fb in targets:
+        for fb in targets[::-1]:
+            tried[0] += 1
             try:
                 Ks, gam, fc, s_peak, stable = _siso_candidate(G, fb, fs, ms_max, f)
             except InputError as exc:
-                say(f"hinf {names[i]}: target {fb:.1f} Hz: {exc}")
+                scanned.append({"dof": names[i], "target_hz": float(fb), "error": str(exc)})
+                say(tried[0], n_total)
                 continue
-            good = stable and s_peak <= ms_max and np.isfinite(fc)
-            say(
-                f"hinf {names[i]}: target {fb:.1f} Hz: gamma {gam:.3g}, crossover {fc:.1f} Hz, "
-                f"|S|inf {s_peak:.3f}, stable {stable}" + ("" if good else " (rejected)")
-            )
+            good = bool(stable and s_peak <= ms_max and np.isfinite(fc))
+            scanned.append(
+                {"dof": names[i], "target_hz": float(fb), "gamma": gam, "crossover_hz": fc,
+                 "s_peak": s_peak, "stable": stable, "kept": good}
+            )  # fmt: skip
+            say(tried[0], n_total)
             if good:
-                ok.append((fc, fb, gam, Ks))
-            elif ok:  # past the best: higher targets only cost |S| (and each LMI takes seconds)
-                break
-        if not ok:
+                yield fc, fb, gam, Ks
+
+    tried, scanned, n_total = [0], [], plant.n_u * len(targets)
+    gens = [designs(i) for i in range(plant.n_u)]
+    chosen = []
+    for i, gen in enumerate(gens):
+        first = next(gen, None)
+        if first is None:
             raise InputError(
                 f"hinf: DOF {names[i]}: no stable design meets |S| <= {ms_max:g} on the model "
                 f"(targets {targets[0]:.3g}..{targets[-1]:.3g} Hz)"
             )
-        kept.append(sorted(ok, key=lambda t: -t[0]))
-    pick = [0] * plant.n_u
+        chosen.append(first)
     while True:
-        chosen = [kept[i][pick[i]] for i in range(plant.n_u)]
         mats = [(Ks.A, Ks.B, Ks.C, Ks.D) for _fc, _fb, _g, Ks in chosen]
         K = StateSpaceController(
             scipy.linalg.block_diag(*[a[0] for a in mats]),
@@ -819,19 +830,20 @@ def tune_hinf(
         if analysis.stable and not over:
             break
         step = over if over else list(range(plant.n_u))  # unstable: every DOF steps down
-        if any(pick[i] + 1 >= len(kept[i]) for i in step):
-            raise InputError(
-                f"hinf: no combination of the per-DOF designs meets |S| <= {ms_max:g} with all "
-                f"loops closed (stable = {analysis.stable}, loops over the bound: "
-                f"{[names[i] for i in over]})"
-            )
         for i in step:
-            pick[i] += 1
-        say(f"hinf: MIMO check: loops {[names[i] for i in step]} step down")
+            nxt = next(gens[i], None)
+            if nxt is None:
+                raise InputError(
+                    f"hinf: no combination of the per-DOF designs meets |S| <= {ms_max:g} with "
+                    f"all loops closed (stable = {analysis.stable}, loops over the bound: "
+                    f"{[names[j] for j in over]})"
+                )
+            chosen[i] = nxt
     return HinfDesign(
         controller=K,
         target_hz=tuple(float(c[1]) for c in chosen),
         crossover_hz=tuple(float(c[0]) for c in chosen),
         gamma=tuple(float(c[2]) for c in chosen),
         analysis=analysis,
+        scanned=tuple(scanned),
     )
