@@ -54,6 +54,7 @@ __all__ = [
     "mode_damping",
     "lqr_damping_weights",
     "modal_poles",
+    "bandwidth_lqg",
     "lqr_gain",
     "place_gain",
     "kalman_gain",
@@ -417,39 +418,53 @@ def lqr_damping_weights(dm: DesignModel, damping, *, R=None, max_weight: float =
     return modal_weights(dm, flexible=w, **weights)
 
 
+def _rigid_bandwidths(dm: DesignModel, bandwidth_hz) -> np.ndarray:
+    """Per-mode bandwidth (Hz) from a scalar or one value per mode; rigid entries checked."""
+    modes = dm.modal.modes
+    bw = _per_mode(bandwidth_hz, len(modes), "bandwidth_hz")
+    for k, md in enumerate(modes):
+        if md.kind == "rigid" and not (0 < bw[k] < dm.fs / 2):
+            raise InputError(
+                f"bandwidth_hz: expected 0 < f < fs/2 = {dm.fs / 2:g} Hz, "
+                f"got {bw[k]} (mode {k + 1})"
+            )
+    return bw
+
+
 def modal_poles(
     dm: DesignModel,
     *,
     damping=0.3,
-    bandwidth_hz: float = 10.0,
+    bandwidth_hz=10.0,
     delay_pole: float = 0.0,
 ) -> np.ndarray:
     """Target discrete poles, mode by mode.
 
     Flexible mode k keeps its natural frequency and gets ``max(damping[k],
     its own)``; real poles stay; each rigid DOF with its integrator gets the
-    third-order Butterworth pattern at ``bandwidth_hz`` (without integrator,
-    the second-order one); the delay line goes to ``delay_pole`` (spread by
-    0.02 so that ``control.place`` sees distinct poles). Continuous targets
-    are mapped with ``z = exp(s / fs)``.
+    third-order Butterworth pattern at ``bandwidth_hz`` (scalar, or one value
+    per mode: each rigid mode its own; without integrator, the second-order
+    pattern); the delay line goes to ``delay_pole`` (spread by 0.02 so that
+    ``control.place`` sees distinct poles). Continuous targets are mapped
+    with ``z = exp(s / fs)``.
     """
     modes = dm.modal.modes
     zt = _per_mode(damping, len(modes), "damping")
     if np.any((zt < 0) | (zt >= 1)):
         raise InputError(f"damping: expected targets in [0, 1), got {zt}")
-    if not (np.isfinite(bandwidth_hz) and 0 < bandwidth_hz < dm.fs / 2):
-        raise InputError(
-            f"bandwidth_hz: expected 0 < f < fs/2 = {dm.fs / 2:g} Hz, got {bandwidth_hz}"
-        )
-    s = []
-    wb = 2 * np.pi * bandwidth_hz
+    bw = _rigid_bandwidths(dm, bandwidth_hz)
+    s, w_int = [], []
     n_rigid = 0
     for k, md in enumerate(modes):
         if md.kind == "rigid":
             n_rigid += 1
             # spread the DOFs a little: place needs multiplicity <= rank(Gamma)
-            w = wb * (1 + 1e-3 * (n_rigid - 1))
-            s += [w * np.exp(1j * np.pi * 2 / 3), w * np.exp(-1j * np.pi * 2 / 3)]
+            w = 2 * np.pi * bw[k] * (1 + 1e-3 * (n_rigid - 1))
+            w_int.append(w)
+            if dm.n_i:  # 3rd-order Butterworth with the integrator pole
+                s += [w * np.exp(1j * np.pi * 2 / 3), w * np.exp(-1j * np.pi * 2 / 3)]
+            else:
+                s += [w * np.exp(1j * np.pi * 3 / 4), w * np.exp(-1j * np.pi * 3 / 4)]
         elif md.kind == "real":
             s.append(md.pole)
         else:
@@ -458,20 +473,98 @@ def modal_poles(
             wd = w * np.sqrt(1 - z * z)
             s += [complex(-z * w, wd), complex(-z * w, -wd)]
     for j in range(dm.n_i):
-        s.append(-wb * (1 + 1e-3 * j))
+        s.append(-w_int[j] * (1 + 1e-3 * j))
     z = list(np.exp(np.array(s, complex) / dm.fs))
     z += [delay_pole + 0.02 * j for j in range(dm.n_d)]
     return np.array(z, complex)
 
 
-def place_gain(dm: DesignModel, poles) -> np.ndarray:
-    """K (n_u, n) with ``eig(Phi - Gamma K) = poles`` (``control.place``)."""
-    import control
+def _place(A, B, poles, maxiter):
+    """``control.place`` (scipy YT, maxiter 30), or scipy's YT with fewer robustness sweeps.
 
+    The poles are placed exactly either way; ``maxiter`` only bounds the
+    conditioning sweeps (a 34-state MIMO placement takes seconds at 30).
+    """
+    if maxiter is None:
+        import control
+
+        return np.asarray(control.place(A, B, poles), float)
+    from scipy.signal import place_poles
+
+    return np.asarray(place_poles(A, B, poles, method="YT", maxiter=maxiter).gain_matrix, float)
+
+
+def place_gain(dm: DesignModel, poles, *, maxiter: int | None = None) -> np.ndarray:
+    """K (n_u, n) with ``eig(Phi - Gamma K) = poles`` (``control.place``; see :func:`_place`)."""
     poles = np.asarray(poles, complex)
     if poles.shape != (dm.n,):
         raise InputError(f"poles: expected {dm.n} poles, got {poles.shape}")
-    return np.asarray(control.place(dm.Phi, dm.Gamma, poles), float)
+    return _place(dm.Phi, dm.Gamma, poles, maxiter)
+
+
+def bandwidth_lqg(
+    dm: DesignModel,
+    *,
+    bandwidth_hz=10.0,
+    observer_ratio=2.0,
+    integral_ratio: float = 0.3,
+    flexible: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(K, L): LQR + Kalman predictor whose weights follow from per-mode bandwidths.
+
+    Scale-free in the units of each DOF (m vs rad, N vs N m): with ``R = I``
+    on the inputs and ``V = I`` on the outputs, rigid mode k (``q'' = b_k u``,
+    ``y = c_k q``) gets the position weight ``w_k^4 / |b_k|^2`` (alone, the
+    LQR double-integrator loop: Butterworth poles at ``w_k = 2 pi
+    bandwidth_hz[k]``), its integrator ``w_k^4 / |b_k|^2 (integral_ratio
+    w_k)^2`` (integral action corner ~ ``integral_ratio`` below it), and the
+    observer a white modal acceleration of per-sample variance ``w_o^4 dt^2 /
+    |c_k|^2`` (the Kalman double-integrator filter at ``w_o = observer_ratio
+    w_k``, loop-transfer-recovery-like as the ratio grows). Flexible and real
+    modes carry no weight and no process noise: their poles stay where they
+    are in both (the model-based "notch"); the delay line is known. LQR by
+    ``control.dlqr``, Kalman by ``control.dlqe``.
+    """
+    import control
+
+    modes = dm.modal.modes
+    bw = _rigid_bandwidths(dm, bandwidth_hz)
+    ro = _per_mode(observer_ratio, len(modes), "observer_ratio")
+    Q = np.zeros((dm.n, dm.n))
+    W = np.zeros((dm.n_p, dm.n_p))
+    i0 = dm.n_p + dm.n_d
+    j = 0
+    rigid = [k for k, md in enumerate(modes) if md.kind == "rigid"]
+    w_r = 2 * np.pi * float(np.min(bw[rigid])) if rigid else 0.0
+    for k, (md, sl) in enumerate(zip(modes, dm.mode_states)):
+        if md.kind == "flexible" and flexible > 0 and rigid:
+            # active damping: the mode's scaled states (w q, dq/dt) weighted like a rigid
+            # position at the (lowest) rigid bandwidth, times `flexible`; its observer gets the
+            # process noise of a rigid DOF observed at that bandwidth, times `flexible`
+            nb = float(np.sum(np.square(md.b))) or 1e-300
+            nc = float(np.sum(np.square(md.c))) or 1e-300
+            Q[sl, sl] = flexible * w_r**4 / nb / md.omega**2 * np.eye(2)
+            wo = min(float(np.min(ro[rigid])) * w_r, 2 * np.pi * 0.45 * dm.fs)
+            W[sl.stop - 1, sl.stop - 1] = flexible * wo**4 * dm.dt**2 / nc
+            continue
+        if md.kind != "rigid":
+            continue
+        w = 2 * np.pi * bw[k]
+        nb = float(np.sum(np.square(md.b))) or 1e-300
+        nc = float(np.sum(np.square(md.c))) or 1e-300
+        Q[sl.start, sl.start] = w**4 / nb
+        if j < dm.n_i:
+            Q[i0 + j, i0 + j] = w**4 / nb * (integral_ratio * w) ** 2
+        j += 1
+        wo = min(ro[k] * w, 2 * np.pi * 0.45 * dm.fs)
+        W[sl.start + 1, sl.start + 1] = wo**4 * dm.dt**2 / nc
+    K = lqr_gain(dm, Q, np.eye(dm.Gamma.shape[1]))
+    Ad, C = _obs_matrices(dm)
+    try:
+        L, _, _ = control.dlqe(Ad, np.eye(dm.n_p), C, W, np.eye(C.shape[0]))
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        raise InputError(f"kalman: the Riccati equation has no usable solution ({exc})") from exc
+    return K, np.asarray(L, float)
 
 
 # ------------------------------------------------------------------ observers
@@ -504,15 +597,13 @@ def kalman_gain(dm: DesignModel, *, process=1.0, sensor=1.0) -> np.ndarray:
     return np.asarray(L, float)
 
 
-def luenberger_gain(dm: DesignModel, poles) -> np.ndarray:
+def luenberger_gain(dm: DesignModel, poles, *, maxiter: int | None = None) -> np.ndarray:
     """L (n_p, n_y) with ``eig(Ad - L C) = poles`` by ``control.place`` on the dual."""
-    import control
-
     Ad, C = _obs_matrices(dm)
     poles = np.asarray(poles, complex)
     if poles.shape != (dm.n_p,):
         raise InputError(f"poles: expected {dm.n_p} observer poles, got {poles.shape}")
-    return np.asarray(control.place(Ad.T, C.T, poles), float).T
+    return _place(Ad.T, C.T, poles, maxiter).T
 
 
 # ------------------------------------------------------------------ controller
@@ -661,10 +752,18 @@ def design_modal_sf(
 
 
 # ------------------------------------------------------------------ tuning
-# rigid-body bandwidth targets (fractions of fs, log spaced) and Kalman sensor-to-process noise
-# ratios scanned; the design keeps the highest crossover meeting the |S| bound on the model
-_TUNE_BW_FRACTIONS = tuple(np.logspace(np.log10(1e-3), np.log10(0.1), 12))
-_TUNE_SENSOR = (1e-4, 1e-6, 1e-8, 1e-10)
+# Scan grid of tune_modal_sf. Rigid-body LQR bandwidths as fractions of fs: a one-sample delay
+# limits a double integrator's crossover near fs/25 at |S| <= 2, so 0.2 %..10 % of fs spans
+# delays from a fraction of a sample to several; observer speed as a ratio to it (a fast
+# Kalman filter recovers the LQR loop, loop-transfer-recovery-like; a slower one rolls the
+# controller off sooner); integral action corner as a ratio to it (0.1 and 0.3 tried on the
+# stage and on 1-DOF rigid + mode plants: 0.3 kept the higher crossover in each)
+_TUNE_BW_FRACTIONS = tuple(np.logspace(np.log10(2e-3), np.log10(0.1), 14))
+_TUNE_OBS_RATIO = (10.0, 30.0)
+_TUNE_INTEGRAL_RATIO = 0.3
+# active damping of the flexible modes (bandwidth_lqg's `flexible`): none, light, strong
+_TUNE_FLEXIBLE = (0.0, 1e-3, 0.1)
+_TUNE_REFINE = 5  # bisection steps on the kept bandwidth (grid step 1.35x -> ~1 %)
 
 
 def _tune_fs(model, fs) -> float:
@@ -679,18 +778,66 @@ def _tune_fs(model, fs) -> float:
     return float(fs)
 
 
+def _rigid_loops(dm: DesignModel) -> dict[int, int]:
+    """Rigid mode index -> the loop (output) it dominates, one loop per mode.
+
+    Assignment on ``|P_r|`` scaled per output (units differ: m, rad): the
+    output through which the integrator of each rigid coordinate mainly acts.
+    Empty when the rigid modes cannot be assigned one loop each.
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    rigid = [k for k, md in enumerate(dm.modal.modes) if md.kind == "rigid"]
+    if not rigid or len(rigid) > dm.C.shape[0]:
+        return {}
+    Cr = np.abs(np.array([dm.modal.modes[k].c for k in rigid]))  # (n_r, n_y)
+    W = Cr / np.maximum(Cr.max(axis=0, keepdims=True), 1e-300)
+    rows, cols = linear_sum_assignment(-W)
+    return {rigid[r]: int(c) for r, c in zip(rows, cols)}
+
+
+def _candidate(dm, bw, ratio, flexible, screen_model, m, f):
+    """(controller, K, L, stable, peak, fc) of one setting; None if a Riccati equation fails."""
+    from workbench import loop
+
+    try:
+        K, L = bandwidth_lqg(
+            dm,
+            bandwidth_hz=bw,
+            observer_ratio=ratio,
+            integral_ratio=_TUNE_INTEGRAL_RATIO,
+            flexible=flexible,
+        )
+    except (InputError, ValueError, np.linalg.LinAlgError):
+        return None
+    ctrl = observer_controller(dm, K, L)
+    stable, peak, fc = loop.screen_loops(screen_model, ctrl, loop_delay_samples=m, freq_hz=f)
+    return ctrl, K, L, stable, peak, fc
+
+
 def tune_modal_sf(
     model, *, ms_max: float = 2.0, loop_delay_samples: int = 0, fs=None, progress=None
 ) -> ModalSFDesign:
-    """Modal SF + observer tuned for the highest crossover meeting ``|S_ii| <= ms_max``.
+    """Modal LQG (:func:`bandwidth_lqg`) tuned per rigid mode for the highest crossover.
 
-    Scans placement bandwidths x Kalman noise ratios (``feedback="place",
-    observer="kalman"``); each candidate is scored on the model with the loop
-    delay by :func:`workbench.loop.screen_crossover` and the highest lowest
-    per-loop crossover is kept. The design model (and its minimality check: a
-    mode failing Lemma 1/2 is an InputError, a weak one warns once) and each
-    gain are computed once. ``progress(i, n)`` is called after each candidate.
-    Refused (InputError) when no stable candidate meets the bound.
+    Derived from the model, the loop delay and ``ms_max`` only:
+
+    1. scan common settings (every rigid mode the same): LQR bandwidth x
+       observer ratio x active damping of the flexible modes; each candidate scored on the model
+       with the loop delay by :func:`workbench.loop.screen_loops` (per loop:
+       |S_ii| peak, crossover);
+    2. per active damping level, give each rigid mode the setting with the highest
+       crossover of its own loop (:func:`_rigid_loops`) among the stable ones
+       meeting ``|S_ii| <= ms_max`` there (DOFs of different mass / inertia
+       and mode coupling may want different settings);
+    3. check that combination on the model; a loop over the bound moves its
+       rigid mode to its next setting until all loops meet it. The highest
+       lowest-crossover design is kept (the common settings of step 1 compete).
+
+    The design model (and its minimality check: a mode failing Lemma 1/2 is
+    an InputError, a weak one warns once) is built once. ``progress(i, n)``
+    is called after each scanned candidate. Refused (InputError) when no
+    stable setting meets the bound.
     """
     from workbench import loop
 
@@ -700,44 +847,108 @@ def tune_modal_sf(
         raise InputError(f"ms_max: expected a bound > 1 on |S|, got {ms_max}")
     m = loop._delay_check(loop_delay_samples)
     dm = design_model(model, fs, loop_delay_samples=m)
+    screen_model = model.to_lti() if hasattr(model, "to_lti") else model
     f = loop._default_grid(fs)
-    observers = {sensor: kalman_gain(dm, sensor=sensor) for sensor in _TUNE_SENSOR}
-    n_total = len(_TUNE_BW_FRACTIONS) * len(observers)
-    best, best_fc, tried, feasible = None, 0.0, 0, 0
-    for frac in _TUNE_BW_FRACTIONS:
-        try:
-            K = place_gain(dm, modal_poles(dm, bandwidth_hz=frac * fs))
-            ok = np.max(np.abs(np.linalg.eigvals(dm.Phi - dm.Gamma @ K))) < 1
-        except (InputError, ValueError, np.linalg.LinAlgError):
-            ok = False  # placement failed at this bandwidth: try the others
-        for sensor, L in observers.items():
+    modes = dm.modal.modes
+    n_modes = len(modes)
+    grid = [
+        (fr * fs, r, g)
+        for g in _TUNE_FLEXIBLE
+        for fr in _TUNE_BW_FRACTIONS
+        for r in _TUNE_OBS_RATIO
+    ]
+    results = {}
+    for i, key in enumerate(grid):
+        results[key] = _candidate(dm, *key, screen_model, m, f)
+        if progress is not None:
+            progress(i + 1, len(grid))
+
+    def score(res):
+        if res is None or not res[3] or np.max(res[4]) > ms_max or not np.all(np.isfinite(res[5])):
+            return 0.0
+        return float(np.min(res[5]))
+
+    key = max(grid, key=lambda k: score(results[k]))
+    best = (score(results[key]), results[key], np.full(n_modes, key[0]), np.full(n_modes, key[1]))
+    best_g = key[2]
+    tried = len(grid)
+    if best[0] > 0:
+        # refine the common bandwidth between the kept grid point and the next one up: the
+        # crossover grows with it until the |S| bound breaks (bisection on that boundary)
+        step = _TUNE_BW_FRACTIONS[1] / _TUNE_BW_FRACTIONS[0]
+        lo, hi = key[0], key[0] * step
+        for _ in range(_TUNE_REFINE):
+            mid = np.sqrt(lo * hi)
+            res = _candidate(dm, mid, key[1], key[2], screen_model, m, f)
             tried += 1
-            if ok:
-                ctrl = observer_controller(dm, K, L)
-                fc = loop.screen_crossover(
-                    model, ctrl, loop_delay_samples=m, freq_hz=f, ms_max=ms_max
-                )
-                feasible += fc > 0
-                if fc > best_fc:
-                    best_fc = fc
-                    best = (K, L, ctrl, {"bandwidth_hz": float(frac * fs), "sensor": sensor})
-            if progress is not None:
-                progress(tried, n_total)
-    if best is None:
+            sc = score(res)
+            if sc > 0:
+                lo = mid
+                if sc > best[0]:
+                    best = (sc, res, np.full(n_modes, mid), np.full(n_modes, key[1]))
+            else:
+                hi = mid
+    owners = _rigid_loops(dm)
+    for g in _TUNE_FLEXIBLE if owners else ():
+        keys = [k for k in grid if k[2] == g and results[k] is not None and results[k][3]]
+        # per rigid mode: its settings ranked by its own loop's crossover, bound met there
+        ranked = {}
+        for k, i in owners.items():
+            ok = [c for c in keys if results[c][4][i] <= ms_max and np.isfinite(results[c][5][i])]
+            ranked[k] = sorted(ok, key=lambda c: -results[c][5][i])
+        if not all(ranked.values()):
+            continue
+        pick = dict.fromkeys(owners, 0)
+        for _ in range(4 * len(owners)):
+            bw = np.full(n_modes, best[2][0] if best[0] > 0 else grid[0][0])
+            ratio = np.full(n_modes, _TUNE_OBS_RATIO[0])
+            for k in owners:
+                bw[k], ratio[k] = ranked[k][pick[k]][:2]
+            res = _candidate(dm, bw, ratio, g, screen_model, m, f)
+            tried += 1
+            sc = score(res)
+            if sc > 0:
+                if sc > best[0]:
+                    best, best_g = (sc, res, bw, ratio), g
+                break
+            if res is None or not res[3]:
+                worst = list(owners)  # unstable: step every mode down
+            else:
+                worst = [k for k, i in owners.items() if res[4][i] > ms_max]
+                if not worst:  # a loop without crossover: not a usable design
+                    break
+            moved = False
+            for k in worst:
+                if pick[k] + 1 < len(ranked[k]):
+                    pick[k] += 1
+                    moved = True
+            if not moved:
+                break
+    if best[0] <= 0:
         raise InputError(
             f"modal-sf: no stable design meets |S| <= {ms_max:g} on the model (rigid-body "
-            f"bandwidths {_TUNE_BW_FRACTIONS[0] * fs:.3g}..{_TUNE_BW_FRACTIONS[-1] * fs:.3g} Hz)"
+            f"bandwidths {_TUNE_BW_FRACTIONS[0] * fs:.3g}..{_TUNE_BW_FRACTIONS[-1] * fs:.3g} Hz, "
+            f"observer ratios {_TUNE_OBS_RATIO}, active damping {_TUNE_FLEXIBLE})"
         )
-    K, L, ctrl, settings = best
+    fc, res, bw, ratio = best
+    ctrl, K, L = res[:3]
+    rigid = [k for k, md in enumerate(modes) if md.kind == "rigid"]
+    settings = {
+        "rigid_bandwidth_hz": [float(bw[k]) for k in rigid],
+        "observer_ratio": [float(ratio[k]) for k in rigid],
+        "integral_ratio": _TUNE_INTEGRAL_RATIO,
+        "flexible": float(best_g),
+    }
     report = ModalSFTuneReport(
         settings=settings,
-        crossover_hz=float(best_fc),
+        crossover_hz=float(fc),
         ms_max=ms_max,
         scanned={
             "bandwidth_hz": [float(x * fs) for x in _TUNE_BW_FRACTIONS],
-            "sensor": list(_TUNE_SENSOR),
+            "observer_ratio": list(_TUNE_OBS_RATIO),
+            "flexible": list(_TUNE_FLEXIBLE),
         },
         tried=tried,
-        feasible=int(feasible),
+        feasible=int(sum(score(r) > 0 for r in results.values())),
     )
     return ModalSFDesign(dm=dm, K=K, L=L, controller=ctrl, report=report)

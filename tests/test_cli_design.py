@@ -66,13 +66,11 @@ def reference_controller(method: str, report: dict):
         from controllers.pid_notch import tune_pid_notch
 
         return tune_pid_notch(model, FS, ms_max=2.0, loop_delay_samples=1)[0].controller
-    from controllers.modal_sf import design_modal_sf
+    from controllers.modal_sf import tune_modal_sf
 
-    s = report["settings"]
-    return design_modal_sf(
-        model, FS, loop_delay_samples=1, feedback="place", observer="kalman",
-        bandwidth_hz=s["bandwidth_hz"], sensor=s["sensor"],
-    ).controller  # fmt: skip
+    d = tune_modal_sf(model, ms_max=2.0, loop_delay_samples=1, fs=FS)
+    assert report["settings"] == d.report.settings  # the CLI reports what the tuner kept
+    return d.controller
 
 
 @pytest.mark.parametrize("method", ["pid-notch", "modal-sf"])

@@ -12,7 +12,7 @@ import pytest
 from workbench.core.errors import InputError
 from workbench.core.lti import frf
 from workbench.io.formats import FrfData
-from workbench.loop import analyze_loop, save_loop_plots
+from workbench.loop import analyze_loop, save_loop_plots, screen_crossover, screen_loops
 
 M = 2.0  # kg
 
@@ -129,6 +129,29 @@ def test_coupled_mimo_loop_at_a_time_and_outputs(tmp_path):
     for p in paths:
         with open(p, "rb") as fh:
             assert fh.read(8) == b"\x89PNG\r\n\x1a\n"
+
+
+def test_screen_loops_equals_analyze_loop_and_flags_instability():
+    """The scans' fast score: the same |S_ii| peaks and crossovers as analyze_loop."""
+    fs = 5000.0
+    mix = np.array([[1.0, 0.3], [0.2, 1.0]])
+    P = control.ss(np.zeros((4, 4)) + np.eye(4, k=2), np.vstack([np.zeros((2, 2)), mix / M]),
+                   np.hstack([np.eye(2), np.zeros((2, 2))]), np.zeros((2, 2)))  # fmt: skip
+    K1 = _lead(80.0, 9.0, fs)
+    K = control.append(K1, 1.3 * K1)
+    res = analyze_loop(P, K, loop_delay_samples=1)
+    stable, peak, fc = screen_loops(P, K, loop_delay_samples=1)
+    assert stable == res.stable is True
+    np.testing.assert_allclose(peak, [lp.s_peak for lp in res.loops], rtol=1e-12)
+    np.testing.assert_allclose(fc, [lp.crossover_hz for lp in res.loops], rtol=1e-12)
+    assert screen_crossover(P, K, loop_delay_samples=1, ms_max=10.0) == pytest.approx(min(fc))
+    assert screen_crossover(P, K, loop_delay_samples=1, ms_max=0.99 * max(peak)) == 0.0
+    # 30x the gain: unstable (closed-loop poles), no figures
+    bad = control.append(30 * K1, 30 * K1)
+    assert np.max(np.abs(control.feedback(control.c2d(P, 1 / fs) * bad, np.eye(2)).poles())) > 1
+    stable, peak, fc = screen_loops(P, bad)
+    assert not stable and np.all(np.isinf(peak)) and np.all(np.isnan(fc))
+    assert screen_crossover(P, bad) == 0.0
 
 
 def test_bad_input():

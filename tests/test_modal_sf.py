@@ -9,6 +9,7 @@ one-sample loop delay.
 
 from __future__ import annotations
 
+import functools
 import warnings
 
 import control
@@ -298,3 +299,114 @@ def test_controller_round_trips_through_a_spec5_file(tmp_path):
         assert np.array_equal(getattr(back, k), getattr(K, k))
     assert back.fs == K.fs and back.delay_samples == 1
     assert back.input_names == K.input_names and back.output_names == K.output_names
+
+
+# ------------------------------------------------------------ tuning (tune_modal_sf)
+def rigid_and_mode(residue: float, f_mode: float = 1000.0):
+    """1-DOF: 1/(M s^2) + residue/M / (s^2 + 2 z w s + w^2), a torsion-like mode."""
+    s = 1 / np.sqrt(M)
+    modes = (Mode("rigid", 0.0, 0.0, b=[s], c=[s]),)
+    if residue:
+        modes += (Mode("flexible", f_mode, 0.01, b=[s], c=[residue * s]),)
+    return ModalModel(modes=modes, D=np.zeros((1, 1)))
+
+
+@functools.lru_cache
+def rigid_reference_crossover(fs: float, delay: int) -> float:
+    """Best crossover at |S| <= 2 on the rigid 1/(M s^2) with ZOH and `delay` samples.
+
+    Independent of workbench.loop and of the modal design: a lead (ratio a) with a
+    PI corner at fc/5, Tustin, scanned over the crossover and the lead ratio with
+    python-control's own ZOH, frequency response and closed-loop poles.
+    """
+    Pd = control.c2d(control.tf([1.0], [M, 0, 0]), 1 / fs, "zoh") * control.tf(
+        [1], [1] + [0] * delay, 1 / fs
+    )
+    f = np.logspace(np.log10(fs / 1e4), np.log10(fs / 2 * 0.9999), 3000)
+    w = 2 * np.pi * f
+    best = 0.0
+    for fc in np.logspace(np.log10(fs / 200), np.log10(fs / 8), 40):
+        wc = 2 * np.pi * fc
+        for a in (4.0, 6.0, 9.0, 14.0, 20.0, 30.0):
+            shape = control.tf([1 / (wc / np.sqrt(a)), 1], [1 / (wc * np.sqrt(a)), 1])
+            shape = shape * control.tf([1, wc / 5], [1, 0])
+            Ld = Pd * control.c2d(M * wc**2 / abs(shape(1j * wc)) * shape, 1 / fs, "tustin")
+            Lf = Ld.frequency_response(w).complex.ravel()
+            if np.max(np.abs(1 / (1 + Lf))) > 2.0:
+                continue
+            if np.max(np.abs(control.feedback(Ld, 1).poles())) >= 1:
+                continue
+            mag = np.abs(Lf)
+            i = np.flatnonzero((mag[:-1] >= 1) & (mag[1:] < 1))
+            if i.size:
+                best = max(best, float(f[i[0]]))
+    return best
+
+
+@pytest.mark.parametrize(
+    "residue, share",
+    [(0.0, 0.8), (0.3, 0.8), (-0.3, 0.8), (1.0, 0.75)],
+)
+def test_tune_meets_the_bound_and_nears_the_delay_limited_reference(residue, share):
+    from controllers.modal_sf import tune_modal_sf
+    from workbench.loop import analyze_loop
+
+    plant = rigid_and_mode(residue)
+    d = tune_modal_sf(plant, ms_max=2.0, loop_delay_samples=1, fs=FS)
+    res = analyze_loop(plant.to_lti(), d.controller, loop_delay_samples=1)
+    lp = res.loops[0]
+    assert res.stable
+    assert lp.s_peak <= 2.0 * (1 + 1e-6)
+    assert lp.crossover_hz == pytest.approx(d.report.crossover_hz, rel=1e-3)
+    # within 20 % of the rigid-only delay-limited reference; a mode as strong as the rigid
+    # body (residue 1, in phase) needs the active damping and reaches 0.80x there (measured
+    # 170 Hz of 214 Hz): guarded at 0.75x
+    ref = rigid_reference_crossover(FS, 1)
+    assert 150.0 < ref < 260.0  # the reference scan itself found the delay-limited loop
+    assert lp.crossover_hz >= share * ref
+    assert d.report.tried >= d.report.feasible > 0
+
+
+def test_tune_reports_what_it_kept_and_refuses_a_lemma_failure():
+    from controllers.modal_sf import tune_modal_sf
+
+    d = tune_modal_sf(rigid_and_mode(0.0), ms_max=2.0, loop_delay_samples=1, fs=FS)
+    st = d.report.settings
+    assert len(st["rigid_bandwidth_hz"]) == 1 and st["observer_ratio"][0] > 1
+    assert d.report.ms_max == 2.0 and d.controller.delay_samples == 1
+    bad = ModalModel(
+        modes=(
+            Mode("rigid", 0.0, 0.0, b=[1.0], c=[1.0]),
+            Mode("flexible", 1000.0, 0.01, b=[0.0], c=[1.0]),
+        ),
+        D=np.zeros((1, 1)),
+    )
+    with pytest.raises(InputError, match="Lemma 1"):
+        tune_modal_sf(bad, fs=FS, loop_delay_samples=1)
+    with pytest.raises(InputError, match="ms_max"):
+        tune_modal_sf(rigid_and_mode(0.0), ms_max=1.0, fs=FS)
+    with pytest.raises(InputError, match="fs"):
+        tune_modal_sf(rigid_and_mode(0.0))
+
+
+def test_bandwidth_lqg_is_scale_free_across_dofs():
+    """Two rigid DOFs of mass 2 kg and inertia 0.02 kg m^2: the same loop shape each."""
+    from controllers.modal_sf import bandwidth_lqg
+    from workbench.loop import screen_loops
+
+    model = ModalModel(
+        modes=(
+            Mode("rigid", 0.0, 0.0, b=[1 / np.sqrt(2.0), 0.0], c=[1 / np.sqrt(2.0), 0.0]),
+            Mode("rigid", 0.0, 0.0, b=[0.0, 1 / np.sqrt(0.02)], c=[0.0, 1 / np.sqrt(0.02)]),
+        ),
+        D=np.zeros((2, 2)),
+    )
+    dm = design_model(model, FS, loop_delay_samples=1)
+    K, L = bandwidth_lqg(dm, bandwidth_hz=100.0, observer_ratio=10.0)
+    stable, peak, fc = screen_loops(
+        model.to_lti(), observer_controller(dm, K, L), loop_delay_samples=1
+    )
+    assert stable
+    assert peak[0] == pytest.approx(peak[1], rel=1e-3)
+    assert fc[0] == pytest.approx(fc[1], rel=1e-3)
+    assert 80.0 < fc[0] < 200.0

@@ -54,6 +54,7 @@ __all__ = [
     "loop_frf",
     "save_loop_plots",
     "screen_crossover",
+    "screen_loops",
 ]
 
 
@@ -366,16 +367,14 @@ def _loop_figures(name, f, Si, Li, fs, *, count: bool, open_loop_unstable: int) 
     )
 
 
-def screen_crossover(
-    plant, controller, *, loop_delay_samples: int = 0, freq_hz=None, ms_max: float = 2.0
-) -> float:
-    """Lowest per-loop crossover (Hz) of a stable loop meeting ``|S_ii| <= ms_max``, else 0.
+def screen_loops(plant, controller, *, loop_delay_samples: int = 0, freq_hz=None):
+    """(stable, s_peak (n,), crossover_hz (n,)): the fast per-loop score of design scans.
 
-    The fast score design scans use: closed-loop eigenvalues (the model's
-    exact ZOH loop with the loop delay), then ``|S_ii|`` and the crossover of
-    ``L_i = 1/S_ii - 1`` on the lines (the same figures :func:`analyze_loop`
-    reports, without its margins). 0.0 when unstable, over the bound, or
-    when a loop has no crossover on the lines. Models only (not FRF data).
+    ``stable`` from the eigenvalues of the model's exact ZOH closed loop with
+    the loop delay; ``s_peak`` = max ``|S_ii|`` and ``crossover_hz`` the first
+    fall of ``|L_i| = |1/S_ii - 1|`` through 1 on the lines (nan: none) - the
+    figures :func:`analyze_loop` reports, without its margins. Models only.
+    An unstable loop returns inf peaks and nan crossovers (no FRF computed).
     """
     from workbench.core.lti import as_matrices
     from workbench.sim import closed_loop_matrices
@@ -384,18 +383,34 @@ def screen_crossover(
     Ks = _controller_ss(controller)
     fs = 1.0 / float(Ks.dt)
     G = discrete_plant(plant, fs, m)
+    n = G.noutputs
     Acl = closed_loop_matrices(as_matrices(G)[:4], as_matrices(Ks)[:4])[0]
     if Acl.size and np.max(np.abs(np.linalg.eigvals(Acl))) >= 1.0:
-        return 0.0
+        return False, np.full(n, np.inf), np.full(n, np.nan)
     f, L = loop_frf(plant, controller, freq_hz, loop_delay_samples=m)
     S = np.linalg.inv(np.eye(L.shape[1]) + L)
     Sii = np.diagonal(S, axis1=1, axis2=2)
-    if np.max(np.abs(Sii)) > ms_max:
+    peak = np.max(np.abs(Sii), axis=0)
+    fc = np.array(
+        [_first_crossing(f, np.abs(1 / Sii[:, i] - 1), 1.0, rising=False) for i in range(n)]
+    )
+    return True, peak, fc
+
+
+def screen_crossover(
+    plant, controller, *, loop_delay_samples: int = 0, freq_hz=None, ms_max: float = 2.0
+) -> float:
+    """Lowest per-loop crossover (Hz) of a stable loop meeting ``|S_ii| <= ms_max``, else 0.
+
+    :func:`screen_loops` reduced to one number: 0.0 when unstable, over the
+    bound, or when a loop has no crossover on the lines.
+    """
+    stable, peak, fc = screen_loops(
+        plant, controller, loop_delay_samples=loop_delay_samples, freq_hz=freq_hz
+    )
+    if not stable or np.max(peak) > ms_max or not np.all(np.isfinite(fc)):
         return 0.0
-    fc = [
-        _first_crossing(f, np.abs(1 / Sii[:, i] - 1), 1.0, rising=False) for i in range(L.shape[1])
-    ]
-    return float(np.nanmin(fc)) if np.all(np.isfinite(fc)) else 0.0
+    return float(np.min(fc))
 
 
 # ------------------------------------------------------------------ the analysis
