@@ -1,0 +1,162 @@
+"""Benchmark: crossover per DOF at |S_ii| <= 2 (6 dB) on the TRUE wafer stage, and the physics.
+
+Part 1 - the stage. Designs on the stage's nominal modal model (rigid body + the
+913.8 / 1032 Hz modes, no effects; NOT the model identified from the closed-loop
+record: that takes the identify/refine pipeline, left to the scenario), loop delay
+1 sample (the stage's 2e-4 s at 5 kHz):
+
+* baseline ``controllers.pid_notch.tune_pid_notch`` (PID + low-pass + notches);
+* ``controllers.modal_sf.tune_modal_sf`` (modal LQG from per-mode bandwidths);
+
+both analysed with ``workbench.loop.analyze_loop`` on the TRUE stage (its linear
+part with the residual modes and its own delay). The delay-limited reference is the
+best crossover a scanned lead + PI family or the tuned PID + low-pass reaches at
+|S| <= 2 on the rigid body alone with the same delay (``rigid_reference``; per DOF the same
+number: the figure is scale-free, so one double integrator gives it).
+
+Part 2 - the physics: the worst DOF's loop (Ry: torque Ty -> Ry with the rigid body
+and both flexible modes, as a 1-DOF modal model) under changes of the machine: loop
+delay 1, 0.5, 0.25 samples, and the flexible modes at 1x / 0.5x / 0.3x their
+frequency. Designs and analysis on that exact model (the design is told the delay).
+It shows where the baseline becomes mode-limited and what modal-sf reaches there.
+
+Run: ``OMP_NUM_THREADS=1 python benchmarks/bench_bandwidth.py [--quick]`` (~2 min).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+import warnings
+
+import control
+import numpy as np
+
+
+def rigid_reference(fs: float, delay_s: float, ms_max: float = 2.0) -> float:
+    """Best crossover (Hz) at |S| <= ms_max on 1/s^2 with ZOH and delay_s: lead + PI scan.
+
+    The better of two controller families: lead ratio a in 4..30 (zero wc/sqrt(a),
+    pole wc sqrt(a)), PI corner wc/5, gain for |C(j wc)| = 1/|P(j wc)|, Tustin, scored
+    by workbench.loop.screen_loops on the exact ZOH loop with the delay (fractional
+    delays included); and tune_pid_notch's PID + low-pass on the same rigid plant.
+    """
+    from controllers.pid_notch import tune_pid_notch
+    from workbench.core.model import LTIModel
+    from workbench.loop import analyze_loop, screen_loops
+
+    plant = LTIModel.from_statespace(control.ss(control.tf([1.0], [1, 0, 0])), delay_s=delay_s)
+    K, _ = tune_pid_notch(plant, fs, ms_max=ms_max)
+    best = float(analyze_loop(plant, K.controller).loops[0].crossover_hz)
+    for fc in np.logspace(np.log10(fs / 200), np.log10(fs / 6), 60):
+        wc = 2 * np.pi * fc
+        for a in (4.0, 6.0, 9.0, 14.0, 20.0, 30.0):
+            shape = control.tf([1 / (wc / np.sqrt(a)), 1], [1 / (wc * np.sqrt(a)), 1])
+            shape = shape * control.tf([1, wc / 5], [1, 0])
+            K = control.ss(control.c2d(wc**2 / abs(shape(1j * wc)) * shape, 1 / fs, "tustin"))
+            stable, peak, fcs = screen_loops(plant, K)
+            if stable and peak[0] <= ms_max and np.isfinite(fcs[0]):
+                best = max(best, float(fcs[0]))
+    return best
+
+
+def _designs(model, fs, m, truth, m_truth, pid_model=None):
+    """(pid fc per loop, modal-sf fc per loop, peaks, times) on the truth."""
+    from controllers.modal_sf import tune_modal_sf
+    from controllers.pid_notch import tune_pid_notch
+    from workbench.loop import analyze_loop
+
+    t = time.perf_counter()
+    K, _ = tune_pid_notch(model.to_lti() if pid_model is None else pid_model, fs,
+                          ms_max=2.0, loop_delay_samples=m)  # fmt: skip
+    t_pid = time.perf_counter() - t
+    t = time.perf_counter()
+    d = tune_modal_sf(model, ms_max=2.0, loop_delay_samples=m, fs=fs)
+    t_msf = time.perf_counter() - t
+    a_pid = analyze_loop(truth, K.controller, loop_delay_samples=m_truth)
+    a_msf = analyze_loop(truth, d.controller, loop_delay_samples=m_truth)
+    return a_pid, a_msf, d, t_pid, t_msf
+
+
+def part1(quick: bool):
+    import plants
+    from workbench.core.model import LTIModel
+
+    p = plants.get_plant("wafer_stage")
+    fs = p.fs
+    truth = LTIModel.from_statespace(p.linear_model(), delay_s=float(p.delay_s))
+    m = int(round(p.delay_s * fs))
+    nominal = p.nominal_modal_model()
+    a_pid, a_msf, d, t_pid, t_msf = _designs(nominal, fs, m, truth, 0,
+                                             pid_model=p.nominal_model())  # fmt: skip
+    ref = rigid_reference(fs, p.delay_s)
+    print(f"Part 1: wafer stage, fs {fs:g} Hz, delay {p.delay_s * 1e6:.0f} us ({m} sample), "
+          "designs on the nominal model, figures on the TRUE stage")  # fmt: skip
+    print(f"  design time: pid-notch {t_pid:.1f} s, modal-sf {t_msf:.1f} s "
+          f"(modal-sf kept {d.report.settings})")  # fmt: skip
+    print(
+        "  delay-limited reference (rigid body only, same delay, best of lead+PI scan / PID): "
+        f"{ref:.1f} Hz"
+    )
+    print(f"  {'DOF':>4} {'pid fc':>8} {'|S|':>5} {'msf fc':>8} {'|S|':>5} {'msf/pid':>8} "
+          f"{'pid/ref':>8} {'msf/ref':>8}")  # fmt: skip
+    for lp, lm in zip(a_pid.loops, a_msf.loops):
+        print(f"  {lp.name:>4} {lp.crossover_hz:8.1f} {lp.s_peak:5.2f} {lm.crossover_hz:8.1f} "
+              f"{lm.s_peak:5.2f} {lm.crossover_hz / lp.crossover_hz:8.2f} "
+              f"{lp.crossover_hz / ref:8.2f} {lm.crossover_hz / ref:8.2f}")  # fmt: skip
+    print(f"  stable: pid {a_pid.stable}, modal-sf {a_msf.stable}; MIMO max sigma(S): "
+          f"pid {a_pid.sigma_max_S_inf:.2f}, modal-sf {a_msf.sigma_max_S_inf:.2f}")  # fmt: skip
+    return p
+
+
+def _ry_slice(p, freq_scale: float, delay_s: float):
+    """The stage's Ty -> Ry loop as a 1-DOF ModalModel (rigid + both flexible modes)."""
+    from workbench.modal.model import ModalModel, Mode
+
+    full = p.nominal_modal_model()
+    j = list(full.output_names).index("Ry")
+    i = list(full.input_names).index("Ty")
+    modes = []
+    for md in full.modes:
+        if md.kind == "rigid" and abs(md.b[i] * md.c[j]) < 1e-12:
+            continue  # another DOF's rigid body
+        f = md.freq_hz * (freq_scale if md.kind == "flexible" else 1.0)
+        modes.append(Mode(md.kind, f, md.damping, b=[md.b[i]], c=[md.c[j]]))
+    return ModalModel(modes=tuple(modes), D=np.zeros((1, 1)), delay_s=delay_s,
+                      input_names=("Ty",), output_names=("Ry",))  # fmt: skip
+
+
+def part2(p, quick: bool):
+    fs = p.fs
+    delays = (1.0, 0.5) if quick else (1.0, 0.5, 0.25)
+    scales = (1.0, 0.5) if quick else (1.0, 0.5, 0.3)
+    print("\nPart 2: Ry loop (Ty -> Ry, rigid + flexible modes), designs and figures on the "
+          "exact model; delay in samples, modes at scale x (913.8, 1032) Hz")  # fmt: skip
+    print(f"  {'delay':>5} {'modes x':>7} {'ref fc':>7} {'pid fc':>7} {'msf fc':>7} "
+          f"{'msf/pid':>7} {'pid/ref':>7} {'msf/ref':>7}  modal-sf damping")  # fmt: skip
+    refs = {}
+    for dly in delays:
+        refs[dly] = rigid_reference(fs, dly / fs)
+        for sc in scales:
+            model = _ry_slice(p, sc, dly / fs)
+            a_pid, a_msf, d, _, _ = _designs(model, fs, 0, model.to_lti(), 0)
+            fp, fm = a_pid.loops[0].crossover_hz, a_msf.loops[0].crossover_hz
+            r = refs[dly]
+            print(f"  {dly:5.2f} {sc:7.2f} {r:7.1f} {fp:7.1f} {fm:7.1f} {fm / fp:7.2f} "
+                  f"{fp / r:7.2f} {fm / r:7.2f}  {d.report.settings['flexible']:g}"
+                  + ("" if a_pid.stable and a_msf.stable else "  (UNSTABLE)"))  # fmt: skip
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="fewer machine changes in part 2")
+    args = ap.parse_args()
+    warnings.simplefilter("ignore")
+    t = time.perf_counter()
+    p = part1(args.quick)
+    part2(p, args.quick)
+    print(f"\ntotal {time.perf_counter() - t:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
