@@ -689,6 +689,7 @@ def tune_hinf(
     progress=None,
     n_scan: int = 9,
     target_range=(0.002, 0.12),
+    refine: int = 2,
 ) -> HinfDesign:
     """Per-DOF mixed-sensitivity H-inf design for the highest crossover at |S| <= ms_max.
 
@@ -728,6 +729,8 @@ def tune_hinf(
         Targets tried per DOF.
     target_range : (float, float)
         Lowest and highest target, fractions of fs.
+    refine : int
+        Geometric bisections between the first kept target and the rejected one above.
 
     Returns
     -------
@@ -784,27 +787,53 @@ def tune_hinf(
     f = loop._default_grid(fs)
     targets = np.geomspace(lo * fs, hi * fs, int(n_scan))
 
-    def designs(i):
-        """DOF i's kept designs (fc, fb, gamma, K), from the highest target down, lazily."""
-        G = channel_plant(modal, i, fs, m)
-        for fb in targets[::-1]:
-            tried[0] += 1
-            try:
-                Ks, gam, fc, s_peak, stable = _siso_candidate(G, fb, fs, ms_max, f)
-            except InputError as exc:
-                scanned.append({"dof": names[i], "target_hz": float(fb), "error": str(exc)})
-                say(tried[0], n_total)
-                continue
-            good = bool(stable and s_peak <= ms_max and np.isfinite(fc))
-            scanned.append(
-                {"dof": names[i], "target_hz": float(fb), "gamma": gam, "crossover_hz": fc,
-                 "s_peak": s_peak, "stable": stable, "kept": good}
-            )  # fmt: skip
+    def candidate(G, i, fb):
+        """(fc, fb, gamma, K) when the design at target fb is kept, else None; recorded."""
+        tried[0] += 1
+        try:
+            Ks, gam, fc, s_peak, stable = _siso_candidate(G, fb, fs, ms_max, f)
+        except InputError as exc:
+            scanned.append({"dof": names[i], "target_hz": float(fb), "error": str(exc)})
             say(tried[0], n_total)
-            if good:
-                yield fc, fb, gam, Ks
+            return None
+        good = bool(stable and s_peak <= ms_max and np.isfinite(fc))
+        scanned.append(
+            {"dof": names[i], "target_hz": float(fb), "gamma": gam, "crossover_hz": fc,
+             "s_peak": s_peak, "stable": stable, "kept": good}
+        )  # fmt: skip
+        say(tried[0], n_total)
+        return (fc, fb, gam, Ks) if good else None
 
-    tried, scanned, n_total = [0], [], plant.n_u * len(targets)
+    def designs(i):
+        """DOF i's kept designs (fc, fb, gamma, K), from the highest target down, lazily.
+
+        The first kept one is refined by ``refine`` geometric bisections towards the
+        rejected target above it (the grid is coarse, a step of ~1.7 in target), the
+        highest crossover of those kept comes first.
+        """
+        G = channel_plant(modal, i, fs, m)
+        above = None
+        for fb in targets[::-1]:
+            got = candidate(G, i, fb)
+            if got is None:
+                above = fb
+                continue
+            if above is not None:
+                lo, hi, best = fb, above, got
+                for _ in range(int(refine)):
+                    mid = float(np.sqrt(lo * hi))
+                    trial = candidate(G, i, mid)
+                    if trial is None:
+                        hi = mid
+                    else:
+                        lo = mid
+                        best = max(best, trial, key=lambda t: t[0])
+                if best is not got:
+                    yield best
+                above = None
+            yield got
+
+    tried, scanned, n_total = [0], [], plant.n_u * (len(targets) + int(refine))
     gens = [designs(i) for i in range(plant.n_u)]
     chosen = []
     for i, gen in enumerate(gens):
