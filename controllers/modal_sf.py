@@ -509,6 +509,7 @@ def bandwidth_lqg(
     observer_ratio=2.0,
     integral_ratio: float = 0.3,
     flexible: float = 0.0,
+    rigid_damping=0.7071067811865476,  # 1/sqrt 2: the plain LQR (Butterworth) pair
 ) -> tuple[np.ndarray, np.ndarray]:
     """(K, L): LQR + Kalman predictor whose weights follow from per-mode bandwidths.
 
@@ -523,13 +524,16 @@ def bandwidth_lqg(
     w_k``, loop-transfer-recovery-like as the ratio grows). Flexible and real
     modes carry no weight and no process noise: their poles stay where they
     are in both (the model-based "notch"); the delay line is known. LQR by
-    ``control.dlqr``, Kalman by ``control.dlqe``.
+    ``control.dlqr``, Kalman by ``control.dlqe``. ``rigid_damping`` (scalar or per
+    mode, >= 1/sqrt 2) adds the velocity weight ``(4 zeta^2 - 2) w_k^2 / |b_k|^2``: the
+    LQR pair becomes ``s^2 + 2 zeta w_k s + w_k^2`` (more phase lead at crossover).
     """
     import control
 
     modes = dm.modal.modes
     bw = _rigid_bandwidths(dm, bandwidth_hz)
     ro = _per_mode(observer_ratio, len(modes), "observer_ratio")
+    zr = _per_mode(rigid_damping, len(modes), "rigid_damping")
     Q = np.zeros((dm.n, dm.n))
     W = np.zeros((dm.n_p, dm.n_p))
     i0 = dm.n_p + dm.n_d
@@ -553,6 +557,8 @@ def bandwidth_lqg(
         nb = float(np.sum(np.square(md.b))) or 1e-300
         nc = float(np.sum(np.square(md.c))) or 1e-300
         Q[sl.start, sl.start] = w**4 / nb
+        # velocity weight: the LQR pair s^2 + 2 zeta w s + w^2 (zeta >= 1/sqrt 2)
+        Q[sl.start + 1, sl.start + 1] = max(4 * zr[k] ** 2 - 2, 0.0) * w**2 / nb
         if j < dm.n_i:
             Q[i0 + j, i0 + j] = w**4 / nb * (integral_ratio * w) ** 2
         j += 1
@@ -756,11 +762,15 @@ def design_modal_sf(
 # limits a double integrator's crossover near fs/25 at |S| <= 2, so 0.2 %..10 % of fs spans
 # delays from a fraction of a sample to several; observer speed as a ratio to it (a fast
 # Kalman filter recovers the LQR loop, loop-transfer-recovery-like; a slower one rolls the
-# controller off sooner); integral action corner as a ratio to it (0.1 and 0.3 tried on the
-# stage and on 1-DOF rigid + mode plants: 0.3 kept the higher crossover in each)
+# controller off sooner; 10 and 30 gave the same crossovers within 1 %); integral action
+# corner as a ratio to it (0.05..0.5 tried on delayed double integrators: 0.05-0.1 best)
 _TUNE_BW_FRACTIONS = tuple(np.logspace(np.log10(2e-3), np.log10(0.1), 14))
-_TUNE_OBS_RATIO = (10.0, 30.0)
-_TUNE_INTEGRAL_RATIO = 0.3
+_TUNE_OBS_RATIO = 30.0
+_TUNE_INTEGRAL_RATIO = 0.1
+# damping of the rigid-body LQR pair (velocity weight): more damping, more phase lead at
+# crossover; on a delayed double integrator the crossover at |S| <= 2 rises with it
+# (1 sample, fs 5 kHz, best over bandwidth: 0.71 -> 190 Hz, 1.3 -> 222 Hz, 2.5 -> 235 Hz)
+_TUNE_RIGID_DAMPING = (1.0, 2.0, 3.0)
 # active damping of the flexible modes (bandwidth_lqg's `flexible`): none, light, strong
 _TUNE_FLEXIBLE = (0.0, 1e-3, 0.1)
 _TUNE_REFINE = 5  # bisection steps on the kept bandwidth (grid step 1.35x -> ~1 %)
@@ -796,7 +806,7 @@ def _rigid_loops(dm: DesignModel) -> dict[int, int]:
     return {rigid[r]: int(c) for r, c in zip(rows, cols)}
 
 
-def _candidate(dm, bw, ratio, flexible, screen_model, m, f):
+def _candidate(dm, bw, zeta, flexible, screen_model, m, f):
     """(controller, K, L, stable, peak, fc) of one setting; None if a Riccati equation fails."""
     from workbench import loop
 
@@ -804,8 +814,9 @@ def _candidate(dm, bw, ratio, flexible, screen_model, m, f):
         K, L = bandwidth_lqg(
             dm,
             bandwidth_hz=bw,
-            observer_ratio=ratio,
+            observer_ratio=_TUNE_OBS_RATIO,
             integral_ratio=_TUNE_INTEGRAL_RATIO,
+            rigid_damping=zeta,
             flexible=flexible,
         )
     except (InputError, ValueError, np.linalg.LinAlgError):
@@ -823,7 +834,7 @@ def tune_modal_sf(
     Derived from the model, the loop delay and ``ms_max`` only:
 
     1. scan common settings (every rigid mode the same): LQR bandwidth x
-       observer ratio x active damping of the flexible modes; each candidate scored on the model
+       rigid-body damping x active damping of the flexible modes; each candidate scored on the model
        with the loop delay by :func:`workbench.loop.screen_loops` (per loop:
        |S_ii| peak, crossover);
     2. per active damping level, give each rigid mode the setting with the highest
@@ -855,7 +866,7 @@ def tune_modal_sf(
         (fr * fs, r, g)
         for g in _TUNE_FLEXIBLE
         for fr in _TUNE_BW_FRACTIONS
-        for r in _TUNE_OBS_RATIO
+        for r in _TUNE_RIGID_DAMPING
     ]
     results = {}
     for i, key in enumerate(grid):
@@ -901,7 +912,7 @@ def tune_modal_sf(
         pick = dict.fromkeys(owners, 0)
         for _ in range(4 * len(owners)):
             bw = np.full(n_modes, best[2][0] if best[0] > 0 else grid[0][0])
-            ratio = np.full(n_modes, _TUNE_OBS_RATIO[0])
+            ratio = np.full(n_modes, _TUNE_RIGID_DAMPING[0])
             for k in owners:
                 bw[k], ratio[k] = ranked[k][pick[k]][:2]
             res = _candidate(dm, bw, ratio, g, screen_model, m, f)
@@ -928,14 +939,15 @@ def tune_modal_sf(
         raise InputError(
             f"modal-sf: no stable design meets |S| <= {ms_max:g} on the model (rigid-body "
             f"bandwidths {_TUNE_BW_FRACTIONS[0] * fs:.3g}..{_TUNE_BW_FRACTIONS[-1] * fs:.3g} Hz, "
-            f"observer ratios {_TUNE_OBS_RATIO}, active damping {_TUNE_FLEXIBLE})"
+            f"rigid damping {_TUNE_RIGID_DAMPING}, active damping {_TUNE_FLEXIBLE})"
         )
     fc, res, bw, ratio = best
     ctrl, K, L = res[:3]
     rigid = [k for k, md in enumerate(modes) if md.kind == "rigid"]
     settings = {
         "rigid_bandwidth_hz": [float(bw[k]) for k in rigid],
-        "observer_ratio": [float(ratio[k]) for k in rigid],
+        "rigid_damping": [float(ratio[k]) for k in rigid],
+        "observer_ratio": _TUNE_OBS_RATIO,
         "integral_ratio": _TUNE_INTEGRAL_RATIO,
         "flexible": float(best_g),
     }
@@ -945,7 +957,7 @@ def tune_modal_sf(
         ms_max=ms_max,
         scanned={
             "bandwidth_hz": [float(x * fs) for x in _TUNE_BW_FRACTIONS],
-            "observer_ratio": list(_TUNE_OBS_RATIO),
+            "rigid_damping": list(_TUNE_RIGID_DAMPING),
             "flexible": list(_TUNE_FLEXIBLE),
         },
         tried=tried,
