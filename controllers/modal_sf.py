@@ -12,6 +12,13 @@ Data flow::
         --> observer L on x_p only: control.dlqe (Kalman, DARE) or control.place (Luenberger)
         --> ModalSFDesign.controller: a StateSpaceController e = r - y -> u
 
+    tune_modal_sf (what ``workbench design --method modal-sf`` and the scenarios call):
+        bandwidth_lqg - LQR + Kalman weights set per mode from a rigid-body bandwidth,
+        a rigid-body damping, an observer / integral ratio and an active-damping level,
+        scale-free across DOFs (R = I, V = I; weights ~ w^4 / |b_k|^2, w^4 dt^2 / |c_k|^2)
+        --> scanned and scored on the model with the loop delay
+            (workbench.loop.screen_loops: stability, |S_ii|, crossover per loop)
+
 The controller (predictor-form observer, strictly proper, ``D = 0``)::
 
     x_p^+ = Ad x_p + [plant rows of the delay model] + L (y_hat - C xi_p - D_p u),  y_hat = -e
