@@ -131,6 +131,30 @@ def test_coupled_mimo_loop_at_a_time_and_outputs(tmp_path):
             assert fh.read(8) == b"\x89PNG\r\n\x1a\n"
 
 
+def test_a_stable_loop_can_show_a_gain_margin_below_one():
+    """PID on a double integrator: conditionally stable, GM < 1 (negative dB) yet stable.
+
+    What the odd per-loop figures of a stable loop (GM -9.5 dB) can legitimately be: a
+    lower gain margin. The figure equals python-control's, and the loop goes unstable
+    just below that gain and stays stable just above it.
+    """
+    fs, fc, a = 5000.0, 100.0, 9.0
+    wc = 2 * np.pi * fc
+    shape = control.tf([1 / (wc / np.sqrt(a)), 1], [1 / (wc * np.sqrt(a)), 1])
+    shape = shape * control.tf([1, wc / 2], [1, 0])  # PI corner at fc/2: phase < -180 below
+    K = control.ss(control.c2d(M * wc**2 / abs(shape(1j * wc)) * shape, 1 / fs, "tustin"))
+    Ld = control.tf(control.c2d(_plant(), 1 / fs)) * control.tf([1], [1, 0], 1 / fs)
+    gm, pm, _sm, wg, _wp, _ws = control.stability_margins(Ld * control.tf(K), method="poly")
+    res = analyze_loop(_plant(), K, loop_delay_samples=1)
+    lp = res.loops[0]
+    assert res.stable and gm < 1
+    assert lp.gain_margin == pytest.approx(gm, rel=1e-4)
+    assert lp.gain_margin_hz == pytest.approx(wg / (2 * np.pi), rel=1e-3)
+    assert lp.phase_margin_deg == pytest.approx(pm, abs=0.05)
+    assert not analyze_loop(_plant(), K * (0.9 * gm), loop_delay_samples=1).stable
+    assert analyze_loop(_plant(), K * (1.1 * gm), loop_delay_samples=1).stable
+
+
 def test_screen_loops_equals_analyze_loop_and_flags_instability():
     """The scans' fast score: the same |S_ii| peaks and crossovers as analyze_loop."""
     fs = 5000.0
