@@ -51,6 +51,7 @@ __all__ = [
     "beam_prior_model",
     "beam_fe_model",
     "beam_modes",
+    "beam_fe_file",
 ]
 
 
@@ -159,6 +160,40 @@ def beam_fe_model(config: BeamConfig | None = None, *, in_plane: bool = False) -
         flexure_positions_m=cfg.flexure_positions_m,
         lumped_masses=tuple((x, cfg.actuator_mass_kg) for x in cfg.actuator_positions_m),
         in_plane=in_plane,
+    )
+
+
+def beam_fe_file(config: BeamConfig | None = None, *, damping: float = 0.01):
+    """The beam's out-of-plane FE model as a spec-4 :class:`workbench.fe.model.FEModel`.
+
+    ``config`` supplies the parameters written as ``alpha`` (the true machine by
+    default; pass :func:`beam_prior_config` for the nominal/prior file). Inputs
+    F1..F3 at the actuators, outputs s1..s5 at the sensors (tilt not modelled:
+    the file is the out-of-plane model), ``damping`` for every mode.
+    """
+    from workbench.fe.model import fe_from_arrays
+
+    cfg = BeamConfig() if config is None else config
+    fe = beam_fe_model(cfg)
+    B = np.array([fe.point(x) for x in cfg.actuator_positions_m]).T
+    C = np.array([fe.point(x) for x in cfg.sensor_positions_m])
+    names = [f"F{i + 1}" for i in range(B.shape[1])], [f"s{i + 1}" for i in range(C.shape[0])]
+    return fe_from_arrays(
+        {
+            "kind": np.array("fe"),
+            "K0": fe.K0,
+            "M0": fe.M0,
+            "K_i": fe.K_i,
+            "M_i": fe.M_i,
+            "alpha": cfg.alpha,
+            "parameter_names": np.array(beam_fe.PARAMETER_NAMES),
+            "B": B,
+            "C": C,
+            "damping": np.array(float(damping)),
+            "input_names": np.array(names[0]),
+            "output_names": np.array(names[1]),
+        },
+        src="beam FE model",
     )
 
 
