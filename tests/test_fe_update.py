@@ -223,7 +223,8 @@ def test_sparse_eigen_solve_against_dense():
     np.testing.assert_allclose(a.lam, b.lam, rtol=1e-5)  # dense: ~eps lambda_max on the lowest
     np.testing.assert_allclose(np.abs(np.sum(a.Phi * (M @ b.Phi), 0)), 1.0, atol=1e-5)
     # a fine mesh (1602 DOF), where a dense solve loses the lowest modes to round-off
-    # (K's entries ~ lambda_max): the sparse shift-invert converges to the coarse answer within its discretization error
+    # (K's entries ~ lambda_max): the sparse shift-invert converges to the coarse
+    # answer within its discretization error
     fine = beam_fe_file(dataclasses.replace(BeamConfig(), n_elements=800))
     c = solve_modes(*fine.matrices(), 8)
     np.testing.assert_allclose(c.lam, b.lam[:8], rtol=1e-4)  # the coarse mesh's error
