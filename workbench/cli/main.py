@@ -30,6 +30,8 @@ COMMANDS = (
     "design",
     "loop",
     "regress",
+    "update",
+    "predict",
 )
 
 
