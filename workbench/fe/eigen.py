@@ -83,8 +83,9 @@ def solve_modes(
 
     Parameters
     ----------
-    K, M : (n, n) arrays
+    K, M : (n, n) arrays or scipy.sparse matrices
         Symmetric stiffness (positive semi-definite) and mass (positive definite).
+        Sparse input goes straight to the sparse shift-invert solver.
     n_modes : int, optional
         Modes wanted; default all (dense).
     method : {"auto", "dense", "banded"}
@@ -94,6 +95,17 @@ def solve_modes(
     -------
     Modes
     """
+    if scipy.sparse.issparse(K) or scipy.sparse.issparse(M):
+        # already sparse (a large model): shift-invert directly
+        Ks, Ms = scipy.sparse.csc_matrix(K, dtype=float), scipy.sparse.csc_matrix(M, dtype=float)
+        n = Ks.shape[0]
+        k = n - 2 if n_modes is None else int(n_modes)
+        if Ks.shape != (n, n) or Ms.shape != (n, n) or not 1 <= k < n - 1:
+            raise InputError(
+                f"solve_modes: expected square K, M of one size and 1 <= n_modes < n - 1, got "
+                f"{Ks.shape}, {Ms.shape}, {n_modes!r}"
+            )
+        return _shift_invert(Ks, Ms, k)
     K = np.asarray(K, float)
     M = np.asarray(M, float)
     n = K.shape[0]
@@ -116,11 +128,14 @@ def _sparse(K, M, k, b):
     offsets = list(range(-b, b + 1))
     Ms = scipy.sparse.diags([np.diagonal(M, d) for d in offsets], offsets, format="csc")
     Ks = scipy.sparse.diags([np.diagonal(K, d) for d in offsets], offsets, format="csc")
-    # K may be singular (rigid modes): shift just below zero, by a few round-off
-    # units of the largest diagonal ratio, so K - sigma M is factorizable and the
-    # lowest modes are the dominant ones of the inverted problem.
-    dM = np.diag(M)
-    ratio = float(np.max(np.abs(np.diag(K))[dM > 0] / dM[dM > 0])) if np.any(dM > 0) else 1.0
-    lam, Phi = scipy.sparse.linalg.eigsh(Ks, k=k, M=Ms, sigma=-1e-12 * ratio, which="LM")
+    return _shift_invert(Ks, Ms, k)
+
+
+def _shift_invert(Ks, Ms, k):
+    # K may be singular (rigid modes): shift just below zero so K - sigma M is
+    # factorizable; -1 (rad/s)^2 (0.16 Hz) sits below the flexible modes of any
+    # motion system and next to its rigid modes, which keeps them dominant in the
+    # inverted problem (a shift scaled to K's largest entries, ~lambda_max, does not).
+    lam, Phi = scipy.sparse.linalg.eigsh(Ks, k=k, M=Ms, sigma=-1.0, which="LM")
     order = np.argsort(lam)
     return Modes(lam[order], _fix_sign(Phi[:, order]))
