@@ -44,7 +44,15 @@ EXAMPLE = Path("/work/shared/fe_examples/example_beam_update_frf")
 def _update(fe, data: FrfData, band):
     fit = fit_modal(data, band_hz=band)
     R = fit.c[:, :, None] * fit.b[:, None, :]
-    meas = MeasuredModes(fit.freq_hz, fit.damping, R, data.output_names, data.input_names)
+    meas = MeasuredModes(
+        fit.freq_hz,
+        fit.damping,
+        R,
+        data.output_names,
+        data.input_names,
+        freq_std_hz=fit.freq_std_hz,
+        residue_std=fit.c_std[:, :, None] * np.abs(fit.b[:, None, :]),
+    )
     res = update_fe(fe, meas)
     upd = fe_from_arrays(fe_arrays(fe, alpha=res.alpha, damping=res.damping))
     return res, upd

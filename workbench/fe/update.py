@@ -61,6 +61,10 @@ class MeasuredModes:
         Real rank-one residues ``c_k b_k^T``, m/N/s^2 (output per input force).
     output_names, input_names : tuple of str
         Channels of the residues, matched to the FE file by name.
+    freq_std_hz : (n_m,) array or None
+        Standard deviations of the frequencies (from the modal fit), Hz.
+    residue_std : (n_m, n_y, n_u) array or None
+        Standard deviations of the residue elements.
     """
 
     freq_hz: np.ndarray
@@ -68,6 +72,8 @@ class MeasuredModes:
     residues: np.ndarray
     output_names: tuple[str, ...]
     input_names: tuple[str, ...]
+    freq_std_hz: np.ndarray | None = None
+    residue_std: np.ndarray | None = None
 
     def __post_init__(self):
         f = readonly(self.freq_hz, float).reshape(-1)
@@ -83,6 +89,16 @@ class MeasuredModes:
         object.__setattr__(self, "freq_hz", f)
         object.__setattr__(self, "damping", d)
         object.__setattr__(self, "residues", R)
+        for key, shape in (("freq_std_hz", f.shape), ("residue_std", R.shape)):
+            v = getattr(self, key)
+            if v is None:
+                continue
+            v = readonly(v, float)
+            if v.shape != shape or not np.all(np.isfinite(v)) or np.any(v < 0):
+                raise InputError(
+                    f"measured modes: expected {key} of shape {shape}, finite, >= 0, got {v.shape}"
+                )
+            object.__setattr__(self, key, v)
         object.__setattr__(self, "output_names", tuple(self.output_names))
         object.__setattr__(self, "input_names", tuple(self.input_names))
 
@@ -244,9 +260,12 @@ def update_fe(
         Prior standard deviation of ``log(alpha / alpha_nominal)`` (relative
         spread of each parameter): the regularization toward the nominal.
     freq_rel_std : float
-        Relative standard deviation of a measured frequency.
+        Relative standard deviation of a measured frequency (when ``meas``
+        gives none; floor of the given ones: 1e-2 of this).
     residue_rel_std : float
-        Standard deviation of a residue element relative to the mode's RMS element.
+        Standard deviation of a residue element relative to the mode's RMS
+        element (when ``meas`` gives none; floor of the given ones: 1e-2 of this,
+        so a tiny element's std does not dominate).
     mac_min, freq_window : float
         Pairing rule of :func:`pair_modes`.
     max_iter : int
@@ -273,10 +292,18 @@ def update_fe(
             )
         im = np.array([i for i, _ in pairs])
         kf = np.array([k for _, k in pairs])
-        sR = residue_rel_std * np.sqrt(np.mean(meas.residues[im] ** 2, axis=(1, 2)))
+        rms = np.sqrt(np.mean(meas.residues[im] ** 2, axis=(1, 2)))[:, None, None]
+        if meas.residue_std is None:
+            sR = residue_rel_std * rms * np.ones_like(meas.residues[im])
+        else:
+            sR = np.maximum(meas.residue_std[im], 1e-2 * residue_rel_std * rms)
+        if meas.freq_std_hz is None:
+            sf = freq_rel_std * np.ones(im.size)
+        else:
+            sf = np.maximum(meas.freq_std_hz[im] / meas.freq_hz[im], 1e-2 * freq_rel_std)
         r = [
-            (f[kf] / meas.freq_hz[im] - 1.0) / freq_rel_std,
-            ((Rf[kf] - meas.residues[im]) / sR[:, None, None]).ravel(),
+            (f[kf] / meas.freq_hz[im] - 1.0) / sf,
+            ((Rf[kf] - meas.residues[im]) / sR).ravel(),
             x / prior_rel,
         ]
         r = np.concatenate(r)
@@ -286,13 +313,13 @@ def update_fe(
             dlam, dPhi = eigen_sensitivities(fe, sub, alpha)
             # d f / d x_i = alpha_i d f / d alpha_i, f = sqrt(lambda) / 2 pi
             fk = np.maximum(f[kf], 1e-300)
-            Jf = dlam / (8 * np.pi**2 * fk[:, None]) * alpha / meas.freq_hz[im, None] / freq_rel_std
+            Jf = dlam / (8 * np.pi**2 * fk[:, None]) * alpha / meas.freq_hz[im, None] / sf[:, None]
             c = (Bo @ sub.Phi).T  # (m, n_y)
             b = (Bi.T @ sub.Phi).T  # (m, n_u)
             dc = np.einsum("yn,ink->iky", Bo, dPhi)  # (p, m, n_y)
             db = np.einsum("nu,ink->iku", Bi, dPhi)
             dR = dc[:, :, :, None] * b[None, :, None, :] + c[None, :, :, None] * db[:, :, None, :]
-            JR = (dR / sR[None, :, None, None]).reshape(fe.n_par, -1).T * alpha
+            JR = (dR / sR[None]).reshape(fe.n_par, -1).T * alpha
             J = np.vstack([Jf, JR, np.eye(fe.n_par) / prior_rel])
         return r, J, (alpha, f, pairs, unpaired, mac)
 

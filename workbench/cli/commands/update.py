@@ -13,6 +13,8 @@ from __future__ import annotations
 import argparse
 import json
 
+import numpy as np
+
 from workbench.cli.commands import add_report_outputs
 from workbench.core.atomic import check_not_input, save_npz, write_text
 from workbench.core.errors import InputError
@@ -97,7 +99,15 @@ def run(args) -> int:
     )
     # rank-one residues c_k b_k^T: the scale split between c_k and b_k drops out
     residues = fit.c[:, :, None] * fit.b[:, None, :]
-    meas = MeasuredModes(fit.freq_hz, fit.damping, residues, data.output_names, data.input_names)
+    meas = MeasuredModes(
+        fit.freq_hz,
+        fit.damping,
+        residues,
+        data.output_names,
+        data.input_names,
+        freq_std_hz=fit.freq_std_hz,
+        residue_std=fit.c_std[:, :, None] * np.abs(fit.b[:, None, :]),
+    )
     res = update_fe(fe, meas, prior_rel=args.prior_rel)
     arrays = fe_arrays(fe, alpha=res.alpha, damping=res.damping, original=raw)
     fe_from_arrays(arrays, src=str(args.out))
