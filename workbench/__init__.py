@@ -18,6 +18,7 @@ Data flow, and the package that owns each concept::
     sim         the one simulator: ZOH with exact delays, nonlinear ports, closed loop
     ident       subspace identification, validation fit, ML refinement
     modal       ModalModel (the one modal model), minimality
+    fe          FE models (spec 4): eigen-solve, updating, prediction at any sensor, reduction
     validate    compare a model with a measurement
     diagnosis   which physical effect is missing; augment the model with it
     loop        L, S, T, crossovers and margins of a plant with a controller
@@ -71,6 +72,10 @@ _EXPORTS = {
     "point_to_point": "workbench.scan",
     "tracking_figures": "workbench.scan",
     "testing": "workbench.testing",  # the module: wb.testing.assert_stable(...)
+    "read_fe": "workbench.fe.model",
+    "update_fe": "workbench.fe.update",
+    "predict_frf": "workbench.fe.predict",
+    "reduce_fe": "workbench.fe.reduce",
 }
 
 __all__ = ["__version__", *_EXPORTS]
