@@ -56,10 +56,17 @@ def test_update_then_predict_held_out_sensors(files, capsys):
             "--out", str(d / "up.npz"),
             "--json", str(d / "rep.json"),
             "--band", "1", "999",
+            "--plots", str(d / "plots"),
         ]
     )  # fmt: skip
     assert rc == 0
     rep = json.loads((d / "rep.json").read_text())
+    assert (d / "plots" / "update_mac.png").stat().st_size > 0
+    assert (d / "plots" / "update_frequencies.png").stat().st_size > 0
+    up = read_fe(d / "up.npz")
+    # scalar 0.01 in the file: kept for every unpaired mode, measured for the paired
+    assert up.damping.size == up.n_dof and np.all(up.damping[9:] == 0.01)
+    np.testing.assert_allclose(up.damping[:9], [m["damping"] for m in rep["modes"]])
     after = np.array([p["after"] for p in rep["parameters"]])
     err = np.abs(after / truth_cfg.alpha - 1)
     assert np.all(err[:2] < 0.01) and np.all(err[2:] < 0.05), err

@@ -131,6 +131,11 @@ def test_unmatched_measured_mode_left_unpaired(prior):
     assert unpaired == [9] and mac.shape == (10, res.freq_after_hz.size)
 
 
+def test_measured_std_shape_refused():
+    with pytest.raises(InputError, match="freq_std_hz"):
+        MeasuredModes([10.0], [0.01], np.ones((1, 1, 1)), ("s1",), ("F1",), freq_std_hz=[1.0, 2.0])
+
+
 def test_unknown_channel_refused(prior):
     meas = _measured(beam_fe_file(BeamConfig()))
     bad = MeasuredModes(meas.freq_hz, meas.damping, meas.residues, ("s1", "s2", "s9"), INPUTS)

@@ -215,7 +215,8 @@ class UpdateResult:
         MAC after the update.
     damping : (n_d,) array
         Damping of the first ``n_d`` FE modes for the updated file: the measured
-        value of a paired mode, the file's value otherwise.
+        value of a paired mode, the file's value otherwise (a scalar file damping
+        is written out for all n modes; a list is lengthened to the last paired mode).
     cost : float
         Final weighted least-squares cost (half the sum of squared whitened residuals).
     n_iter : int
@@ -355,8 +356,9 @@ def update_fe(
     s2 = max(1.0, 2 * cost / dof)
     cov = np.linalg.pinv(J.T @ J) * s2
     alpha_std = alpha * np.sqrt(np.clip(np.diag(cov), 0, None))
-    n_d = max([k for _, k in pairs] + [fe.damping.size if not fe.damping_scalar else 0]) + 1
-    n_d = max(n_d, max(k for _, k in pairs) + 1)
+    # the file's damping list, lengthened to cover every paired mode (a scalar in
+    # the file held for every mode: it stays with every unpaired one)
+    n_d = max(max(k for _, k in pairs) + 1, fe.n_dof if fe.damping_scalar else fe.damping.size)
     damping = fe.mode_damping(n_d)
     fill = fe.damping[-1]
     damping = np.where(np.isnan(damping), fill, damping)
