@@ -32,6 +32,7 @@ COMMANDS = (
     "regress",
     "update",
     "predict",
+    "modalfit",
 )
 
 
