@@ -643,7 +643,7 @@ def fit_modal(
     n_modes: int | None = None,
     band_hz: tuple[float, float] | None = None,
     max_order: int = 30,
-    rigid: bool = False,
+    rigid: bool | None = None,
     upper: bool = True,
     max_nfev: int = 100,
 ) -> ModalFit:
@@ -662,8 +662,10 @@ def fit_modal(
         Fit only the lines in this band, Hz.
     max_order : int
         Highest p-LSCF order of the stabilization diagram.
-    rigid : bool
-        Add a rigid / lower residual term ``L / s^2`` (modes below the band).
+    rigid : bool, optional
+        Add a rigid / lower residual term ``L / s^2`` (rigid-body modes, modes
+        below the band). Default: only when ``band_hz`` leaves out lines of the
+        data below the band (the modes there act as ``L / s^2`` in it).
     upper : bool
         Add the upper residual ``E / (s^2 + w_up^2)``, ``f_up`` fitted, started at
         ``UPPER_FACTOR`` times the top line: the modes above the band are not
@@ -684,6 +686,8 @@ def fit_modal(
         )
     if n_modes is not None and not (isinstance(n_modes, int | np.integer) and n_modes >= 1):
         raise InputError(f"modes: expected an integer >= 1, got {n_modes!r}")
+    if rigid is None:
+        rigid = band_hz is not None and float(band_hz[0]) > float(data.freq[0])
     data = band_data(data, band_hz)
     diagram = lscf(data, max_order=max_order)
     f0, z0 = select_poles(diagram, n_modes=n_modes)

@@ -40,7 +40,11 @@ def register(subparsers) -> argparse.ArgumentParser:
     sel.add_argument("--modes", type=int, metavar="N", help="number of modes to fit")
     sel.add_argument("--band", type=float, nargs=2, metavar=("F1", "F2"), help="fit band, Hz")
     p.add_argument("--max-order", type=int, default=30, help="highest p-LSCF order")
-    p.add_argument("--rigid", action="store_true", help="add a rigid / lower residual L/s^2")
+    p.add_argument(
+        "--rigid",
+        action="store_true",
+        help="add a rigid / lower residual L/s^2 (default: when --band cuts lower lines)",
+    )
     p.add_argument("--no-upper", action="store_true", help="no upper residual pseudo-mode")
     p.add_argument(
         "--collocated",
@@ -72,7 +76,7 @@ def run(args) -> int:
         n_modes=args.modes,
         band_hz=None if args.band is None else tuple(args.band),
         max_order=args.max_order,
-        rigid=args.rigid,
+        rigid=True if args.rigid else None,
         upper=not args.no_upper,
     )
     model = result.model
