@@ -1,0 +1,272 @@
+"""Diagnose on the third independent generator (tests/indepgen3.py): confusion table.
+
+Run: ``python benchmarks/bench_diagnose_indep3.py [--seed S] [--kinds frf,time]
+[--plants shaft,planar,beam] [--effects a,b] [--n-frf 2] [--save DIR] [--json OUT]``.
+
+Per case: truth, top finding, key parameter check, error_after / noise floor,
+the effect's visibility (its share of the response over the noise floor) and
+the wall time. Then the confusion table (truth x top finding) and the score:
+a case passes when the top finding names the effect, its key parameter is
+within tolerance, and the error after every finding is within 2x the noise
+floor (the spec error of the TRUE system against its own noisy measurement).
+Cases whose effect stays below 2x the noise floor ("invisible") are counted
+apart.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections import Counter, defaultdict
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT))
+
+from indepgen3 import EFFECTS, PLANTS, make_case, make_suite, save_case  # noqa: E402
+
+#: tolerances of the task: delay 10 %, frequencies 1 %, cutoffs 20 %, suspension 10 %;
+#: residual compliance: the static matrix of the truncated modes within 30 % (Frobenius)
+TOL = {
+    "time_delay": 0.10,
+    "missing_mode": 0.01,
+    "modal_mismatch": 0.01,
+    "actuator_dynamics": 0.20,
+    "sensor_dynamics": 0.20,
+    "suspension_stiffness": 0.10,
+    "residual_compliance": 0.30,
+}
+ERROR_FACTOR = 2.0
+INVISIBLE = 2.0
+
+
+def _as_list(v):
+    if v is None:
+        return []
+    if isinstance(v, list | tuple | np.ndarray):
+        return [x for x in np.asarray(v, dtype=object).ravel().tolist() if x is not None]
+    return [v]
+
+
+def _nearest_rel(found, truth) -> float:
+    """Largest over found values of the relative distance to the nearest true value."""
+    f, t = [float(x) for x in _as_list(found)], [float(x) for x in _as_list(truth)]
+    if not f or not t:
+        return float("inf")
+    return max(min(abs(a / b - 1) for b in t) for a in f)
+
+
+def param_error(effect: str, truth: dict, found: dict) -> float | None:
+    """Relative error of the effect's key parameter; None when there is none to check."""
+    if effect == "time_delay":
+        return abs(found.get("delay_s", np.inf) / truth["delay_s"] - 1)
+    if effect == "missing_mode":
+        return _nearest_rel(found.get("freq_hz"), truth["freq_hz"])
+    if effect == "modal_mismatch":
+        scale = (found.get("pattern") or {}).get("freq_scale")
+        if scale is not None:
+            return abs(scale / truth["pattern"]["freq_scale"] - 1)
+        modes = found.get("modes") or [found]
+        return _nearest_rel([m.get("freq_hz") for m in modes], truth["freq_hz"])
+    if effect in ("actuator_dynamics", "sensor_dynamics"):
+        f, t = found.get("cutoff_hz"), truth["cutoff_hz"]
+        f = _as_list(f) if isinstance(f, list) else [f] * len(t)
+        pairs = [(a, b) for a, b in zip(f, t) if a is not None]
+        if len(pairs) < len(t):
+            return float("inf")
+        return max(abs(float(a) / b - 1) for a, b in pairs)
+    if effect == "suspension_stiffness":
+        return _nearest_rel(found.get("freq_hz"), truth["freq_hz"])
+    if effect == "residual_compliance":
+        if "matrix" not in found:
+            return float("inf")
+        R, Rt = np.asarray(found["matrix"], float), np.asarray(truth["matrix"], float)
+        if R.shape != Rt.shape:
+            return float("inf")
+        return float(np.linalg.norm(R - Rt) / np.linalg.norm(Rt))
+    return None
+
+
+def to_measurement(case):
+    """The case's spec dict as the workbench's FrfData / TimeData."""
+    from workbench.io.formats import FrfData, TimeData
+
+    d = dict(case.data)
+    names = {
+        "input_names": tuple(d.pop("input_names")),
+        "output_names": tuple(d.pop("output_names")),
+    }
+    kind = d.pop("kind")
+    if kind == "frf":
+        return FrfData(freq=d["freq"], G=d["G"], G_var=d["G_var"], **names)
+    return TimeData(
+        fs=d["fs"], u=d["u"], y=d["y"], r=d["r"], loop=d["loop"], period=d.get("period"), **names
+    )
+
+
+def score(case, res) -> dict:
+    """The checks of one case against its answer."""
+    a = case.answer
+    top = res.findings[0]
+    right = top.effect == a["effect"]
+    perr = param_error(top.effect, a["parameters"], top.parameters) if right else None
+    p_ok = right and (perr is None or perr <= TOL[top.effect])
+    err_final = min([res.error_before] + [f.error_after for f in res.findings])
+    ratio = err_final / a["noise_floor_error"]
+    visible = a["effect"] == "none" or a["visibility"] >= INVISIBLE
+    return {
+        "case": case.name,
+        "plant": a["plant"],
+        "kind": a["kind"],
+        "truth": a["effect"],
+        "top": top.effect,
+        "findings": [f.effect for f in res.findings],
+        "right": right,
+        "param_err": perr,
+        "param_ok": bool(p_ok),
+        "error_before": res.error_before,
+        "error_after": err_final,
+        "floor": a["noise_floor_error"],
+        "ratio": ratio,
+        "error_ok": bool(ratio <= ERROR_FACTOR),
+        "pass": bool(right and p_ok and ratio <= ERROR_FACTOR),
+        "visibility": a["visibility"],
+        "visible": bool(visible),
+        "at_rest": a.get("at_rest"),
+        "periodic": a.get("periodic"),
+    }
+
+
+def confusion(rows) -> str:
+    truths = [e for e in EFFECTS if any(r["truth"] == e for r in rows)]
+    tops = sorted({r["top"] for r in rows}, key=lambda e: (e not in EFFECTS, e))
+    short = {e: e.replace("_", "")[:8] for e in tops}
+    head = f"{'truth / top':22s}" + "".join(f"{short[e]:>9s}" for e in tops) + "   right  pass"
+    lines = [head]
+    for t in truths:
+        sub = [r for r in rows if r["truth"] == t]
+        c = Counter(r["top"] for r in sub)
+        lines.append(
+            f"{t:22s}"
+            + "".join(f"{c.get(e, 0) or '.':>9}" for e in tops)
+            + f"   {sum(r['right'] for r in sub):2d}/{len(sub):<2d}"
+            + f" {sum(r['pass'] for r in sub):2d}/{len(sub)}"
+        )
+    return "\n".join(lines)
+
+
+def summary(rows) -> str:
+    vis = [r for r in rows if r["visible"]]
+    out = []
+    for label, sub in (("all", rows), ("visible", vis)):
+        if not sub:
+            continue
+        n = len(sub)
+        out.append(
+            f"{label:8s} {n:3d} cases: right effect {sum(r['right'] for r in sub) / n:6.1%}, "
+            f"+ parameters {sum(r['param_ok'] for r in sub) / n:6.1%}, "
+            f"error_after <= {ERROR_FACTOR:g}x floor {sum(r['error_ok'] for r in sub) / n:6.1%}, "
+            f"all three {sum(r['pass'] for r in sub) / n:6.1%}"
+        )
+    by = defaultdict(list)
+    for r in vis:
+        by[(r["kind"], r["plant"])].append(r)
+    for (kind, plant), sub in sorted(by.items()):
+        out.append(
+            f"  {kind:4s} {plant:7s} {len(sub):3d}: right {sum(r['right'] for r in sub):3d}, "
+            f"pass {sum(r['pass'] for r in sub):3d}"
+        )
+    return "\n".join(out)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--kinds", default="frf,time")
+    ap.add_argument("--plants", default=",".join(PLANTS))
+    ap.add_argument("--effects", default=",".join(EFFECTS))
+    ap.add_argument("--n-frf", type=int, default=2, help="FRF cases per plant x effect")
+    ap.add_argument("--save", metavar="DIR", help="write every case (model, measurement, answer)")
+    ap.add_argument("--json", metavar="OUT", help="write the per-case rows as JSON")
+    args = ap.parse_args(argv)
+    from workbench.diagnosis import diagnose
+
+    kinds = tuple(args.kinds.split(","))
+    suite = make_suite(
+        args.seed,
+        kinds=kinds,
+        plants=tuple(args.plants.split(",")),
+        effects=tuple(args.effects.split(",")),
+        n_frf=args.n_frf,
+    )
+    rows = []
+    t_all = time.perf_counter()
+    for k, (plant, effect, kind, rng) in enumerate(suite):
+        case = make_case(effect, plant, kind, rng)
+        if args.save:
+            save_case(case, Path(args.save) / f"{k:03d}-{case.name}")
+        data = to_measurement(case)
+        t0 = time.perf_counter()
+        try:
+            res = diagnose(case.nominal, data)
+        except Exception as exc:  # a crash is a failed case, reported, not the end of the run
+            print(f"{k:3d} {case.name:38s} CRASH {type(exc).__name__}: {exc}", flush=True)
+            rows.append(
+                {
+                    "case": case.name,
+                    "plant": plant,
+                    "kind": kind,
+                    "truth": effect,
+                    "top": "crash",
+                    "findings": [],
+                    "right": False,
+                    "param_err": None,
+                    "param_ok": False,
+                    "ratio": float("inf"),
+                    "error_ok": False,
+                    "pass": False,
+                    "visibility": case.answer["visibility"],
+                    "visible": True,
+                    "seconds": 0.0,
+                }
+            )
+            continue
+        dt = time.perf_counter() - t0
+        r = score(case, res)
+        r["seconds"] = dt
+        r["parameters"] = {
+            k2: v for k2, v in res.findings[0].parameters.items() if k2 not in ("matrix",)
+        }
+        rows.append(r)
+        pe = "-" if r["param_err"] is None else f"{r['param_err']:.3g}"
+        print(
+            f"{k:3d} {case.name:38s} top {r['top']:20s} {'ok ' if r['right'] else 'BAD'} "
+            f"perr {pe:>8s} err/floor {r['ratio']:8.3g} vis {r['visibility']:8.3g} "
+            f"{'PASS' if r['pass'] else 'fail'} {dt:6.2f} s  {'+'.join(r['findings'][1:])}",
+            flush=True,
+        )
+    print()
+    print(confusion(rows))
+    print()
+    print(summary(rows))
+    secs = [r["seconds"] for r in rows]
+    for kind in kinds:
+        s = [r["seconds"] for r in rows if r["kind"] == kind]
+        if s:
+            print(f"diagnose time {kind}: median {np.median(s):.2f} s, max {np.max(s):.2f} s")
+    print(
+        f"total {time.perf_counter() - t_all:.0f} s for {len(rows)} cases "
+        f"({sum(secs):.0f} s in diagnose)"
+    )
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1, default=float) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
