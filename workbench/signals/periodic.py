@@ -154,6 +154,17 @@ def _mean_period(p: np.ndarray) -> tuple[np.ndarray, bool]:
     return p.mean(axis=0), False
 
 
+def _rfft_periods(d: np.ndarray, out: np.ndarray, workers: int | None) -> np.ndarray:
+    """rfft of periods (n, P, ch) along axis 1, into ``out`` (n, P // 2 + 1, ch) when it can.
+
+    numpy's rfft (pocketfft, like scipy's) writes into a given buffer; scipy's
+    has the ``workers`` but always allocates its output.
+    """
+    if (scipy.fft.get_workers() if workers is None else workers) == 1:
+        return np.fft.rfft(d, axis=1, out=out)
+    return scipy.fft.rfft(d, axis=1, workers=workers)
+
+
 def _view(x: np.ndarray) -> np.ndarray:
     v = np.asarray(x).view()
     v.setflags(write=False)
@@ -317,11 +328,41 @@ class PeriodicRecord:
             ``sum_p |D_p|^2 / (n_kept (n_kept - 1))`` in the DFT's units squared
             (m^2 for ``y``); NaN for a block of one kept period.
         """
-        n_ch = self._signal(x)[0].shape[1]
-        out = np.full((self.n_blocks, self.n_bins, n_ch), np.nan)
-        for b, n in enumerate(self.n_kept.tolist()):
-            if n >= 2:
-                out[b] = self.spread_power(x, b, workers=workers) / (n * (n - 1))
+        out = self.spread_powers(x, workers=workers)
+        n = self.n_kept.astype(float)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out /= (n * (n - 1))[:, None, None]
+        out[self.n_kept < 2] = np.nan
+        return out
+
+    def spread_powers(self, x, *, workers: int | None = None) -> np.ndarray:
+        """(n_b, n_bins, n): :meth:`spread_power` of every block, in one pass.
+
+        The FRF's hot path: one deviation buffer and one spectrum buffer serve all
+        blocks, since fresh multi-megabyte temporaries cost their page faults on
+        every call (on the benchmark's record, 6 blocks x 11 periods x 6 channels,
+        8.1 -> 6.9 ms CPU in one A/B run on a loaded 2-core machine, beside
+        5.9 ms for the bare FFTs). The values are those of :meth:`spread_power`.
+        """
+        name = x if isinstance(x, str) else None
+        x, means = self._signal(x)
+        P, n_ch = self.period, x.shape[1]
+        per = x.reshape(-1, P, n_ch)
+        out = np.zeros((self.n_blocks, self.n_bins, n_ch))
+        n_max = int(self.n_kept.max())
+        dev = np.empty((n_max, P, n_ch))
+        spec = np.empty((n_max, self.n_bins, n_ch), complex)
+        for b, (a, m) in enumerate(zip(self.first.tolist(), self.n_kept.tolist())):
+            if m < 2 or (name is not None and self.repeats[name][b]):
+                continue  # one period, or identical periods: no spread
+            p = per[a : a + m]
+            mean = _mean_period(p)[0] if means is None else means[b]
+            d = np.subtract(p, mean, out=dev[:m])
+            D = _rfft_periods(d, spec[:m], workers)
+            # re/im interleaved and flattened: a plain dot per element, no |.|^2 temporary
+            v = D.view(np.float64).reshape(m, -1)
+            sq = np.einsum("pi,pi->i", v, v)
+            out[b] = (sq[0::2] + sq[1::2]).reshape(self.n_bins, n_ch)
         return out
 
     def spread_power(self, x, block: int, *, workers: int | None = None) -> np.ndarray:
