@@ -280,7 +280,7 @@ def stage_model(st: RunState, table: dict) -> None:
 # ---------------------------------------------------------------- plotting
 def _plot_frf_grid(path: Path, frf, *, mark_hz=(), title: str = "", G_model=None) -> None:
     """Magnitude of every element on one page, modes marked by vertical lines."""
-    from workbench.plotting import lean_axes, new_figure, save_png
+    from workbench.plotting import draw_noise_level, lean_axes, new_figure, save_png
 
     n_y, n_u = frf.n_y, frf.n_u
     fig = new_figure(2.2 * n_u + 1, 1.8 * n_y + 1)
@@ -291,13 +291,17 @@ def _plot_frf_grid(path: Path, frf, *, mark_hz=(), title: str = "", G_model=None
             ax.loglog(frf.freq, np.abs(frf.G[:, i, j]), "k", lw=0.6)
             if G_model is not None:
                 ax.loglog(frf.freq, np.abs(G_model[:, i, j]), "r", lw=0.6)
+            if frf.G_var is not None:  # the noise level: lines at it are noise, not misfit
+                draw_noise_level(ax, frf.freq, frf.G_var[:, i, j])
             for f in mark_hz:
                 ax.axvline(f, color="tab:blue", lw=0.6, ls="--")
             ax.set_title(f"{frf.output_names[i]} / {frf.input_names[j]}", fontsize=7)
             ax.tick_params(labelsize=6)
             lean_axes(ax)
     fig.suptitle(
-        title + (f" (dashed: {', '.join(f'{f:g} Hz' for f in mark_hz)})" if mark_hz else ""),
+        title
+        + (f" (dashed: {', '.join(f'{f:g} Hz' for f in mark_hz)})" if mark_hz else "")
+        + ("; dotted grey: noise level sqrt(G_var)" if frf.G_var is not None else ""),
         fontsize=9,
     )
     fig.subplots_adjust(left=0.06, right=0.98, bottom=0.05, top=0.92, hspace=0.5, wspace=0.35)

@@ -15,6 +15,7 @@ import numpy as np
 from workbench.core.atomic import check_not_input, save_npz
 from workbench.core.errors import InputError
 from workbench.io.formats import FrfData, load_measurement
+from workbench.signals.quality import check_measurement
 
 
 def register(subparsers) -> argparse.ArgumentParser:
@@ -43,6 +44,7 @@ def run(args) -> int:
     data = load_measurement(args.data)
     if not isinstance(data, FrfData):
         raise InputError(f"{args.data}: key 'kind': expected an FRF ('frf', spec 1b), got 'time'")
+    check_measurement(data, src=str(args.data))
     outputs = (
         fe.output_names
         if args.outputs is None

@@ -16,9 +16,10 @@ import json
 import numpy as np
 
 from workbench.cli.commands import add_report_outputs
-from workbench.core.atomic import check_not_input, save_npz, write_text
+from workbench.core.atomic import check_not_input, check_output, save_npz, write_text
 from workbench.core.errors import InputError
 from workbench.io.formats import FrfData, load_measurement, read_npz
+from workbench.signals.quality import check_measurement
 
 
 def register(subparsers) -> argparse.ArgumentParser:
@@ -87,11 +88,16 @@ def run(args) -> int:
     from workbench.modal.fit import fit_modal
 
     check_not_input(args.out, [args.fe, args.data])
+    if args.json:
+        check_output(args.json, [args.fe, args.data], what="--json")
+    if args.plots:
+        check_output(args.plots, [args.fe, args.data], folder=True, what="--plots")
     raw = read_npz(args.fe)
     fe = fe_from_arrays(raw, src=str(args.fe))
     data = load_measurement(args.data)
     if not isinstance(data, FrfData):
         raise InputError(f"{args.data}: key 'kind': expected an FRF ('frf', spec 1b), got 'time'")
+    check_measurement(data, src=str(args.data))
     fe.output_index(data.output_names, str(args.data))  # refuse unknown names before fitting
     fe.input_index(data.input_names, str(args.data))
     fit = fit_modal(
