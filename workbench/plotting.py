@@ -21,6 +21,7 @@ __all__ = [
     "new_figure",
     "save_png",
     "save_bode_overlay",
+    "draw_noise_level",
     "save_error_map",
     "save_time_overlay",
     "save_residual_spectra",
@@ -66,7 +67,7 @@ def save_bode_overlay(
     input_names,
     output_names,
 ) -> None:
-    """Magnitude and phase per element, measured vs model, with a +-2 sigma band.
+    """Magnitude and phase per element, measured vs model, with the noise level.
 
     Parameters
     ----------
@@ -74,7 +75,10 @@ def save_bode_overlay(
     G_meas, G_model : (n_f, n_y, n_u) complex arrays
     G_var : (n_f, n_y, n_u) array or None
         Variance of G_meas; sigma = sqrt(G_var). The magnitude band is
-        |G| +- 2 sigma, the phase band +- arcsin(min(1, 2 sigma / |G|)).
+        |G| +- 2 sigma, the phase band +- arcsin(min(1, 2 sigma / |G|)); the
+        noise level sigma itself is drawn (dotted) beside the misfit
+        |G_meas - G_model| (thin blue): where the measured curve sits at the
+        noise level it is noise, and a misfit at the noise level is no misfit.
     """
     n_f, n_y, n_u = G_meas.shape
     fig = new_figure(2.6 * n_u + 1, 2.6 * n_y + 1)
@@ -93,6 +97,8 @@ def save_bode_overlay(
                 ap.fill_between(freq_hz, ph - dph, ph + dph, color="0.8", lw=0)
             am.loglog(freq_hz, mag, "k", lw=0.8, label="measured")
             am.loglog(freq_hz, np.abs(gm), "r", lw=0.8, label="model")
+            if G_var is not None:
+                draw_noise_level(am, freq_hz, G_var[:, i, j], misfit=np.abs(g - gm))
             ap.semilogx(freq_hz, np.degrees(np.angle(g)), "k", lw=0.8)
             ap.semilogx(freq_hz, np.degrees(np.angle(gm)), "r", lw=0.8)
             ap.set_ylim(-185, 185)
@@ -110,6 +116,27 @@ def save_bode_overlay(
     # tight_layout costs seconds on a 12 x 6 grid; fixed margins do
     fig.subplots_adjust(left=0.07, right=0.98, bottom=0.05, top=0.96, hspace=0.45, wspace=0.35)
     save_png(fig, path)
+
+
+def draw_noise_level(ax, freq_hz, g_var, *, misfit=None) -> None:
+    """The noise level sqrt(G_var) (dotted grey) and, optionally, the misfit (thin blue).
+
+    Shared by every FRF figure that shows measured data, so noise is drawn the
+    same way everywhere and not read as misfit.
+    """
+    sigma = np.sqrt(np.maximum(np.asarray(g_var, float), 0.0))
+    ax.loglog(
+        freq_hz, np.where(sigma > 0, sigma, np.nan), ":", color="0.45", lw=0.8, label="noise σ"
+    )
+    if misfit is not None:
+        ax.loglog(
+            freq_hz,
+            np.where(misfit > 0, misfit, np.nan),
+            color="tab:blue",
+            lw=0.5,
+            alpha=0.7,
+            label="|meas - model|",
+        )
 
 
 def save_error_map(
@@ -152,7 +179,13 @@ def save_error_map(
 
 
 def save_time_overlay(
-    path: str | os.PathLike, t: np.ndarray, y: np.ndarray, y_model: np.ndarray, *, output_names
+    path: str | os.PathLike,
+    t: np.ndarray,
+    y: np.ndarray,
+    y_model: np.ndarray,
+    *,
+    output_names,
+    model_label: str = "model",
 ) -> None:
     """Measured vs simulated output and the residual per output. t (N,) s, y (N, n_y) m."""
     n_y = y.shape[1]
@@ -160,7 +193,7 @@ def save_time_overlay(
     axes = fig.subplots(n_y, 2, squeeze=False, sharex=True)
     for i in range(n_y):
         axes[i, 0].plot(t, y[:, i], "k", lw=0.6, label="measured")
-        axes[i, 0].plot(t, y_model[:, i], "r", lw=0.6, label="model")
+        axes[i, 0].plot(t, y_model[:, i], "r", lw=0.6, label=model_label)
         axes[i, 1].plot(t, y[:, i] - y_model[:, i], "b", lw=0.6)
         axes[i, 0].set_ylabel(output_names[i], fontsize=8)
         for ax in axes[i]:

@@ -2,7 +2,8 @@
 
 Outputs go to a temporary file in the destination folder and are renamed over
 the destination only once complete, so a killed run leaves no partial output.
-Writing over a file that is an input of the same run is refused.
+Writing over a file that is an input of the same run, or to a path that cannot
+be written, is refused before the work (:func:`check_output`).
 """
 
 from __future__ import annotations
@@ -16,14 +17,82 @@ from pathlib import Path
 from workbench.core.errors import InputError
 
 
-def check_not_input(out: str | os.PathLike, inputs: Iterable[str | os.PathLike]) -> None:
-    """Refuse an output path that names one of the run's input files."""
-    out_path = Path(out).resolve()
+def check_output(
+    out: str | os.PathLike,
+    inputs: Iterable[str | os.PathLike | None] = (),
+    *,
+    folder: bool = False,
+    what: str = "output",
+) -> None:
+    """Refuse, before any work, an output path that cannot be written.
+
+    Every command that writes calls this for each output before it reads its
+    inputs or computes anything, so that a long run never ends in an error
+    about its output. Refused (:class:`InputError`, one line):
+
+    - a path that names one of the run's input files;
+    - a file output that is an existing folder, or a folder output that is an
+      existing file;
+    - a parent that is a file (``results.npz/plot.png``), or a folder that does
+      not exist and cannot be made (its nearest existing ancestor is a file or
+      not writable);
+    - an existing file or folder that is not writable.
+
+    Parameters
+    ----------
+    out : path
+        The output file (or folder, with ``folder=True``).
+    inputs : iterable of paths
+        The run's input files (None entries skipped).
+    folder : bool
+        ``out`` is a folder the command writes files into (``--plots DIR``).
+    what : str
+        The option's name for the message (e.g. ``--json``).
+    """
+    out_path = Path(out)
+    resolved = out_path.resolve()
     for item in inputs:
         if item is None:
             continue
-        if Path(item).resolve() == out_path:
+        if Path(item).resolve() == resolved:
             raise InputError(f"{out}: refusing to write the output over an input file")
+    label = f"{what} {out}" if what != "output" else str(out)
+    if resolved.exists():
+        if folder and not resolved.is_dir():
+            raise InputError(f"{label}: expected a folder to write into, got an existing file")
+        if not folder and resolved.is_dir():
+            raise InputError(f"{label}: expected a file to write, got an existing folder")
+        if not folder and not os.access(resolved, os.W_OK):
+            raise InputError(f"{label}: no permission to write it")
+        _probe(resolved if folder else resolved.parent, label)
+        return
+    # the nearest existing ancestor decides whether the missing folders can be made
+    parent = resolved.parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise InputError(
+            f"{label}: cannot be written, {parent} is a file, not a folder"
+            + ("" if parent == resolved.parent else " (the folders under it cannot be made)")
+        )
+    _probe(parent, label)
+
+
+def _probe(folder: Path, label: str) -> None:
+    """Create and remove a file in ``folder``: os.access says yes to root on a read-only mount."""
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".workbench-probe.", dir=folder)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise InputError(
+            f"{label}: cannot be written in {folder} ({exc.strerror or type(exc).__name__})"
+        ) from None
+
+
+def check_not_input(out: str | os.PathLike, inputs: Iterable[str | os.PathLike | None]) -> None:
+    """Refuse an output path that names an input or cannot be written (:func:`check_output`)."""
+    check_output(out, inputs)
 
 
 @contextlib.contextmanager

@@ -18,11 +18,21 @@ Checks, time data:
 - a gap in the excitation: lines inside the excited band of ``r`` (or ``u``)
   with far less power than their neighbours, or missing from the line grid.
 
+With ``method`` (the estimator the caller will run on the record): an
+open-loop method (one not named ``cl-*``) on closed-loop data.
+
 Checks, FRF data:
 
 - lines where the noise variance exceeds ``|G|^2`` (SNR below 0 dB), per
   element, with the band;
 - a gap in ``freq`` much larger than the local line spacing.
+
+Models (:func:`check_model`): unstable poles other than rigid-body poles at 0.
+
+Every command that reads a measurement calls :func:`check_measurement` (the
+CLI through :func:`workbench.cli.commands.load_checked`), so the warnings read
+the same in ``info``, ``compare``, ``diagnose``, ``identify``, ``frf``,
+``modalfit``, ``update``, ``predict`` and ``augment``.
 """
 
 from __future__ import annotations
@@ -35,7 +45,7 @@ from workbench.core.errors import DataWarning
 from workbench.io.formats import FrfData, TimeData
 from workbench.signals.periodic import EXCITED_REL_POWER
 
-__all__ = ["check_measurement", "runs"]
+__all__ = ["check_measurement", "check_model", "unstable_poles", "runs"]
 
 # Thresholds, with the reasoning behind each (see the check functions).
 _DEPENDENT_TOL = 1e-6  # relative singular value below which channels are linearly dependent
@@ -322,8 +332,25 @@ def _noise_dominated(data: FrfData) -> list[str]:
     ]
 
 
+def _open_loop_method(data: TimeData, method: str | None) -> list[str]:
+    if method is None or method.startswith("cl-") or data.loop != "closed":
+        return []
+    how = "with" if data.r is not None else "without"
+    return [
+        f"open-loop method {method!r} on closed-loop data ({how} 'r'): the noise is correlated "
+        "with 'u', so the estimate is biased"
+        + (
+            "; use a closed-loop method (cl-moesp) on the recorded 'r'"
+            if data.r is not None
+            else "; record the excitation 'r' and use a closed-loop method (cl-moesp)"
+        )
+    ]
+
+
 # -------------------------------------------------------------------- public
-def check_measurement(data: TimeData | FrfData, *, src: str = "measurement") -> list[str]:
+def check_measurement(
+    data: TimeData | FrfData, *, src: str = "measurement", method: str | None = None
+) -> list[str]:
     """Check a measurement for poor data; warn and return the messages.
 
     Parameters
@@ -332,6 +359,9 @@ def check_measurement(data: TimeData | FrfData, *, src: str = "measurement") -> 
         A validated measurement (``workbench.io.formats``).
     src : str
         Name of the source (file) for the messages.
+    method : str, optional
+        The estimator the caller runs on a time record (``workbench identify``'s
+        ``--method``): an open-loop one on closed-loop data is warned about.
 
     Returns
     -------
@@ -345,6 +375,7 @@ def check_measurement(data: TimeData | FrfData, *, src: str = "measurement") -> 
             _constant_inputs(data)
             + _dependent_excitation(data)
             + _closed_without_r(data)
+            + _open_loop_method(data, method)
             + _clipped(data.y, data.output_names, "sensor")
             + _excitation_gaps(data)
         )
@@ -353,6 +384,61 @@ def check_measurement(data: TimeData | FrfData, *, src: str = "measurement") -> 
     else:
         raise TypeError(f"data: expected TimeData or FrfData, got {type(data).__name__}")
     msgs = [f"{src}: {m}" for m in msgs]
+    for m in msgs:
+        warnings.warn(m, DataWarning, stacklevel=2)
+    return msgs
+
+
+#: poles with |s| / 2 pi below this count as rigid-body poles at 0 (Hz)
+RIGID_POLE_HZ = 0.01
+
+
+def unstable_poles(model, *, rigid_hz: float = RIGID_POLE_HZ) -> np.ndarray:
+    """Continuous-time poles (rad/s) in the open right half plane, rigid-body poles at 0 excepted.
+
+    A discrete model's poles are mapped by ``s = fs log z``; the input delay
+    does not matter. A pole counts as unstable when its real part exceeds
+    ``1e-9 |s|`` (round-off of a marginally stable pair) and it is not within
+    ``rigid_hz`` of 0 (a rigid-body double integrator identified with a
+    slightly unstable pole pair is still a rigid body).
+    """
+    from workbench.core.model import as_model
+
+    m = as_model(model)
+    A = np.asarray(m.A, float)
+    if A.size == 0:
+        return np.zeros(0, complex)
+    p = np.linalg.eigvals(A).astype(complex)
+    if m.dt:
+        p = np.log(np.where(p == 0, 1e-300, p)) / m.dt
+    w = np.abs(p)
+    bad = (p.real > 1e-9 * np.maximum(w, 1.0)) & (w > 2 * np.pi * rigid_hz)
+    out = p[bad]
+    return out[np.argsort(np.abs(out))]
+
+
+def check_model(model, *, src: str = "model") -> list[str]:
+    """Warn (one line) when ``model`` has unstable poles other than rigid-body poles at 0.
+
+    Returns the messages (zero or one), each also emitted as a
+    :class:`~workbench.core.errors.DataWarning` with ``stacklevel=2``.
+    """
+    p = unstable_poles(model)
+    if p.size == 0:
+        return []
+    p = p[p.imag >= 0]  # one of each conjugate pair
+    parts = []
+    for s_k in p[:6]:
+        f = abs(s_k) / (2 * np.pi)
+        kind = "pair" if abs(s_k.imag) > 0 else "real"
+        parts.append(f"{f:.4g} Hz ({kind}, growth {s_k.real:.3g} 1/s)")
+    if p.size > 6:
+        parts.append(f"and {p.size - 6} more")
+    n = int(unstable_poles(model).size)
+    msgs = [
+        f"{src}: model has {n} unstable pole(s) other than rigid-body poles at 0: "
+        f"{', '.join(parts)}; its simulation grows without bound"
+    ]
     for m in msgs:
         warnings.warn(m, DataWarning, stacklevel=2)
     return msgs

@@ -99,8 +99,16 @@ class TimeDetail:
     y, y_model, y_pred : (N, n_y) arrays
         Measured output, the model's ZOH simulation from rest, and its
         one-step-ahead Kalman prediction (m).
+    y_model_x0 : (N, n_y) array or None
+        The ZOH simulation from the initial state estimated by least squares
+        (None when it could not be estimated; see ``x0_note``).
     sim_error, pred_error : (n_y,) arrays
-        ||y_i - yhat_i|| / ||y_i|| per output, simulation and prediction.
+        ||y_i - yhat_i|| / ||y_i|| per output, simulation from rest and prediction.
+    sim_error_x0 : (n_y,) array or None
+        The same for the simulation from the estimated initial state.
+    residual_from : {"estimated start", "rest"}
+        Which simulation the residual spectra, cross-correlation and bands use:
+        the estimated start when it is available.
     psd_freq_hz : (n_w,) array
     psd_residual, psd_output : (n_w, n_y) arrays
         Welch PSDs of the simulation residual and of y (m^2/Hz).
@@ -137,11 +145,17 @@ class TimeDetail:
     xcorr_exceeds: np.ndarray
     xcorr_outside: float
     xcorr_against: str
+    y_model_x0: np.ndarray | None = None
+    sim_error_x0: np.ndarray | None = None
+    residual_from: str = "rest"
+    x0_note: str = ""
 
     def __post_init__(self):
         for name in (
             "y",
             "y_model",
+            "y_model_x0",
+            "sim_error_x0",
             "y_pred",
             "sim_error",
             "pred_error",
@@ -163,7 +177,11 @@ class Comparison:
     ----------
     kind : {"frf", "time"}
     error : float
-        The spec's relative error (shared/spec/data-format.md, section 3).
+        The spec's relative error (shared/spec/data-format.md, section 3); for
+        time data the simulation from rest.
+    error_estimated_start : float or None
+        Time data: the same measure with the initial state estimated by least
+        squares (None for FRF data or when it could not be estimated).
     error_per_channel : array
         FRF: (n_y, n_u), mean over lines of |G_meas,ij - G_model,ij| /
         ||G_meas||_F (the element's share of the spec measure). Time: (n_y,),
@@ -202,6 +220,7 @@ class Comparison:
     input_names: tuple[str, ...]
     output_names: tuple[str, ...]
     notes: tuple[str, ...] = ()
+    error_estimated_start: float | None = None
     frf: FrfDetail | None = field(default=None, repr=False)
     time: TimeDetail | None = field(default=None, repr=False)
 
@@ -224,6 +243,7 @@ class Comparison:
                 if self.kind == "frf"
                 else "||Y - Y_model||_F / ||Y||_F, ZOH simulation from rest"
             ),
+            "error_estimated_start": self.error_estimated_start,
             "delay_s": self.delay_s,
             "input_names": list(self.input_names),
             "output_names": list(self.output_names),
@@ -240,7 +260,12 @@ class Comparison:
         }
         if self.time is not None:
             t = self.time
+            out["error_from_rest"] = self.error
             out["simulation_error_per_output"] = t.sim_error.tolist()
+            out["simulation_error_estimated_start_per_output"] = (
+                None if t.sim_error_x0 is None else t.sim_error_x0.tolist()
+            )
+            out["residual_from"] = t.residual_from
             out["prediction_error_per_output"] = t.pred_error.tolist()
             out["xcorr_against"] = t.xcorr_against
             out["xcorr_bound"] = t.xcorr_bound
@@ -539,19 +564,65 @@ def _fit_note(model, data: TimeData, delay_s: float) -> str:
     return "identification " + f.describe(list(data.output_names))
 
 
+def _estimated_start(model, data: TimeData, y_rest: np.ndarray):
+    """The simulation from the initial state estimated by least squares, or (None, why).
+
+    The free response ``C Ad^k x0`` does not depend on the input or its delay,
+    so ``x0`` is the least-squares fit of the model's free response to the
+    from-rest residual ``y - y_rest``: :func:`workbench.ident.validate.estimate_x0`
+    (the one implementation) on the model with its input removed. The few
+    inputs applied before the record that a delay still holds are not
+    estimated (they act like a short extra transient).
+    """
+    import control
+
+    from workbench.ident.validate import DivergentModel, estimate_x0, simulate
+
+    A, _, C, _, dt = lti.as_matrices(model)
+    n, n_y = A.shape[0], C.shape[0]
+    if n == 0:
+        return None, "the model has no state: nothing to estimate"
+    Ad = A if dt > 0 else scipy.linalg.expm(A / data.fs)
+    free = control.ss(Ad, np.zeros((n, 1)), C, np.zeros((n_y, 1)), 1.0 / data.fs)
+    zero = np.zeros((data.n_samples, 1))
+    try:
+        x0 = estimate_x0(free, zero, data.y - y_rest)
+        with np.errstate(over="ignore", invalid="ignore"):
+            y_free = simulate(free, zero, x0)
+    except (DivergentModel, np.linalg.LinAlgError, ValueError) as exc:
+        return None, f"initial state not estimated ({' '.join(str(exc).split())})"
+    if not np.all(np.isfinite(y_free)):
+        return None, "initial state not estimated (the free response overflows)"
+    return y_rest + y_free, ""
+
+
 def _compare_time(model, data: TimeData, *, delay_s, window, false_alarm, gap, max_lag, noise):
     notes = [
-        "simulation from rest (zero initial state) with the recorded u, as the spec measure",
+        "error (spec measure): simulation from rest (zero initial state) with the recorded u",
         "residual/excitation cross-correlation bounds 2.58/sqrt(N) assume a white residual or "
         "a white excitation; with a periodic excitation and coloured noise they are optimistic",
     ]
     y = data.y
     ym = sim.simulate_zoh(model, data.u, data.fs, delay_s=delay_s)
     err = lti.relative_error_time(y, ym)
+    ym_x0, x0_note = _estimated_start(model, data, ym)
     notes.append(_fit_note(model, data, delay_s))
-    resid = y - ym
     ny = np.linalg.norm(y, axis=0)
-    sim_err = np.linalg.norm(resid, axis=0) / np.where(ny > 0, ny, np.inf)
+    sim_err = np.linalg.norm(y - ym, axis=0) / np.where(ny > 0, ny, np.inf)
+    if ym_x0 is not None:
+        err_x0 = lti.relative_error_time(y, ym_x0)
+        sim_err_x0 = np.linalg.norm(y - ym_x0, axis=0) / np.where(ny > 0, ny, np.inf)
+        resid, residual_from = y - ym_x0, "estimated start"
+        notes.append(
+            "error with estimated start: initial state by least squares "
+            "(workbench.ident.validate.estimate_x0); the residual spectra, cross-correlation "
+            "and failing bands use this simulation, so a record that does not start at rest "
+            "is not read as model error"
+        )
+    else:
+        err_x0 = sim_err_x0 = None
+        resid, residual_from = y - ym, "rest"
+        notes.append(f"{x0_note}: residual spectra and bands from the simulation from rest")
     try:
         yp = kalman_predict(model, data.u, y, data.fs, delay_s=delay_s, noise=noise)
         notes.append(
@@ -620,10 +691,15 @@ def _compare_time(model, data: TimeData, *, delay_s, window, false_alarm, gap, m
         input_names=data.input_names,
         output_names=data.output_names,
         notes=tuple(notes),
+        error_estimated_start=err_x0,
         time=TimeDetail(
             fs=data.fs,
             y=y,
             y_model=ym,
+            y_model_x0=ym_x0,
+            sim_error_x0=sim_err_x0,
+            residual_from=residual_from,
+            x0_note=x0_note,
             y_pred=yp,
             sim_error=sim_err,
             pred_error=pred_err,

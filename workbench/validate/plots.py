@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from workbench.core.atomic import check_not_input
+from workbench.core.atomic import check_not_input, check_output
 from workbench.validate.compare import Comparison
 
 __all__ = ["write_plots"]
@@ -20,6 +20,7 @@ def write_plots(res: Comparison, folder: Path, inputs) -> list[Path]:
     """The figures of a comparison, into ``folder``; returns the paths written."""
     from workbench import plotting
 
+    check_output(folder, inputs, folder=True)
     folder.mkdir(parents=True, exist_ok=True)
     written = []
 
@@ -47,8 +48,14 @@ def write_plots(res: Comparison, folder: Path, inputs) -> list[Path]:
         stat = res.error_map
         t = res.time
         tt = np.arange(t.y.shape[0]) / t.fs
+        x0 = t.y_model_x0 is not None
         plotting.save_time_overlay(
-            target("time_overlay.png"), tt, t.y, t.y_model, output_names=res.output_names
+            target("time_overlay.png"),
+            tt,
+            t.y,
+            t.y_model_x0 if x0 else t.y_model,
+            output_names=res.output_names,
+            model_label="model, estimated start" if x0 else "model, from rest",
         )
         plotting.save_residual_spectra(
             target("residual_spectra.png"),

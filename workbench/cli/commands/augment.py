@@ -12,9 +12,14 @@ import json
 
 import numpy as np
 
-from workbench.cli.commands import add_model_and_data, add_report_outputs
-from workbench.core.atomic import check_not_input, write_text
-from workbench.io.formats import load_measurement, model_arrays, read_model, save_model
+from workbench.cli.commands import (
+    add_model_and_data,
+    add_report_outputs,
+    check_model_quality,
+    load_checked,
+)
+from workbench.core.atomic import check_output, write_text
+from workbench.io.formats import model_arrays, read_model, save_model
 
 
 def register(subparsers) -> argparse.ArgumentParser:
@@ -40,11 +45,14 @@ def run(args) -> int:
     from workbench.core.model import pade_order
     from workbench.diagnosis.augment import augment
 
-    for out in (args.out, args.json, args.plots):
+    for out, what in ((args.out, "--out"), (args.json, "--json")):
         if out:
-            check_not_input(out, [args.model, args.data])
+            check_output(out, [args.model, args.data], what=what)
+    if args.plots:
+        check_output(args.plots, [args.model, args.data], folder=True, what="--plots")
     model = read_model(args.model)  # the file's delay_s travels with the model
-    data = load_measurement(args.data)
+    data = load_checked(args.data, model=model, model_src=str(args.model))
+    check_model_quality(model, args.model)
     res = augment(model, data, args.effect)
     params = {k: v for k, v in res.parameters.items() if k not in ("matrix", "residue_matrix")}
     print(f"effect: {res.effect}")

@@ -13,11 +13,15 @@ from pathlib import Path
 
 import numpy as np
 
-from workbench.cli.commands import add_model_and_data, add_report_outputs
-from workbench.core.atomic import check_not_input, write_text
+from workbench.cli.commands import (
+    add_model_and_data,
+    add_report_outputs,
+    check_model_quality,
+    load_checked,
+)
+from workbench.core.atomic import check_output, write_text
 from workbench.core.errors import InputError
-from workbench.io.formats import load_measurement, lti_model_from_arrays, read_npz
-from workbench.signals.quality import check_measurement
+from workbench.io.formats import lti_model_from_arrays, read_npz
 from workbench.validate.compare import Comparison, compare
 from workbench.validate.plots import write_plots
 
@@ -31,8 +35,10 @@ def register(subparsers) -> argparse.ArgumentParser:
         description=(
             "Compare a state-space model with a measurement (FRF or time). FRF: per line and "
             "element z = |G_meas - G_model|^2 / G_var and the bands where the model fails "
-            "beyond the noise. Time: simulation (ZOH, from rest) and one-step prediction "
-            "errors, residual spectra and residual/excitation cross-correlation."
+            "beyond the noise. Time: simulation errors (ZOH) from rest (the spec measure) "
+            "and from the initial state estimated by least squares, one-step prediction "
+            "errors, residual spectra, residual/excitation cross-correlation and failing "
+            "bands (from the estimated start)."
         ),
     )
     add_model_and_data(p)
@@ -66,8 +72,17 @@ def format_text(res: Comparison, model_src: str, data_src: str) -> str:
     lines = [
         f"model: {model_src}" + (f" (input delay {res.delay_s:g} s)" if res.delay_s else ""),
         f"data:  {data_src} ({res.kind})",
-        f"error (spec measure): {res.error:.6g}",
+        f"error (spec measure): {res.error:.6g}"
+        + (" (simulation from rest)" if res.kind == "time" else ""),
     ]
+    if res.kind == "time":
+        if res.error_estimated_start is not None:
+            lines.append(
+                f"error with estimated start: {res.error_estimated_start:.6g} "
+                "(initial state by least squares)"
+            )
+        else:
+            lines.append(f"error with estimated start: not computed ({res.time.x0_note})")
     if res.z_mean is not None:
         lines.append(f"mean noise-normalized error z: {res.z_mean:.4g} (about 1 when within noise)")
     if res.kind == "frf":
@@ -75,9 +90,18 @@ def format_text(res: Comparison, model_src: str, data_src: str) -> str:
         lines += ["  " + "  ".join(f"{v:9.3g}" for v in row) for row in res.error_per_channel]
     else:
         t = res.time
-        lines.append("per output:  simulation error   one-step prediction error")
+        lines.append(
+            "per output:  simulation error from rest   from estimated start   "
+            "one-step prediction error"
+        )
         for i, name in enumerate(res.output_names):
-            lines.append(f"  {name:>10s}  {t.sim_error[i]:14.4g}   {t.pred_error[i]:14.4g}")
+            x0 = "-" if t.sim_error_x0 is None else f"{t.sim_error_x0[i]:.4g}"
+            lines.append(
+                f"  {name:>10s}  {t.sim_error[i]:24.4g}   {x0:>20s}   {t.pred_error[i]:14.4g}"
+            )
+        lines.append(
+            f"residual spectra, cross-correlation and bands: simulation from {t.residual_from}"
+        )
         lines.append(
             f"residual x {t.xcorr_against} cross-correlation: {100 * t.xcorr_outside:.1f} % of "
             f"lags outside the 99 % bound {t.xcorr_bound:.3g}; "
@@ -103,14 +127,15 @@ def format_text(res: Comparison, model_src: str, data_src: str) -> str:
 def run(args) -> int:
     inputs = [args.model, args.data]
     if args.json:
-        check_not_input(args.json, inputs)
+        check_output(args.json, inputs, what="--json")
+    if args.plots:
+        check_output(args.plots, inputs, folder=True, what="--plots")
     model_arrays = read_npz(args.model)
     if "A" not in model_arrays:
         raise InputError(
             f"{args.model}: expected a model file (keys A, B, C, D, dt), got a measurement"
         )
     model = lti_model_from_arrays(model_arrays, src=str(args.model))  # with its delay_s
-    data = load_measurement(args.data)
     if args.delay_s is not None:
         if not np.isfinite(args.delay_s) or args.delay_s < 0:
             raise InputError(
@@ -118,6 +143,8 @@ def run(args) -> int:
                 f"delay_s), got {args.delay_s:g}"
             )
         model = model.replace(delay_s=args.delay_s)
+    data = load_checked(args.data, model=model, model_src=str(args.model))
+    check_model_quality(model, args.model)
     res = compare(
         model,
         data,
@@ -126,8 +153,6 @@ def run(args) -> int:
         model_src=str(args.model),
         data_src=str(args.data),
     )
-    # after compare() has refused what it refuses: a refusal is never preceded by warnings
-    check_measurement(data, src=str(args.data))
     print(format_text(res, str(args.model), str(args.data)))
     if args.json:
         summary = {"model": str(args.model), "data": str(args.data), **res.as_dict()}

@@ -17,13 +17,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import tempfile
-from pathlib import Path
 
 import numpy as np
 
-from workbench.core.atomic import check_not_input, write_text
+from workbench.cli.commands import check_model_quality
+from workbench.core.atomic import check_output, write_text
 from workbench.core.errors import InputError
 
 METHODS = ("pid-notch", "modal-sf", "hinf")
@@ -66,25 +64,8 @@ def add_loop_delay_argument(p: argparse.ArgumentParser) -> None:
 def check_outputs(outputs, inputs) -> None:
     """Refuse, before any work, an output over an input or one that cannot be written."""
     for out in outputs:
-        if not out:
-            continue
-        check_not_input(out, inputs)
-        path = Path(out)
-        if path.is_dir():
-            raise InputError(f"{out}: expected a file to write, got a directory")
-        folder = path.parent if str(path.parent) else Path(".")
-        while not folder.exists():  # atomic_path creates the missing folders
-            folder = folder.parent
-        try:  # try it: os.access says yes to root even where the file system says no
-            if not folder.is_dir():
-                raise OSError("not a folder")
-            fd, probe = tempfile.mkstemp(prefix=".workbench-probe.", dir=folder)
-            os.close(fd)
-            os.unlink(probe)
-        except OSError as exc:
-            raise InputError(
-                f"{out}: cannot write here (folder {folder}: {exc.strerror or exc})"
-            ) from None
+        if out:
+            check_output(out, inputs)
 
 
 def _sample_rate(model, fs) -> float:
@@ -119,6 +100,7 @@ def run(args) -> int:
             f"{args.model}: expected a square model (one actuator per measured output), got "
             f"{model.n_u} inputs and {model.n_y} outputs"
         )
+    check_model_quality(model, args.model)
     fs = _sample_rate(model, args.fs)
     settings: dict = {}
     if args.method == "pid-notch":

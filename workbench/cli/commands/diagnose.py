@@ -10,10 +10,15 @@ from __future__ import annotations
 import argparse
 import json
 
-from workbench.cli.commands import add_model_and_data, add_report_outputs
-from workbench.core.atomic import check_not_input, write_text
+from workbench.cli.commands import (
+    add_model_and_data,
+    add_report_outputs,
+    check_model_quality,
+    load_checked,
+)
+from workbench.core.atomic import check_output, write_text
 from workbench.core.errors import InputError
-from workbench.io.formats import load_measurement, read_model
+from workbench.io.formats import read_model
 
 
 def register(subparsers) -> argparse.ArgumentParser:
@@ -66,13 +71,15 @@ def _short(v) -> str:
 def run(args) -> int:
     from workbench.diagnosis import diagnose
 
-    for out in (args.json, args.plots):
-        if out:
-            check_not_input(out, [args.model, args.data])
+    if args.json:
+        check_output(args.json, [args.model, args.data], what="--json")
+    if args.plots:
+        check_output(args.plots, [args.model, args.data], folder=True, what="--plots")
     if args.max_effects < 1:
         raise InputError(f"--max-effects: expected an integer >= 1, got {args.max_effects}")
     model = read_model(args.model)  # the file's delay_s travels with the model
-    data = load_measurement(args.data)
+    data = load_checked(args.data, model=model, model_src=str(args.model))
+    check_model_quality(model, args.model)
     result = diagnose(model, data, max_effects=args.max_effects)
     print(summary(result))
     if args.json:

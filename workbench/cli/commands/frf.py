@@ -53,7 +53,7 @@ def run(args) -> int:
     data = load_measurement(args.data)
     if not isinstance(data, TimeData):
         raise InputError(f"{args.data}: key 'kind': expected a time record ('time'), got 'frf'")
-    check_measurement(data, src=str(args.data))
+    check_measurement(data, src=str(args.data))  # load_checked's checks, after the kind test
     est = estimate_frf(
         data,
         method=args.method,

@@ -30,6 +30,7 @@ from workbench.core.errors import InputError
 from workbench.core.model import LTIModel
 from workbench.ident import METHODS, format_singular_values, identify_subspace, plot_singular_values
 from workbench.io.formats import TimeData, load_measurement
+from workbench.signals.quality import check_measurement
 
 
 def register(subparsers) -> argparse.ArgumentParser:
@@ -158,6 +159,7 @@ def run(args) -> int:
             "DATA.npz), got neither"
         )
     data = _load_time(args.data)
+    check_measurement(data, src=str(args.data), method=args.method)
     val_data, val_t0, val_source = None, 0.0, None
     if args.validate is not None:
         data, val_data = split_record(data, args.validate)
@@ -171,6 +173,7 @@ def run(args) -> int:
         )
     elif args.validation:
         val_data = _load_time(args.validation)
+        check_measurement(val_data, src=str(args.validation))
         if (val_data.n_u, val_data.n_y) != (data.n_u, data.n_y):
             raise InputError(
                 f"{args.validation}: expected {data.n_u} inputs and {data.n_y} outputs like "

@@ -22,7 +22,7 @@ from workbench.io.formats import (
     measurement_from_arrays,
     read_npz,
 )
-from workbench.signals.quality import check_measurement
+from workbench.signals.quality import check_measurement, check_model
 
 _SPEC_MODEL_KEYS = {"A", "B", "C", "D", "dt", "input_names", "output_names"}
 
@@ -189,7 +189,9 @@ def run(args) -> int:
         info = {"file": src, **describe_measurement(data)}
         info["warnings"] = check_measurement(data, src=src)
     elif "A" in arrays:
-        info = {"file": src, **describe_model(lti_model_from_arrays(arrays, src=src), arrays)}
+        model = lti_model_from_arrays(arrays, src=src)
+        info = {"file": src, **describe_model(model, arrays)}
+        info["warnings"] = check_model(model, src=src)
     else:
         # load_any's refusal, with its one-line message
         from workbench.io.formats import load_any

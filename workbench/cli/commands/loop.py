@@ -20,7 +20,7 @@ from pathlib import Path
 
 from workbench.cli.commands import add_report_outputs
 from workbench.cli.commands.design import add_loop_delay_argument, check_outputs
-from workbench.core.atomic import write_text
+from workbench.core.atomic import check_output, write_text
 from workbench.core.errors import InputError
 
 TRUE_PLANTS = ("wafer_stage", "beam")
@@ -77,7 +77,7 @@ def run(args) -> int:
 
     check_outputs((args.json,), [args.plant, args.controller])
     if args.plots:
-        check_outputs((Path(args.plots) / "loop_bode.png",), [args.plant, args.controller])
+        check_output(args.plots, [args.plant, args.controller], folder=True, what="--plots")
     K = StateSpaceController.read(args.controller)
     plant, true = _plant(args.plant)
     if plant.n_u != K.n_u or plant.n_y != K.n_y:

@@ -18,9 +18,10 @@ import os
 
 import numpy as np
 
-from workbench.core.atomic import check_not_input
+from workbench.core.atomic import check_not_input, check_output
 from workbench.core.errors import InputError
 from workbench.io.formats import FrfData, load_measurement, save_model
+from workbench.signals.quality import check_measurement
 
 
 def register(subparsers) -> argparse.ArgumentParser:
@@ -61,9 +62,12 @@ def run(args) -> int:
     from workbench.modal.scaling import scale_modes
 
     check_not_input(args.out, [args.frf])
+    if args.plots:
+        check_output(args.plots, [args.frf], folder=True, what="--plots")
     data = load_measurement(args.frf)
     if not isinstance(data, FrfData):
         raise InputError(f"{args.frf}: key 'kind': expected an FRF ('frf'), got 'time'")
+    check_measurement(data, src=str(args.frf))
     pair = None
     if args.collocated is not None:
         pair = args.collocated.split(":")

@@ -41,6 +41,7 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from workbench.core.atomic import check_output
 from workbench.core.errors import InputError
 
 DEFAULT_REL = 1e-6
@@ -196,6 +197,8 @@ def run(args) -> int:
     from workbench.cli.pipeline import run_scenario
     from workbench.io.scenario import load_scenario
 
+    if args.out is not None:
+        check_output(args.out, [args.scenario], folder=True, what="--out")
     baseline = Path(args.baseline)
     if not baseline.is_dir():
         raise InputError(

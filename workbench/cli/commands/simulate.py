@@ -71,6 +71,7 @@ def run(args) -> int:
     from workbench.experiments import ExperimentConfig, run_experiment
 
     source = args.source
+    check_not_input(args.out, [source] if source.endswith(".toml") else [])
     if source.endswith(".toml"):
         from workbench.io.scenario import load_scenario
 
