@@ -316,7 +316,7 @@ def stage_functions() -> dict:
     evaluation stages in :mod:`workbench.cli.design_stages`; both import :class:`RunState`
     from here, hence the import inside the function.
     """
-    from workbench.cli import design_stages, loop_stages
+    from workbench.cli import design_stages, inferential_stages, loop_stages
 
     return {
         "plant": stage_plant,
@@ -331,6 +331,7 @@ def stage_functions() -> dict:
         "augment": loop_stages.stage_augment,
         "design": design_stages.stage_design,
         "evaluate": design_stages.stage_evaluate,
+        "inferential": inferential_stages.stage_inferential,
     }
 
 

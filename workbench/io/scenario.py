@@ -14,6 +14,7 @@ present::
     [compare], [diagnose], [augment]   the model-versus-measurement loop
     [design]       controllers designed on the identified modal model
     [evaluate]     every design on the true plant: loop figures, scan tracking
+    [inferential]  the beam's unmeasured point: inferential vs conventional control
 
 and ``[regress]`` (tolerances of ``workbench regress``), which runs no stage.
 
@@ -44,6 +45,7 @@ STAGES = (
     "augment",
     "design",
     "evaluate",
+    "inferential",
 )
 #: tables that configure a command rather than run a stage (``[regress]``: workbench regress)
 SETTINGS_TABLES = ("regress",)

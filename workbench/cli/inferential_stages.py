@@ -1,0 +1,615 @@
+"""Scenario stage ``[inferential]``: control the beam's unmeasured point (issue 10).
+
+Data flow::
+
+    FE model: the prior file ([inferential] fe_prior, or the [fe] stage's st.fe) and the
+    updated one (st.fe_updated of the [update] stage when present; else updated here:
+    simulated FRF of the MEASURED sensors of the true plant + noise -> workbench.modal.fit
+    .fit_modal -> workbench.fe.update_fe, as ``workbench update`` does)
+        ─► per FE model (updated, prior) and design:
+             pid-notch    controllers.pid_notch.tune_pid_notch on the measured outputs
+                          (the conventional decentralized loops, |S_ii| <= ms_max)
+             inferential  controllers.inferential.tune_inferential: z estimated from the
+                          measured outputs through the reduced FE model, all actuators,
+                          |S_ii| <= ms_max on the measured loops
+        ─► evaluation on the TRUE plant (z observed in simulation only, never fed back):
+             workbench.loop.analyze_loop     per measured loop: crossover, |S|inf, margins,
+                                             stability
+             closed-loop FRF force -> z      the first flexible mode's peak (exact, no noise)
+             workbench.sim.closed_loop       white force disturbance at the actuators:
+                                             error spectra at z and at the measured
+                                             sensors, mode-1 band level, rms
+                                             a 4th-order scan (workbench.scan) with the
+                                             design model's rigid-body feedforward:
+                                             z error max / rms / MA / MSD
+        ─► inferential.json, inferential.txt (the table), controller_<design>_<model>.npz,
+           inferential_*.png
+
+The first flexible mode's frequency f1 used for the band [0.9 f1, 1.1 f1] comes from the
+updated FE model (the data), the same band for every design.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from workbench.cli.pipeline import RunState
+from workbench.core.errors import InputError
+from workbench.io.scenario import refuse_leftovers, take
+
+__all__ = [
+    "DESIGNS",
+    "MODELS",
+    "PointSetup",
+    "simulated_frf",
+    "update_from_frf",
+    "design_point",
+    "evaluate_point",
+    "reduction_db",
+    "stage_inferential",
+]
+
+DESIGNS = ("pid-notch", "inferential")
+MODELS = ("updated", "prior")
+#: relative half-width of the band around the first flexible mode where the z error is read
+MODE_BAND = 0.1
+
+
+@dataclass(frozen=True)
+class PointSetup:
+    """What every design and evaluation of the stage shares."""
+
+    measured: tuple[str, ...]
+    z: str
+    fs: float
+    loop_delay_samples: int
+    ms_max: float
+
+
+# ------------------------------------------------------------------ the FE model
+def simulated_frf(plant, measured, rng, *, df_hz: float, f_max_hz: float, noise_rel: float):
+    """FrfData of the plant's measured outputs on ``df_hz`` lines up to ``f_max_hz``.
+
+    The plant's own response (:meth:`frf`) with complex noise of ``noise_rel``
+    times |G| per element (its variance as G_var): a measurement, not the truth's settings.
+    """
+    from workbench.io.formats import FrfData
+
+    names = list(plant.output_names)
+    idx = [names.index(s) for s in measured]
+    freq = np.arange(df_hz, f_max_hz, df_hz)
+    G = plant.frf(freq)[:, idx]
+    sigma = noise_rel * np.abs(G) + 1e-15
+    noisy = G + sigma / np.sqrt(2) * (
+        rng.standard_normal(G.shape) + 1j * rng.standard_normal(G.shape)
+    )
+    return FrfData(
+        freq, noisy, sigma**2, float(plant.fs), tuple(plant.input_names), tuple(measured)
+    )
+
+
+def update_from_frf(prior, frf):
+    """(updated FEModel, report): modal fit of ``frf`` -> update_fe, as ``workbench update``.
+
+    The measured modes are the fit's frequencies, damping and rank-one residues
+    ``c_k b_k^T`` with their standard deviations (``c_std |b|``) as weights.
+    """
+    from workbench.fe import MeasuredModes, fe_arrays, fe_from_arrays, update_fe
+    from workbench.modal.fit import fit_modal
+
+    fit = fit_modal(frf)
+    meas = MeasuredModes(
+        fit.freq_hz,
+        fit.damping,
+        fit.c[:, :, None] * fit.b[:, None, :],
+        frf.output_names,
+        frf.input_names,
+        freq_std_hz=fit.freq_std_hz,
+        residue_std=fit.c_std[:, :, None] * np.abs(fit.b[:, None, :]),
+    )
+    res = update_fe(prior, meas)
+    updated = fe_from_arrays(fe_arrays(prior, alpha=res.alpha, damping=res.damping))
+    report = {
+        "measured_freq_hz": [float(x) for x in fit.freq_hz],
+        "parameters": {
+            name: {"before": float(a0), "after": float(a1), "std": float(sd)}
+            for name, a0, a1, sd in zip(
+                prior.parameter_names, res.alpha_nominal, res.alpha, res.alpha_std, strict=True
+            )
+        },
+        "paired": [[int(i), int(k)] for i, k in res.pairs],
+    }
+    return updated, report
+
+
+# ------------------------------------------------------------------ designs
+def design_point(fe, setup: PointSetup, design: str, *, n_modes=None):
+    """(controller, settings) of ``design`` on the FE model ``fe``.
+
+    Both designs are screened (|S_ii| <= ms_max) on the FE model's reduction with
+    its suspension modes as modes (the wire flexures' springs kept); the
+    inferential design model takes them as rigid bodies (integral action on the
+    rigid coordinates, :func:`controllers.modal_sf.design_model`).
+    """
+    from controllers.inferential import (
+        analysis_lines,
+        measured_model,
+        point_model,
+        tune_inferential,
+    )
+
+    kw = dict(measured=setup.measured, z=setup.z, n_modes=n_modes, max_freq_hz=setup.fs / 2)
+    full = point_model(fe, rigid_threshold_hz=1e-3, **kw)
+    if design == "pid-notch":
+        from controllers.pid_notch import tune_pid_notch
+
+        model = measured_model(full, setup.measured).to_lti()
+        # design lines and shapes reduced from the tuner's defaults (4000 lines, 3 x 3
+        # shapes) so that the beam's three loops tune in seconds, with lines around every
+        # mode (its |S| peak); the lowest line sets the lowest crossover tried (30 x: 0.9 Hz)
+        K, rep = tune_pid_notch(
+            model, setup.fs, ms_max=setup.ms_max, loop_delay_samples=setup.loop_delay_samples,
+            freq_hz=analysis_lines(setup.fs, full, n_log=1000, f_min_hz=0.03),
+            lead_ratio=(3.0, 4.0), lowpass_ratio=(6.0, 10.0), n_scan=20,
+        )  # fmt: skip
+        return K.controller, {"crossover_hz": rep.crossover_hz, "notch_hz": rep.notch_hz}
+    if design == "inferential":
+        d = tune_inferential(
+            point_model(fe, **kw), setup.fs, measured=setup.measured, z=setup.z,
+            ms_max=setup.ms_max, loop_delay_samples=setup.loop_delay_samples, screen_model=full,
+        )  # fmt: skip
+        rep = d.report
+        settings = dict(d.settings)
+        if rep is not None:
+            settings["tune"] = {
+                "tried": rep.tried, "feasible": rep.feasible, "scanned": rep.scanned,
+                "band_peak_db_on_model": rep.band_peak_db, "s_peak_on_model": rep.s_peak,
+            }  # fmt: skip
+        return d.controller, settings
+    raise InputError(f"[inferential] key 'designs': expected some of {DESIGNS}, got {design!r}")
+
+
+def suspension_feedforward(fe, measured, profile, *, n_suspension: int = 2) -> np.ndarray:
+    """u_ff (N, n_u): forces that move the beam as a rigid body along ``profile`` at the sensors.
+
+    From the FE model's suspension modes (the wire flexures, nearly rigid-body
+    shapes): the modal coordinates that put every measured output on the
+    setpoint, ``q = pinv(C_s) 1 r``, need the modal forces ``q'' + 2 zeta w q' +
+    w^2 q``; ``u = pinv(B_s^T)`` of them (minimum norm over the coils). Mass and
+    spring both come from the FE model: the prior's flexures are 30 % too stiff,
+    so its feedforward pushes too hard against them.
+    """
+    from workbench.fe import modal_terms
+
+    t = modal_terms(fe, outputs=measured, n_modes=n_suspension)
+    Cs = t.c[:n_suspension].T  # (n_y, n_s)
+    Bs = t.b[:n_suspension]  # (n_s, n_u)
+    w = 2 * np.pi * t.freq_hz[:n_suspension]
+    zeta = np.nan_to_num(t.damping[:n_suspension])
+    shape = np.linalg.pinv(Cs) @ np.ones(len(measured))  # modal coordinates per metre
+    acc = np.zeros(profile.t.size)
+    acc[:-1] = np.diff(profile.velocity) * profile.fs  # mean acceleration over each hold
+    f = (
+        acc[:, None] * shape
+        + profile.velocity[:, None] * (2 * zeta * w * shape)
+        + profile.position[:, None] * (w**2 * shape)
+    )
+    return f @ np.linalg.pinv(Bs).T
+
+
+# ------------------------------------------------------------------ evaluation
+def _welch(x: np.ndarray, fs: float, nperseg: int):
+    import scipy.signal
+
+    f, p = scipy.signal.welch(x, fs=fs, nperseg=nperseg, axis=0)
+    return f, p
+
+
+def reduction_db(level_ref: float, level: float) -> float:
+    """20 log10(level_ref / level): how far ``level`` lies below the reference, dB."""
+    return float(20 * np.log10(level_ref / level))
+
+
+def evaluate_point(
+    plant,
+    controller,
+    setup: PointSetup,
+    *,
+    f1_hz: float,
+    disturbance: dict,
+    profile,
+    feedforward: np.ndarray | None,
+    noise_seed: int,
+    window_s: float,
+    freq_hz=None,
+) -> tuple[dict, dict]:
+    """Figures (JSON-ready) and arrays (for the plots) of one controller on the true plant.
+
+    ``plant`` the true plant object (every output, z among them); the controller
+    reads ``setup.measured`` only (z enters the simulation's record, never the loop).
+    ``freq_hz`` the analysis lines (default 2000 log lines; the stage adds lines at the
+    updated model's modes, :func:`controllers.inferential.analysis_lines`).
+    """
+    from controllers.inferential import pad_controller, point_loop
+    from workbench.core.lti import frf
+    from workbench.core.model import LTIModel
+    from workbench.loop import analyze_loop
+    from workbench.scan import tracking_figures
+    from workbench.sim import closed_loop
+
+    names = list(plant.output_names)
+    idx = [names.index(s) for s in setup.measured]
+    iz = names.index(setup.z)
+    m = setup.loop_delay_samples
+    lin = plant.linear_model()
+    truth = LTIModel.from_statespace(lin, delay_s=float(plant.delay_s))
+    truth_meas = LTIModel.from_statespace(lin[idx, :], delay_s=float(plant.delay_s))
+    f = (
+        np.logspace(np.log10(0.3), np.log10(setup.fs / 2 * 0.999), 2000)
+        if freq_hz is None
+        else np.asarray(freq_hz, float)
+    )
+    analysis = analyze_loop(truth_meas, controller, loop_delay_samples=m, freq_hz=f)
+    out: dict[str, Any] = {"analysis": analysis.summary(), "stable": bool(analysis.stable)}
+    arrays: dict[str, Any] = {"analysis": analysis}
+    if not analysis.stable:
+        out["note"] = "unstable on the true plant: no time simulation"
+        return out, arrays
+    # exact closed-loop response force -> z on the truth (noise-free)
+    loop = point_loop(truth, controller, measured=setup.measured, z=setup.z, loop_delay_samples=m)
+    H = frf(loop, f)
+    dz = np.linalg.norm(H[:, 0, 1:], axis=1)  # white forces, one per actuator
+    band = (f >= (1 - MODE_BAND) * f1_hz) & (f <= (1 + MODE_BAND) * f1_hz)
+    out["dz_band_peak_db"] = float(20 * np.log10(dz[band].max()))
+    arrays["dz"] = (f, dz)
+    Kp = pad_controller(controller, setup.measured, names)
+    # white force disturbance at every actuator: error spectra at z and at the sensors
+    n = int(disturbance["n_samples"])
+    rng_d = np.random.default_rng(noise_seed)
+    d = disturbance["std_n"] * rng_d.standard_normal((n, plant.n_u))
+    _, y = closed_loop(plant, Kp, d=d, rng=np.random.default_rng(noise_seed + 1), delay_samples=m)
+    e = -y  # r = 0
+    skip = int(0.5 * setup.fs)  # the loop's start-up transient
+    fw, P = _welch(e[skip:], setup.fs, int(disturbance["nperseg"]))
+    wb = (fw >= (1 - MODE_BAND) * f1_hz) & (fw <= (1 + MODE_BAND) * f1_hz)
+    asd = np.sqrt(P)
+    out["disturbance"] = {
+        "z_mode1_asd_m_rthz": float(np.sqrt(np.mean(P[wb, iz]))),
+        "z_rms_m": float(np.sqrt(np.mean(e[skip:, iz] ** 2))),
+        "measured_mode1_asd_m_rthz": {
+            s: float(np.sqrt(np.mean(P[wb, i]))) for s, i in zip(setup.measured, idx)
+        },
+        "measured_rms_m": {
+            s: float(np.sqrt(np.mean(e[skip:, i] ** 2))) for s, i in zip(setup.measured, idx)
+        },
+    }
+    arrays["asd"] = (fw, asd[:, iz], asd[:, idx])
+    # scan on every output (a rigid-body translation), the design model's feedforward
+    r = np.repeat(profile.position[:, None], plant.n_y, axis=1)
+    _, y = closed_loop(
+        plant, Kp, r=r, d=feedforward, rng=np.random.default_rng(noise_seed + 2),
+        delay_samples=m,
+    )  # fmt: skip
+    e = r - y
+    tf = tracking_figures(
+        e[:, [iz, *idx]], setup.fs, window_s=window_s, during=profile.constant_velocity_s
+    )
+    labels = [setup.z, *setup.measured]
+    out["scan"] = {
+        "z_max_abs_m": float(np.max(np.abs(e[:, iz]))),
+        "z_rms_m": float(np.sqrt(np.mean(e[:, iz] ** 2))),
+        "constant_velocity": tf.as_dict(labels),
+    }
+    arrays["scan"] = (profile.t, e[:, iz])
+    return out, arrays
+
+
+# ------------------------------------------------------------------ the stage
+_DIST_KEYS = {"std_n": 0.01, "n_samples": 32768, "nperseg": 4096}
+_SCAN_KEYS = {
+    "velocity": 0.02,  # m/s
+    "length": 0.002,  # m at constant velocity
+    "acceleration": 2.0,  # m/s^2
+    "jerk": 400.0,  # m/s^3
+    "snap": 1e5,  # m/s^4
+    "window_s": 0.01,  # exposure window, s
+    "lead_s": 0.05,
+    "settle_s": 0.3,
+}
+_UPDATE_KEYS = {"df_hz": 0.25, "f_max_hz": 130.0, "noise_rel": 0.01}
+
+
+def _sub(table: dict, key: str, defaults: dict, where: str) -> dict:
+    raw = dict(take(table, key, {}, where=where, kind=dict))
+    out = {}
+    for k, v in defaults.items():
+        out[k] = take(raw, k, v, where=f"{where}.{key}", kind=(int, float))
+    refuse_leftovers(raw, where=f"{where}.{key}")
+    return out
+
+
+def _prior_fe(st: RunState, source: str):
+    if source == "plant":
+        from plants.beam import beam_fe_file, beam_prior_config
+
+        # the design-side prior FE file of the beam (E +8 %, flexures +30 %)
+        return beam_fe_file(beam_prior_config(), damping=0.01)
+    from workbench.fe import read_fe
+
+    return read_fe(st.scenario.resolve(source))
+
+
+def stage_inferential(st: RunState, table: dict) -> None:
+    """Designs on the prior and the updated FE model, judged at z on the true plant."""
+    from workbench.core import atomic
+    from workbench.io import formats
+    from workbench.scan import ScanLimits, scan
+
+    where = "inferential"
+    fe_prior_src = take(table, "fe_prior", "plant", where=where, kind=str)
+    models = take(table, "models", list(MODELS), where=where, kind=list)
+    designs = take(table, "designs", list(DESIGNS), where=where, kind=list)
+    measured = take(table, "measured", ["s1", "s2", "s5"], where=where, kind=list)
+    z = take(table, "z", "s3", where=where, kind=str)
+    m = take(table, "loop_delay_samples", 1, where=where, kind=int)
+    ms_max = float(take(table, "ms_max", 2.0, where=where, kind=(int, float)))
+    baseline = take(table, "baseline", "pid-notch", where=where, kind=str)
+    dist = _sub(table, "disturbance", _DIST_KEYS, where)
+    sc = _sub(table, "scan", _SCAN_KEYS, where)
+    upd = _sub(table, "update", _UPDATE_KEYS, where)
+    refuse_leftovers(table, where=where)
+    if st.plant is None:
+        raise InputError("[inferential] needs the true plant: a [plant] table (name = 'beam')")
+    for name, got, allowed in (("models", models, MODELS), ("designs", designs, DESIGNS)):
+        if not got or any(x not in allowed for x in got):
+            raise InputError(f"[inferential] key '{name}': expected some of {allowed}, got {got}")
+    if baseline not in designs:
+        raise InputError(f"[inferential] key 'baseline': expected one of {designs}, got {baseline}")
+    if m < 0:
+        raise InputError(f"[inferential] key 'loop_delay_samples': expected >= 0, got {m}")
+    if not np.isfinite(ms_max) or ms_max <= 1.0:
+        raise InputError(f"[inferential] key 'ms_max': expected a bound > 1 on |S|, got {ms_max}")
+    plant = st.plant
+    outs = list(plant.output_names)
+    for s in [*measured, z]:
+        if s not in outs:
+            raise InputError(f"[inferential]: output {s!r} is not one of the plant's {outs}")
+    setup = PointSetup(tuple(measured), z, float(plant.fs), int(m), ms_max)
+
+    # -- the FE models: the lead's [update] stage results when present, else here
+    prior = getattr(st, "fe", None) or _prior_fe(st, fe_prior_src)
+    updated = getattr(st, "fe_updated", None)
+    update_report = {"source": "[update] stage"} if updated is not None else None
+    if updated is None and "updated" in models:
+        data = simulated_frf(
+            plant, measured, st.rng, df_hz=upd["df_hz"], f_max_hz=upd["f_max_hz"],
+            noise_rel=upd["noise_rel"],
+        )  # fmt: skip
+        updated, rep = update_from_frf(prior, data)
+        update_report = {"source": "[inferential] (simulated FRF of the measured sensors)", **upd}
+        update_report.update(rep)
+    fes = {"updated": updated, "prior": prior}
+    from workbench.fe import solve_modes
+
+    ref_fe = updated if updated is not None else prior
+    f_modes = solve_modes(*ref_fe.matrices(), 6).freq_hz
+    f1 = float(f_modes[f_modes > 10.0][0])  # first flexible mode (above the suspension)
+    from controllers.inferential import analysis_lines, point_model
+
+    lines = analysis_lines(
+        setup.fs,
+        point_model(
+            ref_fe, measured=measured, z=z, max_freq_hz=setup.fs / 2, rigid_threshold_hz=1e-3
+        ),
+        n_log=2000,
+    )
+
+    limits = ScanLimits(sc["velocity"], sc["acceleration"], sc["jerk"], sc["snap"])
+    profile = scan(
+        sc["velocity"], sc["length"], limits, plant.fs, lead_s=sc["lead_s"],
+        settle_s=sc["settle_s"],
+    )  # fmt: skip
+    noise_seed = int(st.rng.integers(2**62))
+    results: dict[str, Any] = {}
+    arrays: dict[str, Any] = {}
+    for model_name in models:
+        fe = fes[model_name]
+        for design in designs:
+            key = f"{design}/{model_name}"
+            try:
+                ctrl, settings = design_point(fe, setup, design)
+            except InputError as exc:
+                results[key] = {"status": "refused", "reason": str(exc)}
+                continue
+            formats.save_controller(
+                st.path(f"controller_{design}_{model_name}.npz"), ctrl, delay_samples=m
+            )
+            shift = int(m)  # feedforward applied m samples early: it passes the loop delay
+            ff = suspension_feedforward(fe, setup.measured, profile)
+            if shift:
+                ff = np.vstack([ff[shift:], np.zeros((shift, ff.shape[1]))])
+            fig, arr = evaluate_point(
+                plant, ctrl, setup, f1_hz=f1, disturbance=dist, profile=profile,
+                feedforward=ff, noise_seed=noise_seed, window_s=sc["window_s"], freq_hz=lines,
+            )  # fmt: skip
+            results[key] = {"status": "designed", "settings": settings, **fig}
+            arrays[key] = arr
+    comparison = _compare(results, models, designs, baseline, ms_max)
+    payload = {
+        "measured": list(measured),
+        "z": z,
+        "fs_hz": setup.fs,
+        "loop_delay_samples": m,
+        "ms_max": ms_max,
+        "first_flexible_mode_hz": f1,
+        "mode_band": [(1 - MODE_BAND) * f1, (1 + MODE_BAND) * f1],
+        "update": update_report,
+        "alpha": {
+            k: (None if v is None else dict(zip(v.parameter_names, v.alpha.tolist())))
+            for k, v in fes.items()
+        },
+        "disturbance": dist,
+        "scan": {**sc, "distance_m": profile.distance},
+        "designs": results,
+        "comparison": comparison,
+    }
+    st.write_json("inferential.json", payload)
+    text = _table(results, comparison, setup, f1, baseline)
+    atomic.write_text(st.path("inferential.txt"), text + "\n")
+    _plots(st, arrays, setup, f1)
+    st.summary["inferential"] = {"text": text, "comparison": comparison}
+
+
+def _compare(results: dict, models, designs, baseline: str, ms_max: float) -> dict:
+    """Per model: each design's z error at the first mode against the baseline's, dB."""
+    out = {}
+    for model in models:
+        base = results.get(f"{baseline}/{model}", {})
+        row = {}
+        for design in designs:
+            if design == baseline:
+                continue
+            cur = results.get(f"{design}/{model}", {})
+            if not (base.get("stable") and cur.get("stable")):
+                row[design] = {"note": "a design is refused or unstable on the true plant"}
+                continue
+            peaks = [lp["s_peak"] for lp in cur["analysis"]["loops"]]
+            peaks_b = [lp["s_peak"] for lp in base["analysis"]["loops"]]
+            row[design] = {
+                "z_mode1_reduction_db": reduction_db(
+                    base["disturbance"]["z_mode1_asd_m_rthz"],
+                    cur["disturbance"]["z_mode1_asd_m_rthz"],
+                ),
+                "dz_band_peak_reduction_db": float(
+                    base["dz_band_peak_db"] - cur["dz_band_peak_db"]
+                ),
+                "z_rms_reduction_db": reduction_db(
+                    base["disturbance"]["z_rms_m"], cur["disturbance"]["z_rms_m"]
+                ),
+                "scan_z_rms_reduction_db": reduction_db(
+                    base["scan"]["z_rms_m"], cur["scan"]["z_rms_m"]
+                ),
+                "s_peak_max": float(max(peaks)),
+                "s_peak_max_baseline": float(max(peaks_b)),
+                "s_peak_within_bound": bool(max(peaks) <= ms_max and max(peaks_b) <= ms_max),
+            }
+        out[model] = row
+    return out
+
+
+def _table(results: dict, comparison: dict, setup: PointSetup, f1: float, baseline: str) -> str:
+    rows = [
+        f"z = {setup.z} (not measured; observed in simulation only), measured "
+        f"{', '.join(setup.measured)}, loop delay {setup.loop_delay_samples} sample(s), "
+        f"|S_ii| <= {setup.ms_max:g}; first flexible mode {f1:.2f} Hz "
+        f"(band +-{MODE_BAND:.0%})",
+        f"{'design/model':<24}{'stable':>7}{'|S|max dB':>10}{'fc min Hz':>10}{'PM min':>8}"
+        f"{'z@f1 nm/rtHz':>13}{'z rms nm':>9}{'|d->z|@f1 dB':>13}{'scan z rms nm':>14}",
+    ]
+    for key, r in results.items():
+        if r.get("status") != "designed":
+            rows.append(f"{key:<24} refused: {r.get('reason', '')}")
+            continue
+        loops = r["analysis"]["loops"]
+        sp = max(lp["s_peak"] for lp in loops)
+        fc = min((lp["crossover_hz"] for lp in loops), default=float("nan"))
+        pm = min(lp["phase_margin_deg"] for lp in loops)
+        line = f"{key:<24}{str(r['stable']):>7}{20 * np.log10(sp):>10.2f}{fc:>10.2f}{pm:>8.1f}"
+        if r["stable"]:
+            dd = r["disturbance"]
+            line += (
+                f"{dd['z_mode1_asd_m_rthz'] * 1e9:>13.4f}{dd['z_rms_m'] * 1e9:>9.3f}"
+                f"{r['dz_band_peak_db']:>13.2f}{r['scan']['z_rms_m'] * 1e9:>14.3f}"
+            )
+        rows.append(line)
+        for lp in loops:
+            rows.append(
+                f"    loop {lp['name']:<4} fc {lp['crossover_hz']:8.2f} Hz  |S|inf "
+                f"{20 * np.log10(lp['s_peak']):6.2f} dB  GM {lp['gain_margin']:.3g}  "
+                f"PM {lp['phase_margin_deg']:.1f} deg"
+            )
+    for model, row in comparison.items():
+        for design, c in row.items():
+            if "note" in c:
+                rows.append(f"{design} vs {baseline} ({model} FE model): {c['note']}")
+                continue
+            rows.append(
+                f"{design} vs {baseline} ({model} FE model): z error at the first mode "
+                f"{c['z_mode1_reduction_db']:+.1f} dB lower (exact |d->z| band peak "
+                f"{c['dz_band_peak_reduction_db']:+.1f} dB), z rms {c['z_rms_reduction_db']:+.1f}"
+                f" dB, scan z rms {c['scan_z_rms_reduction_db']:+.1f} dB; |S|max "
+                f"{20 * np.log10(c['s_peak_max']):.2f} dB vs "
+                f"{20 * np.log10(c['s_peak_max_baseline']):.2f} dB"
+            )
+    return "\n".join(rows)
+
+
+def _plots(st: RunState, arrays: dict, setup: PointSetup, f1: float) -> None:
+    from workbench.plotting import lean_axes, new_figure, save_png
+
+    style = {"updated": "-", "prior": "--"}
+    colors = {d: f"C{k}" for k, d in enumerate(DESIGNS)}
+
+    def ls(key):
+        design, model = key.split("/")
+        return dict(color=colors[design], ls=style[model], lw=0.8, label=key)
+
+    fig = new_figure(8, 7)
+    ax_z, ax_m = fig.add_subplot(2, 1, 1), fig.add_subplot(2, 1, 2)
+    for key, arr in arrays.items():
+        if "asd" not in arr:
+            continue
+        fw, az, am = arr["asd"]
+        ax_z.loglog(fw[1:], az[1:], **ls(key))
+        ax_m.loglog(fw[1:], np.sqrt(np.mean(am[1:] ** 2, axis=1)), **ls(key))
+    for ax in (ax_z, ax_m):
+        ax.axvspan((1 - MODE_BAND) * f1, (1 + MODE_BAND) * f1, color="0.9")
+        lean_axes(ax)
+    ax_z.set_ylabel(f"error at z = {setup.z}, m/rtHz")
+    ax_z.legend(fontsize=6)
+    ax_m.set_ylabel("measured sensors (rms of the three), m/rtHz")
+    ax_m.set_xlabel("frequency (Hz); grey: first flexible mode band")
+    fig.suptitle("error spectra under white actuator forces, true beam", fontsize=9)
+    save_png(fig, st.path("inferential_spectra.png"))
+
+    fig = new_figure(8, 4.5)
+    ax = fig.add_subplot(1, 1, 1)
+    for key, arr in arrays.items():
+        if "dz" in arr:
+            ax.loglog(*arr["dz"], **ls(key))
+    ax.axvspan((1 - MODE_BAND) * f1, (1 + MODE_BAND) * f1, color="0.9")
+    ax.set_ylabel(f"|force -> {setup.z}| closed loop, m/N")
+    ax.set_xlabel("frequency (Hz)")
+    ax.legend(fontsize=6)
+    lean_axes(ax)
+    save_png(fig, st.path("inferential_force_to_z.png"))
+
+    fig = new_figure(8, 4.5)
+    ax = fig.add_subplot(1, 1, 1)
+    for key, arr in arrays.items():
+        if "scan" in arr:
+            t, ez = arr["scan"]
+            ax.plot(t, ez * 1e9, **ls(key))
+    ax.set_ylabel(f"scan error at z = {setup.z}, nm")
+    ax.set_xlabel("time (s)")
+    ax.legend(fontsize=6)
+    lean_axes(ax)
+    save_png(fig, st.path("inferential_scan_z.png"))
+
+    n = len(setup.measured)
+    fig = new_figure(3.2 * n + 1, 3.4)
+    axes = fig.subplots(1, n, squeeze=False)[0]
+    for key, arr in arrays.items():
+        a = arr["analysis"]
+        for i in range(n):
+            axes[i].semilogx(a.freq_hz, 20 * np.log10(np.abs(a.S[:, i, i])), **ls(key))
+    for i, s in enumerate(setup.measured):
+        axes[i].axhline(20 * np.log10(setup.ms_max), color="r", lw=0.5)
+        axes[i].set_ylim(-60, 15)
+        axes[i].set_title(f"|S| loop {s}, dB (true beam)", fontsize=7)
+        lean_axes(axes[i])
+    axes[0].legend(fontsize=5)
+    save_png(fig, st.path("inferential_sensitivity.png"))
