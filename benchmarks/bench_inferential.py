@@ -1,0 +1,132 @@
+"""Inferential control of the beam (issue 10): the unmeasured point against the conventional loops.
+
+For z = s3 (near the first bending mode's antinode) and z = s4 (near its node),
+with the FE model updated from a simulated 1 % FRF of s1, s2, s5 and with the
+prior FE model (E +8 %, flexures +30 %), both designs of the [inferential] stage
+(pid-notch on the measured loops, tune_inferential on z) run on the TRUE beam:
+
+1. z error at the first flexible mode (disturbance spectra, band +-10 % of f1, and
+   the exact closed-loop force -> z band peak), z rms, scan z rms, |S_ii|max and the
+   lowest crossover of the measured loops; the ratio inferential / pid-notch in dB.
+2. The |S| bound the 10 dB target needs: both designs re-tuned at ms_max = 2.0, 2.5,
+   3.0 (updated model, z = s3).
+3. Design time of each method (one model).
+
+Run: OMP_NUM_THREADS=1 python benchmarks/bench_inferential.py
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from plants.beam import beam, beam_fe_file, beam_prior_config
+from workbench.cli.inferential_stages import (
+    PointSetup,
+    design_point,
+    evaluate_point,
+    reduction_db,
+    simulated_frf,
+    suspension_feedforward,
+    update_from_frf,
+)
+from workbench.fe import solve_modes
+from workbench.scan import ScanLimits, scan
+
+MEASURED = ("s1", "s2", "s5")
+DIST = {"std_n": 0.01, "n_samples": 32768, "nperseg": 4096}  # as scenarios/beam_inferential
+
+
+def _models(plant):
+    prior = beam_fe_file(beam_prior_config(), damping=0.01)
+    data = simulated_frf(
+        plant, MEASURED, np.random.default_rng(7), df_hz=0.25, f_max_hz=130.0, noise_rel=0.01
+    )
+    updated, _ = update_from_frf(prior, data)
+    return {"updated": updated, "prior": prior}
+
+
+def _run(plant, fe, setup, f1, profile, lines):
+    out = {}
+    for design in ("pid-notch", "inferential"):
+        t = time.perf_counter()
+        ctrl, _ = design_point(fe, setup, design)
+        dt = time.perf_counter() - t
+        ff = suspension_feedforward(fe, setup.measured, profile)
+        ff = np.vstack([ff[setup.loop_delay_samples :], np.zeros((setup.loop_delay_samples, 3))])
+        fig, _ = evaluate_point(
+            plant, ctrl, setup, f1_hz=f1, disturbance=DIST, profile=profile, feedforward=ff,
+            noise_seed=11, window_s=0.01, freq_hz=lines,
+        )  # fmt: skip
+        fig["design_s"] = dt
+        out[design] = fig
+    return out
+
+
+def _line(name, r):
+    loops = r["analysis"]["loops"]
+    sp = 20 * np.log10(max(lp["s_peak"] for lp in loops))
+    fc = min(lp["crossover_hz"] for lp in loops)
+    if not r["stable"]:
+        return f"   {name:<12} unstable on the true beam (|S|max {sp:.2f} dB)"
+    return (
+        f"   {name:<12} |S|max {sp:5.2f} dB  fc min {fc:6.2f} Hz  z@f1 "
+        f"{r['disturbance']['z_mode1_asd_m_rthz'] * 1e9:7.2f} nm/rtHz  |d->z|@f1 "
+        f"{r['dz_band_peak_db']:6.2f} dB  z rms {r['disturbance']['z_rms_m'] * 1e9:7.1f} nm  "
+        f"scan z rms {r['scan']['z_rms_m'] * 1e9:7.1f} nm  (design {r['design_s']:.1f} s)"
+    )
+
+
+def _ratio(res):
+    a, b = res["pid-notch"], res["inferential"]
+    if not (a["stable"] and b["stable"]):
+        return "   a design is unstable on the true beam"
+    da, db = a["disturbance"], b["disturbance"]
+    f1 = reduction_db(da["z_mode1_asd_m_rthz"], db["z_mode1_asd_m_rthz"])
+    rms = reduction_db(da["z_rms_m"], db["z_rms_m"])
+    sc = reduction_db(a["scan"]["z_rms_m"], b["scan"]["z_rms_m"])
+    exact = a["dz_band_peak_db"] - b["dz_band_peak_db"]
+    return (
+        f"   inferential vs pid-notch: z at f1 {f1:+.1f} dB (exact {exact:+.1f} dB), "
+        f"z rms {rms:+.1f} dB, scan z rms {sc:+.1f} dB"
+    )
+
+
+def main():
+    from controllers.inferential import analysis_lines, point_model
+
+    plant = beam()
+    fes = _models(plant)
+    f_modes = solve_modes(*fes["updated"].matrices(), 6).freq_hz
+    f1 = float(f_modes[f_modes > 10.0][0])
+    limits = ScanLimits(0.02, 2.0, 400.0, 1e5)
+    profile = scan(0.02, 0.002, limits, plant.fs, lead_s=0.05, settle_s=0.3)
+    print(f"first flexible mode (updated FE) {f1:.3f} Hz; band +-10 %; loop delay 1 sample")
+    for z in ("s3", "s4"):
+        full = point_model(
+            fes["updated"], measured=MEASURED, z=z, max_freq_hz=1024, rigid_threshold_hz=1e-3
+        )
+        lines = analysis_lines(plant.fs, full, n_log=2000)
+        for model, fe in fes.items():
+            setup = PointSetup(MEASURED, z, plant.fs, 1, 2.0)
+            res = _run(plant, fe, setup, f1, profile, lines)
+            print(f"1. z = {z}, {model} FE model, |S_ii| <= 2 on the model")
+            for name, r in res.items():
+                print(_line(name, r))
+            print(_ratio(res))
+    full = point_model(
+        fes["updated"], measured=MEASURED, z="s3", max_freq_hz=1024, rigid_threshold_hz=1e-3
+    )
+    lines = analysis_lines(plant.fs, full, n_log=2000)
+    for ms in (2.5, 3.0):
+        setup = PointSetup(MEASURED, "s3", plant.fs, 1, ms)
+        res = _run(plant, fes["updated"], setup, f1, profile, lines)
+        print(f"2. z = s3, updated FE model, |S_ii| <= {ms:g} ({20 * np.log10(ms):.2f} dB)")
+        for name, r in res.items():
+            print(_line(name, r))
+        print(_ratio(res))
+
+
+if __name__ == "__main__":
+    main()
