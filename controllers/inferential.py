@@ -13,18 +13,22 @@ FE model's reduced modal model, whose output map reaches any FE output
         --controllers.modal_sf.design_model (ZOH, loop delay as shift states,
           integrators on the rigid coordinates of the measured outputs)-->
     DesignModel xi = [x_p; delay line; x_i]  and  z = Cz xi + Dz u  (same ZOH / delay)
-        --LQR: rigid-body weights of modal_sf.bandwidth_lqg + z_weight * z^2 (exact
-          cross term for the residual compliance Dz)-->  K
+        --LQR: rigid-body weights of modal_sf.bandwidth_lqg + z_weight z^2 (exact
+          cross term for the residual compliance Dz) + z_damping (dz/dt)^2, and filters
+          driven by z: an integrator (z_integral) and a resonance at the first mode
+          (z_resonance, a frequency-shaped weight) -->  K
         --Kalman predictor on the measured outputs: rigid-body process noise of
           bandwidth_lqg, every flexible mode's velocity gets process noise
           flexible_observer * (its share of a rigid DOF observed at the rigid rate)--> L
-        --modal_sf.observer_controller--> StateSpaceController e = r - y -> u (spec 5)
+        --observer_controller (modal_sf's, plus the z filters fed by z_hat)-->
+          StateSpaceController e = r - y -> u (spec 5)
 
-    tune_inferential: scan (bandwidth, z_weight, flexible_observer), each candidate
-        screened on the model with the loop delay (workbench.loop.screen_loops:
-        stable, |S_ii| <= ms_max on the measured loops) and scored by the H2 norm
-        of the force disturbance -> z on the model (z rms under white forces at the
-        three actuators); lowest kept.
+    tune_inferential: scan (bandwidth, z_weight, flexible_observer, z_resonance), each
+        candidate screened on a model with the loop delay (workbench.loop.screen_loops:
+        stable, |S_ii| <= ms_max on the measured loops; the stage screens on the FE
+        model with its suspension springs) and scored by the peak of |force -> z| (norm
+        over the three actuators) within +-10 % of the model's first flexible mode;
+        lowest kept.
 
 All three actuators act on ``z``: with two suspension (rigid-body) modes and three
 coils the third input direction bends the beam, which is what holds ``z`` at the
@@ -177,8 +181,13 @@ class InferentialDesign:
     Cz, Dz : (1, n), (1, n_u) arrays
         The point of interest on the design states.
     K : (n_u, n_c) array ; L : (n_p, n_y) array
-        State feedback (on the design states, plus the z integrator when
-        ``z_integral``) and predictor observer gain.
+        State feedback (on the design states, then the z filters: the integrator
+        when ``z_integral``, the resonance pair when ``z_resonance``) and
+        predictor observer gain.
+    Phi, Gamma : (n_c, n_c), (n_c, n_u) arrays
+        The model the LQR saw: the design model with the z filters appended
+        (closed-loop poles on the design model: ``eig(Phi - Gamma K)`` and the
+        observer's ``eig(Ad - L C)``, separation).
     controller : StateSpaceController
         e = r - y (measured outputs) -> u (all actuators), D = 0.
     z : str
@@ -199,6 +208,8 @@ class InferentialDesign:
     settings: dict
     report: InferentialTuneReport | None = None
     z_integral: bool = False
+    Phi: np.ndarray | None = None
+    Gamma: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -444,7 +455,7 @@ def design_inferential(
     )
     return InferentialDesign(
         dm=dm, Cz=Cz, Dz=Dz, K=K, L=L, controller=ctrl, z=z, settings=settings,
-        z_integral=bool(z_integral),
+        z_integral=bool(z_integral), Phi=Phi, Gamma=Gamma,
     )  # fmt: skip
 
 

@@ -113,6 +113,40 @@ def test_estimate_error_follows_the_observer_recursion():
     assert np.max(np.abs(np.linalg.eigvals(F))) < 1.0
 
 
+@pytest.mark.parametrize(
+    "kw",
+    [dict(z_integral=True), dict(z_integral=True, z_resonance=10.0), dict(z_integral=False)],
+    ids=["z-integral", "z-integral+resonance", "plain"],
+)
+def test_closed_loop_poles_separate(kw):
+    """Controller on its own design model: poles eig(Phi - Gamma K), eig(Ad - L C) and 0."""
+    from workbench.sim import closed_loop_matrices
+
+    d = design_inferential(
+        _modal(), FS, measured=MEASURED, z=Z, loop_delay_samples=1, observer_ratio=5.0,
+        rigid_damping=1.0, **SETTING, **kw,
+    )  # fmt: skip
+    dm = d.dm
+    Pp, Gp, Cp, Dp = dm.plant  # the delay line inside: no loop delay on top
+    c = d.controller
+    A = closed_loop_matrices((Pp, Gp, Cp, Dp), (c.A, c.B, c.C, c.D))[0]
+    got = np.linalg.eigvals(A)
+    Ad, C = dm.Phi[: dm.n_p, : dm.n_p], dm.C[:, : dm.n_p]
+    # the controller's copy of the delay line is exact: its error is a shift (poles at 0)
+    want = np.concatenate(
+        [
+            np.linalg.eigvals(d.Phi - d.Gamma @ d.K),
+            np.linalg.eigvals(Ad - d.L @ C),
+            np.zeros(dm.n_d),
+        ]
+    )
+    assert got.size == want.size
+    # match each wanted pole to the nearest obtained one (pairs are conjugate-symmetric)
+    for p in want:
+        assert np.min(np.abs(got - p)) < 1e-6, p
+    assert np.max(np.abs(got)) < 1.0
+
+
 def test_no_weight_on_z_is_the_rigid_body_modal_lqg():
     d = design_inferential(
         _modal(), FS, measured=MEASURED, z=Z, loop_delay_samples=1, bandwidth_hz=20.0,
