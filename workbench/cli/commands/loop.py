@@ -68,6 +68,13 @@ def _plant(spec: str):
     obj = load_any(spec)
     if isinstance(obj, TimeData):
         raise InputError(f"{spec}: expected a model or a measured FRF (kind 'frf'), got time data")
+    from workbench.io.formats import FrfData
+    from workbench.signals.quality import check_measurement, check_model
+
+    if isinstance(obj, FrfData):  # the same data-quality warnings as every command that reads one
+        check_measurement(obj, src=spec)
+    else:
+        check_model(obj, src=spec)
     return obj, False
 
 
