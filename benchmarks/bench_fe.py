@@ -32,39 +32,27 @@ from workbench.fe import (
     fe_from_arrays,
     modal_terms,
     predict_frf,
+    prediction_error,
     solve_modes,
     update_fe,
 )
 from workbench.io.formats import FrfData, load_measurement
 from workbench.modal.fit import fit_modal
 
-EXAMPLE = Path("/work/shared/fe_examples/example_beam_update_frf")
+EXAMPLE = Path(__file__).resolve().parents[2] / "shared/fe_examples/example_beam_update_frf"
 
 
 def _update(fe, data: FrfData, band):
     fit = fit_modal(data, band_hz=band)
-    R = fit.c[:, :, None] * fit.b[:, None, :]
-    meas = MeasuredModes(
-        fit.freq_hz,
-        fit.damping,
-        R,
-        data.output_names,
-        data.input_names,
-        freq_std_hz=fit.freq_std_hz,
-        residue_std=fit.c_std[:, :, None] * np.abs(fit.b[:, None, :]),
-    )
-    res = update_fe(fe, meas)
+    res = update_fe(fe, MeasuredModes.from_fit(fit))
     upd = fe_from_arrays(fe_arrays(fe, alpha=res.alpha, damping=res.damping))
     return res, upd
 
 
 def _pred_error(fe, valid: FrfData, f_max):
-    sel = valid.freq <= f_max
-    G = predict_frf(fe, valid.freq[sel], outputs=valid.output_names, inputs=valid.input_names)
-    Gm = valid.G[sel]
-    err = np.mean(np.linalg.norm(G - Gm, axis=(1, 2)) / np.linalg.norm(Gm, axis=(1, 2)))
-    noise = np.mean(np.sqrt(valid.G_var[sel].sum((1, 2))) / np.linalg.norm(Gm, axis=(1, 2)))
-    return err, noise
+    G = predict_frf(fe, valid.freq, outputs=valid.output_names, inputs=valid.input_names)
+    pe = prediction_error(G, valid.output_names, valid, f_max_hz=f_max)
+    return pe.mean, pe.noise_mean
 
 
 def synthetic():

@@ -48,11 +48,19 @@ from typing import Any
 from workbench.core.errors import InputError
 
 from .base import LinearPlant, Plant
-from .beam import BeamConfig, beam, beam_fe_model, beam_modes, beam_prior_config, beam_prior_model
+from .beam import (
+    BeamConfig,
+    beam,
+    beam_config,
+    beam_fe_model,
+    beam_modes,
+    beam_prior_config,
+    beam_prior_model,
+)
 from .effects import Effects, ExtraMode
 from .mechanical import MechanicalPlant, MechanicalPlantState
 from .modal import ModalSet
-from .wafer_stage import StageConfig, frame_rotation_crosstalk, wafer_stage
+from .wafer_stage import StageConfig, frame_rotation_crosstalk, stage_config, wafer_stage
 
 __all__ = [
     "Plant",
@@ -72,10 +80,26 @@ __all__ = [
     "beam_prior_model",
     "frame_rotation_crosstalk",
     "get_plant",
+    "plant_config",
     "PLANTS",
 ]
 
 PLANTS = {"wafer_stage": wafer_stage, "beam": beam}
+_CONFIGS = {"wafer_stage": stage_config, "beam": beam_config}
+
+
+def plant_config(name: str, **fields: Any):
+    """The machine configuration of plant ``name`` with ``fields`` changed (unknown: refused).
+
+    Examples
+    --------
+    >>> plant_config("beam", sensor_tilt_rad=(0.0, 0.3, 0.0, 0.0, 0.0)).sensor_tilt_rad[1]
+    0.3
+    """
+    key = {"stage": "wafer_stage"}.get(name, name)
+    if key not in _CONFIGS:
+        raise InputError(f"plant: unknown name {name!r}; expected one of {sorted(PLANTS)}")
+    return _CONFIGS[key](**fields)
 
 
 def get_plant(name: str, **config: Any) -> MechanicalPlant:

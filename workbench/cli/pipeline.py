@@ -14,6 +14,9 @@ Data flow::
     [model] (a user's model file, or the nominal plant model) ─► [compare] ─►
     [diagnose] ─► [augment] ─► compare again
 
+    FRF ─► [modalfit] modal model ─► [update] FE file (spec 4) ─► updated FE ─►
+    [predict] held-out sensors (workbench.cli.beam_stages)
+
     modal model ─► [design] controllers (pid-notch, modal-sf, ...) ─► [evaluate] on the
     TRUE plant: loop figures per DOF, scan tracking (MA / MSD), bandwidth gain
 
@@ -55,6 +58,12 @@ class RunState:
     model: Any = None  # the user's model (LTIModel, with its delay) for compare/diagnose
     diagnosis: Any = None  # workbench.diagnosis.Diagnosis
     designs: dict[str, Any] = field(default_factory=dict)  # [design]: name -> Design
+    plant_config: Any = None  # the plant's configuration as the scenario set it (or None)
+    modal_fit: Any = None  # [modalfit]: workbench.modal.fit.ModalFit
+    fit_data: Any = None  # the FRF the modal fit used (the sensors kept for fitting)
+    extended: Any = None  # [modalfit] collocated: workbench.modal.scaling.ExtendedModes
+    fe: Any = None  # [update]: the FE model given (workbench.fe.FEModel)
+    fe_updated: Any = None  # [update]: the updated FE model
     summary: dict[str, Any] = field(default_factory=dict)
     files: list[str] = field(default_factory=list)
 
@@ -77,8 +86,15 @@ def stage_plant(st: RunState, table: dict) -> None:
     if name is None:
         raise InputError(f"[plant]: missing key 'name' (one of {', '.join(plants.PLANTS)})")
     effects = take(table, "effects", {}, where="plant", kind=dict)
+    config = take(table, "config", None, where="plant", kind=dict)
     refuse_leftovers(table, where="plant")
-    st.plant = plants.get_plant(name, **effects)
+    if config is not None:
+        # machine parameters (BeamConfig / StageConfig fields); TOML arrays become tuples
+        fields = {k: tuple(v) if isinstance(v, list) else v for k, v in config.items()}
+        st.plant_config = plants.plant_config(name, **fields)
+        st.plant = plants.get_plant(name, config=st.plant_config, **effects)
+    else:
+        st.plant = plants.get_plant(name, **effects)
     st.summary["plant"] = {
         "name": name,
         "fs_hz": st.plant.fs,
@@ -116,14 +132,18 @@ def stage_frf(st: RunState, table: dict) -> None:
         raise InputError("[frf] needs recorded data: an [experiment] table")
     method = take(table, "method", "auto", where="frf", kind=str)
     mark_hz = take(table, "mark_hz", [], where="frf", kind=list)
+    # periods dropped at the start of every block: a lightly damped low mode (the beam's
+    # 3 Hz suspension, time constant 3 s) leaks its transient into many periods
+    n_transient = take(table, "n_transient", 1, where="frf", kind=int)
     refuse_leftovers(table, where="frf")
-    est = estimate_frf(st.data, method=method)
+    est = estimate_frf(st.data, method=method, n_transient=n_transient)
     st.frf = est.frf
     formats.save_measurement(st.path("frf.npz"), st.frf)
     _plot_frf_grid(st.path("frf_measured.png"), st.frf, mark_hz=mark_hz, title="measured FRF")
     st.summary["frf"] = {
         "method": est.method,
         "reference": est.reference,
+        "n_transient": n_transient,
         "n_lines": st.frf.n_f,
         "band_hz": [st.frf.freq[0], st.frf.freq[-1]],
         "mark_hz": mark_hz,
@@ -316,7 +336,7 @@ def stage_functions() -> dict:
     evaluation stages in :mod:`workbench.cli.design_stages`; both import :class:`RunState`
     from here, hence the import inside the function.
     """
-    from workbench.cli import design_stages, inferential_stages, loop_stages
+    from workbench.cli import beam_stages, design_stages, inferential_stages, loop_stages
 
     return {
         "plant": stage_plant,
@@ -329,6 +349,9 @@ def stage_functions() -> dict:
         "compare": loop_stages.stage_compare,
         "diagnose": loop_stages.stage_diagnose,
         "augment": loop_stages.stage_augment,
+        "modalfit": beam_stages.stage_modalfit,
+        "update": beam_stages.stage_update,
+        "predict": beam_stages.stage_predict,
         "design": design_stages.stage_design,
         "evaluate": design_stages.stage_evaluate,
         "inferential": inferential_stages.stage_inferential,

@@ -3,7 +3,7 @@ prediction at any sensor, modal reduction."""
 
 from .eigen import Modes, solve_modes
 from .model import FEModel, fe_arrays, fe_from_arrays, read_fe, save_fe
-from .predict import ModalTerms, modal_terms, predict_frf
+from .predict import ModalTerms, PredictionError, modal_terms, predict_frf, prediction_error
 from .reduce import reduce_fe
 from .update import (
     MeasuredModes,
@@ -11,6 +11,7 @@ from .update import (
     eigen_sensitivities,
     fe_residues,
     mac_matrix,
+    pair_aliases,
     pair_modes,
     update_fe,
 )
@@ -19,6 +20,7 @@ __all__ = [
     "FEModel",
     "MeasuredModes",
     "ModalTerms",
+    "PredictionError",
     "Modes",
     "UpdateResult",
     "eigen_sensitivities",
@@ -27,8 +29,10 @@ __all__ = [
     "fe_residues",
     "mac_matrix",
     "modal_terms",
+    "pair_aliases",
     "pair_modes",
     "predict_frf",
+    "prediction_error",
     "read_fe",
     "reduce_fe",
     "save_fe",

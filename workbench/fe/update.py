@@ -41,6 +41,7 @@ __all__ = [
     "UpdateResult",
     "eigen_sensitivities",
     "mac_matrix",
+    "pair_aliases",
     "pair_modes",
     "fe_residues",
     "update_fe",
@@ -101,6 +102,24 @@ class MeasuredModes:
             object.__setattr__(self, key, v)
         object.__setattr__(self, "output_names", tuple(self.output_names))
         object.__setattr__(self, "input_names", tuple(self.input_names))
+
+    @classmethod
+    def from_fit(cls, fit) -> MeasuredModes:
+        """The measured modes of a :class:`workbench.modal.fit.ModalFit`.
+
+        Residues ``c_k b_k^T`` (the scale split between ``c_k`` and ``b_k`` drops
+        out); their standard deviations ``c_std |b|`` (``b_k`` is pivoted to 1 at
+        its largest entry, so the residue's uncertainty is carried by ``c_k``).
+        """
+        return cls(
+            fit.freq_hz,
+            fit.damping,
+            fit.c[:, :, None] * fit.b[:, None, :],
+            fit.model.output_names,
+            fit.model.input_names,
+            freq_std_hz=fit.freq_std_hz,
+            residue_std=fit.c_std[:, :, None] * np.abs(fit.b[:, None, :]),
+        )
 
 
 def eigen_sensitivities(
@@ -198,6 +217,42 @@ def pair_modes(
     return pairs, unpaired, mac
 
 
+def pair_aliases(
+    meas: MeasuredModes,
+    unpaired,
+    fe_freq_hz: np.ndarray,
+    mac: np.ndarray,
+    fs: float,
+    *,
+    mac_min: float = 0.8,
+    window: float = 0.02,
+) -> list[tuple[int, int]]:
+    """Unpaired measured modes that are sampled images of FE modes above Nyquist.
+
+    A mode at ``f > fs / 2`` of a plant sampled without an anti-aliasing filter
+    shows in the measured FRF at its image ``|f - m fs|`` (nearest multiple m):
+    the 1239 Hz mode of a beam sampled at 2048 Hz appears as a mode at 809 Hz.
+    It pairs when the image is within ``window`` (relative) of the measured
+    frequency and the residue MAC is at least ``mac_min``.
+
+    Returns
+    -------
+    list of (i_measured, k_fe)
+    """
+    f = np.asarray(fe_freq_hz, float)
+    image = np.abs(f - np.round(f / fs) * fs)
+    above = f > fs / 2
+    out, used = [], set()
+    for i in unpaired:
+        close = above & (np.abs(image / meas.freq_hz[i] - 1.0) <= window) & (mac[i] >= mac_min)
+        close[list(used)] = False
+        if np.any(close):
+            k = int(np.flatnonzero(close)[np.argmax(mac[i, close])])
+            out.append((int(i), k))
+            used.add(k)
+    return out
+
+
 @dataclass(frozen=True)
 class UpdateResult:
     """Outcome of :func:`update_fe`.
@@ -208,6 +263,10 @@ class UpdateResult:
         Updated parameters and their standard deviations (SI units).
     alpha_nominal : (p,) array
     pairs : tuple of (i_measured, k_fe); unpaired : tuple of measured indices
+    aliased : tuple of (i_measured, k_fe)
+        Measured modes that are sampled images of FE modes above Nyquist
+        (:func:`pair_aliases`; only with ``fs``): not in the fit, not unpaired;
+        they give those FE modes their damping.
     freq_measured_hz : (n_m,) array
     freq_before_hz, freq_after_hz : (n_fe,) arrays
         FE frequencies at the nominal and updated alpha.
@@ -236,6 +295,77 @@ class UpdateResult:
     cost: float
     n_iter: int
     notes: tuple[str, ...] = field(default=())
+    aliased: tuple = ()
+
+    def report(self, parameter_names) -> dict:
+        """JSON-ready report: parameters before/after +- std, paired modes, MAC, unpaired."""
+        return {
+            "parameters": [
+                {
+                    "name": name,
+                    "before": float(a0),
+                    "after": float(a1),
+                    "std": float(s),
+                    "change_rel": float(a1 / a0 - 1),
+                }
+                for name, a0, a1, s in zip(
+                    parameter_names, self.alpha_nominal, self.alpha, self.alpha_std, strict=True
+                )
+            ],
+            "modes": [
+                {
+                    "measured_index": i,
+                    "fe_index": k,
+                    "freq_measured_hz": float(self.freq_measured_hz[i]),
+                    "freq_before_hz": float(self.freq_before_hz[k]),
+                    "freq_after_hz": float(self.freq_after_hz[k]),
+                    "mac": float(self.mac[i, k]),
+                    "damping": float(self.damping[k]),
+                }
+                for i, k in self.pairs
+            ],
+            "unpaired_measured": [
+                {"measured_index": i, "freq_hz": float(self.freq_measured_hz[i])}
+                for i in self.unpaired
+            ],
+            "aliased_measured": [
+                {
+                    "measured_index": i,
+                    "freq_hz": float(self.freq_measured_hz[i]),
+                    "fe_index": k,
+                    "fe_freq_hz": float(self.freq_after_hz[k]),
+                    "mac": float(self.mac[i, k]),
+                    "damping": float(self.damping[k]),
+                }
+                for i, k in self.aliased
+            ],
+            "mac": self.mac.tolist(),
+            "cost": self.cost,
+            "iterations": self.n_iter,
+            "notes": list(self.notes),
+        }
+
+    def table_text(self, parameter_names) -> str:
+        """Parameters and paired modes before / after, unpaired measured modes (text)."""
+        rep = self.report(parameter_names)
+        lines = [f"{'parameter':<28}{'before':>14}{'after':>14}{'std':>12}"]
+        for p in rep["parameters"]:
+            lines.append(f"{p['name']:<28}{p['before']:>14.6g}{p['after']:>14.6g}{p['std']:>12.3g}")
+        lines.append(f"{'mode':>4}{'measured Hz':>14}{'before Hz':>12}{'after Hz':>12}{'MAC':>7}")
+        for m in rep["modes"]:
+            lines.append(
+                f"{m['fe_index']:>4}{m['freq_measured_hz']:>14.3f}{m['freq_before_hz']:>12.3f}"
+                f"{m['freq_after_hz']:>12.3f}{m['mac']:>7.3f}"
+            )
+        for u in rep["unpaired_measured"]:
+            lines.append(f"unpaired measured mode at {u['freq_hz']:.2f} Hz (no FE partner)")
+        for a in rep["aliased_measured"]:
+            lines.append(
+                f"measured mode at {a['freq_hz']:.2f} Hz = sampled image of FE mode "
+                f"{a['fe_index']} at {a['fe_freq_hz']:.2f} Hz (MAC {a['mac']:.3f}; damping "
+                f"{a['damping']:.4f} carried)"
+            )
+        return "\n".join(lines)
 
 
 def update_fe(
@@ -248,6 +378,7 @@ def update_fe(
     mac_min: float = 0.8,
     freq_window: float = 0.3,
     max_iter: int = 40,
+    fs: float | None = None,
 ) -> UpdateResult:
     """Regularized Gauss-Newton update of alpha on measured modal data.
 
@@ -271,6 +402,11 @@ def update_fe(
         Pairing rule of :func:`pair_modes`.
     max_iter : int
         Gauss-Newton iterations.
+    fs : float, optional
+        Sampling frequency (Hz) of the experiment behind ``meas``: measured
+        modes left unpaired are checked for being sampled images of FE modes
+        above Nyquist (:func:`pair_aliases`); such a mode gives its FE mode the
+        damping of the same decay rate, ``zeta_k = zeta_i f_i / f_k``.
     """
     out_idx = fe.output_index(meas.output_names, "measured modes")
     in_idx = fe.input_index(meas.input_names, "measured modes")
@@ -350,6 +486,10 @@ def update_fe(
     else:
         notes.append(f"Gauss-Newton stopped after {max_iter} iterations")
     alpha, f_after, pairs, unpaired, mac = info
+    aliased = []
+    if fs is not None:
+        aliased = pair_aliases(meas, unpaired, f_after, mac, float(fs), mac_min=mac_min)
+        unpaired = [i for i in unpaired if i not in {a for a, _ in aliased}]
     # Standard deviations from the Gauss-Newton Hessian, inflated by the
     # a-posteriori variance factor when the residuals exceed the assumed noise.
     dof = max(r.size - fe.n_par, 1)
@@ -358,12 +498,17 @@ def update_fe(
     alpha_std = alpha * np.sqrt(np.clip(np.diag(cov), 0, None))
     # the file's damping list, lengthened to cover every paired mode (a scalar in
     # the file held for every mode: it stays with every unpaired one)
-    n_d = max(max(k for _, k in pairs) + 1, fe.n_dof if fe.damping_scalar else fe.damping.size)
+    n_d = max(
+        max(k for _, k in pairs + aliased) + 1,
+        fe.n_dof if fe.damping_scalar else fe.damping.size,
+    )
     damping = fe.mode_damping(n_d)
     fill = fe.damping[-1]
     damping = np.where(np.isnan(damping), fill, damping)
     for i, k in pairs:
         damping[k] = meas.damping[i]
+    for i, k in aliased:  # the image decays as the mode does: same zeta * omega
+        damping[k] = meas.damping[i] * meas.freq_hz[i] / f_after[k]
     return UpdateResult(
         alpha=readonly(alpha),
         alpha_std=readonly(alpha_std),
@@ -378,4 +523,5 @@ def update_fe(
         cost=float(cost),
         n_iter=n_iter,
         notes=tuple(notes),
+        aliased=tuple(aliased),
     )

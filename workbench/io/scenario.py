@@ -12,6 +12,8 @@ present::
     [minimality]   minimality report
     [model]        a user's (nominal) model to check against the data
     [compare], [diagnose], [augment]   the model-versus-measurement loop
+    [modalfit], [update], [predict]    modal fit, FE model updating, prediction at
+                   sensors held out (seed 001)
     [design]       controllers designed on the identified modal model
     [evaluate]     every design on the true plant: loop figures, scan tracking
     [inferential]  the beam's unmeasured point: inferential vs conventional control
@@ -43,6 +45,9 @@ STAGES = (
     "compare",
     "diagnose",
     "augment",
+    "modalfit",
+    "update",
+    "predict",
     "design",
     "evaluate",
     "inferential",

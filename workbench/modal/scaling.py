@@ -100,7 +100,8 @@ class ExtendedModes:
         return np.hstack([self.phi_sensors, np.delete(self.phi_actuators, j, axis=1)])
 
 
-def _index(names: tuple[str, ...], key: str | int, what: str) -> int:
+def channel_index(names: tuple[str, ...], key: str | int, what: str) -> int:
+    """Index of channel ``key`` (a name or an index) in ``names``; one-line refusal otherwise."""
     if isinstance(key, int | np.integer):
         if not 0 <= key < len(names):
             raise InputError(f"{what}: expected an index in 0..{len(names) - 1}, got {key}")
@@ -134,8 +135,8 @@ def scale_modes(model: ModalModel, *, sensor: str | int, actuator: str | int) ->
     """
     if not isinstance(model, ModalModel):
         raise InputError(f"scale_modes: expected a ModalModel, got {type(model).__name__}")
-    i = _index(model.output_names, sensor, "collocated sensor")
-    j = _index(model.input_names, actuator, "collocated actuator")
+    i = channel_index(model.output_names, sensor, "collocated sensor")
+    j = channel_index(model.input_names, actuator, "collocated actuator")
     flex = [k for k, m in enumerate(model.modes) if m.kind == "flexible" and m.is_ideal]
     if not flex:
         raise InputError("scale_modes: expected flexible modes with rank-one residues, got none")

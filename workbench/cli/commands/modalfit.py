@@ -59,7 +59,7 @@ def register(subparsers) -> argparse.ArgumentParser:
 
 def run(args) -> int:
     from workbench.modal.fit import fit_modal, plot_fit_overlay, plot_stabilization
-    from workbench.modal.scaling import scale_modes
+    from workbench.modal.scaling import channel_index, scale_modes
 
     check_not_input(args.out, [args.frf])
     if args.plots:
@@ -75,6 +75,9 @@ def run(args) -> int:
             raise InputError(
                 f"--collocated: expected SENSOR:ACTUATOR (e.g. s1:F1), got {args.collocated!r}"
             )
+    if pair is not None:  # names checked before the fit, not after a minute of work
+        channel_index(data.output_names, pair[0], "collocated sensor")
+        channel_index(data.input_names, pair[1], "collocated actuator")
     result = fit_modal(
         data,
         n_modes=args.modes,

@@ -32,12 +32,20 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--data", required=True, metavar="FRF", help="FRF .npz giving grid and inputs")
     p.add_argument("--outputs", default=None, help="comma-separated output names (default all)")
     p.add_argument("--out", required=True, metavar="PRED", help="predicted FRF .npz (spec 1b)")
+    p.add_argument(
+        "--sampled",
+        action="store_true",
+        help=(
+            "predict what a sampled experiment at the data's fs measures (ZOH, modes above "
+            "Nyquist aliased, ZOH divided out): for data taken without an anti-aliasing filter"
+        ),
+    )
     return p
 
 
 def run(args) -> int:
     from workbench.fe.model import read_fe
-    from workbench.fe.predict import predict_frf
+    from workbench.fe.predict import predict_frf, prediction_error
 
     check_not_input(args.out, [args.fe, args.data])
     fe = read_fe(args.fe)
@@ -54,7 +62,15 @@ def run(args) -> int:
         raise InputError(f"--outputs: expected names such as s3,s4, got {args.outputs!r}")
     fe.output_index(outputs, "--outputs")
     fe.input_index(data.input_names, str(args.data))
-    G = predict_frf(fe, data.freq, outputs=outputs, inputs=data.input_names)
+    if args.sampled and data.fs is None:
+        raise InputError(f"{args.data}: key 'fs': --sampled needs the sampling frequency, got none")
+    G = predict_frf(
+        fe,
+        data.freq,
+        outputs=outputs,
+        inputs=data.input_names,
+        fs=data.fs if args.sampled else None,
+    )
     arrays = {
         "kind": np.array("frf"),
         "freq": data.freq,
@@ -65,18 +81,13 @@ def run(args) -> int:
     if data.fs is not None:
         arrays["fs"] = np.array(data.fs)
     save_npz(args.out, **arrays)
-    common = [o for o in outputs if o in data.output_names]
-    if common:
-        Gp = G[:, [outputs.index(o) for o in common]]
-        Gm = data.G[:, [data.output_names.index(o) for o in common]]
-        err = np.linalg.norm(Gp - Gm, axis=(1, 2)) / np.linalg.norm(Gm, axis=(1, 2))
+    pe = prediction_error(G, outputs, data)
+    if pe is not None:
         print(
-            f"prediction error ({', '.join(common)}): mean {err.mean():.4g}, "
-            f"median {np.median(err):.4g} (||G_pred - G||_F / ||G||_F per line)"
+            f"prediction error ({', '.join(pe.outputs)}): mean {pe.mean:.4g}, "
+            f"median {pe.median:.4g} (||G_pred - G||_F / ||G||_F per line)"
         )
         if data.G_var is not None:
-            floor = np.sqrt(data.G_var[:, [data.output_names.index(o) for o in common]].sum((1, 2)))
-            rel = floor / np.linalg.norm(Gm, axis=(1, 2))
-            print(f"noise level of the data: mean {rel.mean():.4g} (same measure)")
+            print(f"noise level of the data: mean {pe.noise_mean:.4g} (same measure)")
     print(f"wrote {args.out}: outputs {', '.join(outputs)}, inputs {', '.join(data.input_names)}")
     return 0

@@ -13,8 +13,6 @@ from __future__ import annotations
 import argparse
 import json
 
-import numpy as np
-
 from workbench.cli.commands import add_report_outputs
 from workbench.core.atomic import check_not_input, check_output, save_npz, write_text
 from workbench.core.errors import InputError
@@ -45,45 +43,9 @@ def register(subparsers) -> argparse.ArgumentParser:
     return p
 
 
-def report_dict(fe, res) -> dict:
-    """The update report: parameters before/after +- std, frequencies, MAC, unpaired modes."""
-    return {
-        "parameters": [
-            {
-                "name": name,
-                "before": float(a0),
-                "after": float(a1),
-                "std": float(s),
-                "change_rel": float(a1 / a0 - 1),
-            }
-            for name, a0, a1, s in zip(
-                fe.parameter_names, res.alpha_nominal, res.alpha, res.alpha_std, strict=True
-            )
-        ],
-        "modes": [
-            {
-                "measured_index": i,
-                "fe_index": k,
-                "freq_measured_hz": float(res.freq_measured_hz[i]),
-                "freq_before_hz": float(res.freq_before_hz[k]),
-                "freq_after_hz": float(res.freq_after_hz[k]),
-                "mac": float(res.mac[i, k]),
-                "damping": float(res.damping[k]),
-            }
-            for i, k in res.pairs
-        ],
-        "unpaired_measured": [
-            {"measured_index": i, "freq_hz": float(res.freq_measured_hz[i])} for i in res.unpaired
-        ],
-        "mac": res.mac.tolist(),
-        "cost": res.cost,
-        "iterations": res.n_iter,
-        "notes": list(res.notes),
-    }
-
-
 def run(args) -> int:
     from workbench.fe.model import fe_arrays, fe_from_arrays
+    from workbench.fe.plots import plot_update
     from workbench.fe.update import MeasuredModes, update_fe
     from workbench.modal.fit import fit_modal
 
@@ -103,68 +65,15 @@ def run(args) -> int:
     fit = fit_modal(
         data, n_modes=args.modes, band_hz=None if args.band is None else tuple(args.band)
     )
-    # rank-one residues c_k b_k^T: the scale split between c_k and b_k drops out
-    residues = fit.c[:, :, None] * fit.b[:, None, :]
-    meas = MeasuredModes(
-        fit.freq_hz,
-        fit.damping,
-        residues,
-        data.output_names,
-        data.input_names,
-        freq_std_hz=fit.freq_std_hz,
-        residue_std=fit.c_std[:, :, None] * np.abs(fit.b[:, None, :]),
-    )
-    res = update_fe(fe, meas, prior_rel=args.prior_rel)
+    # with the data's fs, unpaired modes are checked for being images of modes above Nyquist
+    res = update_fe(fe, MeasuredModes.from_fit(fit), prior_rel=args.prior_rel, fs=data.fs)
     arrays = fe_arrays(fe, alpha=res.alpha, damping=res.damping, original=raw)
     fe_from_arrays(arrays, src=str(args.out))
     save_npz(args.out, **arrays)
-    report = report_dict(fe, res)
     if args.json:
+        report = res.report(fe.parameter_names)
         write_text(args.json, json.dumps(report, indent=1) + "\n")
     if args.plots:
-        _plots(args.plots, res)
-    print(f"{'parameter':<28}{'before':>14}{'after':>14}{'std':>12}")
-    for p in report["parameters"]:
-        print(f"{p['name']:<28}{p['before']:>14.6g}{p['after']:>14.6g}{p['std']:>12.3g}")
-    print(f"{'mode':>4}{'measured Hz':>14}{'before Hz':>12}{'after Hz':>12}{'MAC':>7}")
-    for m in report["modes"]:
-        print(
-            f"{m['fe_index']:>4}{m['freq_measured_hz']:>14.3f}{m['freq_before_hz']:>12.3f}"
-            f"{m['freq_after_hz']:>12.3f}{m['mac']:>7.3f}"
-        )
-    for u in report["unpaired_measured"]:
-        print(f"unpaired measured mode at {u['freq_hz']:.2f} Hz (no FE partner)")
+        plot_update(args.plots, res)
+    print(res.table_text(fe.parameter_names))
     return 0
-
-
-def _plots(folder, res) -> None:
-    from pathlib import Path
-
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from workbench.core.atomic import atomic_path
-
-    fig, ax = plt.subplots(figsize=(6, 4.5))
-    im = ax.imshow(res.mac, vmin=0, vmax=1, cmap="viridis", aspect="auto")
-    ax.set_xlabel("FE mode")
-    ax.set_ylabel("measured mode")
-    ax.set_title("MAC of residues after the update")
-    fig.colorbar(im, ax=ax)
-    with atomic_path(Path(folder) / "update_mac.png") as tmp:
-        fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    fig, ax = plt.subplots(figsize=(6, 4))
-    im_, kf = [i for i, _ in res.pairs], [k for _, k in res.pairs]
-    fm = res.freq_measured_hz[im_]
-    ax.semilogx(fm, 100 * (res.freq_before_hz[kf] / fm - 1), "o-", label="before")
-    ax.semilogx(fm, 100 * (res.freq_after_hz[kf] / fm - 1), "s-", label="after")
-    ax.set_xlabel("measured frequency (Hz)")
-    ax.set_ylabel("FE - measured (%)")
-    ax.legend()
-    ax.grid(True, which="both", alpha=0.3)
-    with atomic_path(Path(folder) / "update_frequencies.png") as tmp:
-        fig.savefig(tmp, dpi=110)
-    plt.close(fig)

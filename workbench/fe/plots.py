@@ -1,0 +1,91 @@
+"""Figures of FE model updating: the MAC after the update, frequency errors before /
+after, and predicted vs measured FRFs at sensors (held out or not).
+
+Object API on the Agg canvas through :mod:`workbench.plotting` (no pyplot, no
+global backend); every file written atomically.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from workbench.plotting import lean_axes, new_figure, save_png
+
+__all__ = ["plot_update", "plot_prediction"]
+
+
+def plot_update(folder: str | os.PathLike, res) -> list[Path]:
+    """``update_mac.png`` and ``update_frequencies.png`` of an :class:`UpdateResult`."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    fig = new_figure(6, 4.5, dpi=110)
+    ax = fig.subplots()
+    im = ax.imshow(res.mac, vmin=0, vmax=1, cmap="viridis", aspect="auto")
+    ax.set_xlabel("FE mode")
+    ax.set_ylabel("measured mode")
+    ax.set_title("MAC of residues after the update")
+    fig.colorbar(im, ax=ax)
+    save_png(fig, folder / "update_mac.png")
+
+    fig = new_figure(6, 4, dpi=110)
+    ax = fig.subplots()
+    im_, kf = [i for i, _ in res.pairs], [k for _, k in res.pairs]
+    fm = res.freq_measured_hz[im_]
+    ax.semilogx(fm, 100 * (res.freq_before_hz[kf] / fm - 1), "o-", label="before")
+    ax.semilogx(fm, 100 * (res.freq_after_hz[kf] / fm - 1), "s-", label="after")
+    for i in res.unpaired:
+        ax.axvline(res.freq_measured_hz[i], color="0.6", ls=":", lw=0.8)
+    ax.set_xlabel("measured frequency (Hz)  (dotted: unpaired measured modes)")
+    ax.set_ylabel("FE - measured (%)")
+    ax.legend()
+    ax.grid(True, which="both", alpha=0.3)
+    save_png(fig, folder / "update_frequencies.png")
+    return [folder / "update_mac.png", folder / "update_frequencies.png"]
+
+
+def plot_prediction(
+    path: str | os.PathLike,
+    freq_hz: np.ndarray,
+    G_meas: np.ndarray,
+    G_var: np.ndarray | None,
+    predictions: dict[str, np.ndarray],
+    *,
+    input_names,
+    output_names,
+) -> None:
+    """Magnitude per element: measured, its noise level (sqrt G_var), and each prediction.
+
+    Parameters
+    ----------
+    freq_hz : (n_f,) array, Hz
+    G_meas : (n_f, n_y, n_u) complex array, m/N
+    G_var : (n_f, n_y, n_u) array or None
+    predictions : label -> (n_f, n_y, n_u) complex array (e.g. "prior", "updated")
+    """
+    n_f, n_y, n_u = G_meas.shape
+    fig = new_figure(2.8 * n_u + 1, 2.3 * n_y + 1, dpi=90)
+    axes = fig.subplots(n_y, n_u, squeeze=False, sharex=True)
+    colors = ("tab:red", "tab:blue", "tab:green", "tab:orange")
+    for i in range(n_y):
+        for j in range(n_u):
+            ax = axes[i, j]
+            ax.loglog(freq_hz, np.abs(G_meas[:, i, j]), "k", lw=0.8, label="measured")
+            if G_var is not None:
+                ax.loglog(freq_hz, np.sqrt(G_var[:, i, j]), color="0.6", lw=0.6, label="noise")
+            for (label, G), col in zip(predictions.items(), colors):
+                err = np.abs(G[:, i, j] - G_meas[:, i, j])
+                ax.loglog(freq_hz, err, color=col, lw=0.6, ls=":", label=f"|error| {label}")
+                ax.loglog(freq_hz, np.abs(G[:, i, j]), color=col, lw=0.8, label=label)
+            ax.set_title(f"{output_names[i]} / {input_names[j]}", fontsize=8)
+            ax.tick_params(labelsize=6)
+            lean_axes(ax)
+            if i == n_y - 1:
+                ax.set_xlabel("Hz", fontsize=7)
+            if j == 0:
+                ax.set_ylabel("|G|, m/N", fontsize=7)
+    axes[0, 0].legend(fontsize=5)
+    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.08, top=0.93, hspace=0.4, wspace=0.3)
+    save_png(fig, path)
