@@ -146,7 +146,7 @@ def _shape_check(ext, fe, res) -> list[dict]:
 
 def stage_update(st: RunState, table: dict) -> None:
     from workbench.fe.model import fe_arrays, fe_from_arrays
-    from workbench.fe.plots import plot_update
+    from workbench.fe.plots import plot_mode_shapes, plot_update
     from workbench.fe.update import MeasuredModes, update_fe
     from workbench.io.formats import read_npz
 
@@ -170,6 +170,7 @@ def stage_update(st: RunState, table: dict) -> None:
     report = res.report(fe.parameter_names)
     if st.extended is not None:
         report["extended_shapes"] = _shape_check(st.extended, fe, res)
+        plot_mode_shapes(st.path("mode_shapes.png"), fe, res.alpha, st.extended, res.pairs)
     st.write_json("update.json", report)
     st.summary["update"] = {
         "text": res.table_text(fe.parameter_names),

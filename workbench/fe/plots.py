@@ -14,7 +14,7 @@ import numpy as np
 
 from workbench.plotting import lean_axes, new_figure, save_png
 
-__all__ = ["plot_update", "plot_prediction"]
+__all__ = ["plot_update", "plot_prediction", "plot_mode_shapes"]
 
 
 def plot_update(folder: str | os.PathLike, res) -> list[Path]:
@@ -88,4 +88,51 @@ def plot_prediction(
                 ax.set_ylabel("|G|, m/N", fontsize=7)
     axes[0, 0].legend(fontsize=5)
     fig.subplots_adjust(left=0.08, right=0.98, bottom=0.08, top=0.93, hspace=0.4, wspace=0.3)
+    save_png(fig, path)
+
+
+def plot_mode_shapes(path: str | os.PathLike, fe, alpha, ext, pairs) -> None:
+    """Mass-normalized shapes per paired mode: FE (updated) at every sensor and actuator of
+    the file, and the measured shapes that Theorem 2 scaled at the measured channels.
+
+    Parameters
+    ----------
+    fe : FEModel; alpha : (p,) parameters to evaluate it at
+    ext : workbench.modal.scaling.ExtendedModes (measured; rows = fitted modes)
+    pairs : sequence of (i_measured, k_fe)
+    """
+    from .eigen import solve_modes
+
+    pairs = [(i, k) for i, k in pairs if i < ext.phi_sensors.shape[0]]
+    if not pairs:
+        return
+    modes = solve_modes(*fe.matrices(alpha), min(fe.n_dof, max(k for _, k in pairs) + 1))
+    names = list(fe.output_names) + list(fe.input_names)
+    meas_names = list(ext.model.output_names) + list(ext.model.input_names)
+    n = len(pairs)
+    cols = min(3, n)
+    rows = -(-n // cols)
+    fig = new_figure(3.2 * cols + 0.5, 2.4 * rows + 0.6, dpi=90)
+    axes = np.atleast_1d(fig.subplots(rows, cols, squeeze=False)).ravel()
+    x = np.arange(len(names))
+    for ax, (i, k) in zip(axes, pairs):
+        phi = np.concatenate([fe.C @ modes.Phi[:, k], fe.B.T @ modes.Phi[:, k]])
+        meas = np.concatenate([ext.phi_sensors[i], ext.phi_actuators[i]])
+        idx = [names.index(m) for m in meas_names]
+        if np.all(np.isfinite(meas)):
+            phi = phi * np.sign(phi[idx] @ meas)
+        # channels, not positions along the structure: markers, no line between them
+        ax.plot(x, phi, "o", color="tab:blue", ms=4, label="FE (updated)")
+        ax.axvline(len(fe.output_names) - 0.5, color="0.6", lw=0.6, ls=":")
+        ax.plot(idx, meas, "x", color="k", ms=7, label="measured (Thm 2)")
+        ax.axhline(0, color="0.7", lw=0.5)
+        ax.set_xticks(x)
+        ax.set_xticklabels(names, fontsize=6)
+        ax.tick_params(labelsize=6)
+        ax.set_title(f"{modes.freq_hz[k]:.1f} Hz", fontsize=8)
+    for ax in axes[n:]:
+        ax.set_visible(False)
+    axes[0].set_ylabel("phi, 1/sqrt(kg)", fontsize=7)
+    axes[0].legend(fontsize=6)
+    fig.subplots_adjust(left=0.07, right=0.98, bottom=0.08, top=0.93, hspace=0.55, wspace=0.3)
     save_png(fig, path)
