@@ -221,3 +221,31 @@ def test_design_on_the_true_beam_is_stable_with_margins():
     assert_stable(truth, d.controller, loop_delay_samples=1)
     # bound: 6 dB (issue 10) + 2 %: the setting is a scan point, not the tuned one
     assert_margins(truth, d.controller, s_peak_max=2.04, loop_delay_samples=1)
+
+
+@pytest.mark.parametrize(
+    "table, match",
+    [
+        ({"designs": ["lqg"]}, "designs"),
+        ({"models": ["truth"]}, "models"),
+        ({"z": "s9"}, "s9"),
+        ({"ms_max": 0.5}, "ms_max"),
+        ({"scan": {"speed": 1.0}}, "speed"),
+        ({"zz": 1}, "zz"),
+    ],
+    ids=["design", "model", "z", "ms_max", "scan-key", "unknown-key"],
+)
+def test_stage_refuses_a_bad_table_before_any_work(tmp_path, table, match):
+    import plants
+    from workbench.cli.inferential_stages import stage_inferential
+    from workbench.cli.pipeline import RunState
+    from workbench.io.scenario import Scenario
+
+    st = RunState(
+        scenario=Scenario(name="t", seed=0, results=tmp_path), out=tmp_path,
+        rng=np.random.default_rng(0),
+    )  # fmt: skip
+    st.plant = plants.get_plant("beam")
+    with pytest.raises(InputError, match=match):
+        stage_inferential(st, dict(table))
+    assert not list(tmp_path.iterdir())
