@@ -42,7 +42,9 @@ def stacked_signals(signals, scales, start: int, stop: int) -> np.ndarray:
     return np.hstack([s[start:stop] / c for s, c in zip(signals, scales)])
 
 
-def hankel_gram(signals, scales, *, n_blocks: int, n_samples: int, chunk: int = 1024) -> np.ndarray:
+def hankel_gram(
+    signals, scales, *, n_blocks: int, n_samples: int, chunk: int = 4096, rows=None
+) -> np.ndarray:
     """Gram ``H H^T`` of the block-Hankel matrix of stacked signals.
 
     Parameters
@@ -58,10 +60,13 @@ def hankel_gram(signals, scales, *, n_blocks: int, n_samples: int, chunk: int = 
     chunk : int
         Samples per chunk of the correlation sums (bounds memory; rounded to
         whole FFT segments, at least one).
+    rows : (n_sel,) int array, optional
+        Only these rows of the Gram (all its columns): a closed-loop method
+        needs the rows of the excitation alone, a third of the Gram or less.
 
     Returns
     -------
-    (n_blocks * n_ch, n_blocks * n_ch) array
+    (n_blocks * n_ch, n_blocks * n_ch) array, or (n_sel, n_blocks * n_ch) with ``rows``
         Row ``a * n_ch + p`` belongs to block row ``a``, channel ``p``:
         ``G[(a, p), (b, q)] = sum_{t=0}^{j-1} z_{t+a, p} z_{t+b, q}``.
 
@@ -99,6 +104,13 @@ def hankel_gram(signals, scales, *, n_blocks: int, n_samples: int, chunk: int = 
     Fx = np.concatenate([F[:0:-1].transpose(0, 2, 1), F]).transpose(1, 0, 2).copy()
     f0, f1, f2 = Fx.strides
     T = as_strided(Fx[:, k - 1 :], (k, m, k, m), (-f1, f0, f1, f2), writeable=False)
+    if rows is not None:
+        rows = np.asarray(rows, int)
+        G = T[rows // m, rows % m].reshape(rows.size, k * m)  # the selected rows, gathered
+        # G -= E[rows] E^T, in place (BLAS on the transposes: G.T is Fortran-ordered)
+        return scipy.linalg.blas.dgemm(
+            -1.0, E.T, E[rows].T, beta=1.0, c=G.T, trans_a=1, overwrite_c=1
+        ).T
     G = T.reshape(k * m, k * m)  # a copy (the view is not contiguous)
     # G -= E E^T in place: a fresh (k m)^2 temporary costs more in page faults than the
     # product itself; G is symmetric, so its transpose is the Fortran array BLAS updates
@@ -140,9 +152,11 @@ def lag_sums(signals, scales, *, n_lags: int, n_samples: int, chunk: int = 4096)
     N, K = int(n_samples), int(n_lags)
     widths = [np.shape(c)[0] for c in scales]
     m = sum(widths)
-    # FFT length: a fast size about 6 K, segments of P - K + 1 samples (fewer, longer
-    # segments cost more FFT work per sample; shorter ones more of the products)
-    P = scipy.fft.next_fast_len(max(6 * K, 32), real=True)
+    # FFT length: the power of two nearest 6 K (at least 4.2 K), segments of P - K + 1 samples
+    # (fewer, longer segments cost more FFT work per sample; shorter ones more of the
+    # products). A power of two: pocketfft's fastest, 256 for K = 40 took 3.1 ms against
+    # 3.5 ms for the 240 of next_fast_len (benchmarks/bench_subspace.py's 6x6 record)
+    P = max(2 ** int(np.round(np.log2(6 * K))), 32)
     B = P - K + 1
     n_seg = -(-N // B)
     per_chunk = max(1, int(chunk) // B)

@@ -120,7 +120,7 @@ def identify_subspace(
     max_order: int | None = None,
     factorization: Literal["gram", "qr"] = "gram",
     projection: Literal["auto", "lags", "periodic"] = "auto",
-    chunk: int = 1024,
+    chunk: int = 4096,
     bd: Literal["auto", "least-squares", "projection"] = "auto",
     orders=None,
 ) -> SubspaceResult:
@@ -459,14 +459,26 @@ def _data_factor(signals, scales, *, i, n_r, n_u, n_y, N, factorization, chunk, 
             return np.linalg.qr(M.T, mode="r").T, S
         Rt = np.linalg.qr(H[order_z].T, mode="r")
         return Rt.T, S
-    G = hankel_gram(signals, scales, n_blocks=k, n_samples=N, chunk=chunk)
     iuf, iyf = rows(iu, n_u, future), rows(iy, n_y, future)
+    if n_r and not cva:
+        # the projection onto R needs the rows of R alone: G_RR and G_RZ
+        ir = rows(0, n_r, range(k))
+        G_R = hankel_gram(signals, scales, n_blocks=k, n_samples=N, chunk=chunk, rows=ir)
+        M = _project_onto(G_R[:, ir], G_R[:, order_z])
+        return _lq(M), None
+    G = hankel_gram(signals, scales, n_blocks=k, n_samples=N, chunk=chunk)
     S = _perp_gram(G[np.ix_(iyf, iyf)], G[np.ix_(iyf, iuf)], G[np.ix_(iuf, iuf)]) if cva else None
     if n_r:
         ir = rows(0, n_r, range(k))
         M = _project_onto(G[np.ix_(ir, ir)], G[np.ix_(ir, order_z)])
-        return np.linalg.qr(M.T, mode="r").T, S
+        return _lq(M), S
     return _factor(G[np.ix_(order_z, order_z)]), S
+
+
+def _lq(M: np.ndarray) -> np.ndarray:
+    """Lower LQ factor L of M (rows x c), ``L L^T = M M^T``: the R factor of M^T, transposed."""
+    # M^T is Fortran-ordered when M is C-ordered: LAPACK factors it in place, no copy
+    return scipy.linalg.qr(M.T, mode="r", overwrite_a=True, check_finite=False)[0].T
 
 
 def _factor(Gz: np.ndarray) -> np.ndarray:
@@ -552,11 +564,15 @@ def _project_onto(G_RR: np.ndarray, G_RZ: np.ndarray) -> np.ndarray:
     up to 60 % of Nyquist, say) leaves a numerically null part of its lagged
     row space, which carries no data and is dropped rather than inverted.
     """
-    lam, V = np.linalg.eigh(G_RR)
+    # G_RR is a gathered copy: LAPACK's divide and conquer (syevd, numpy's driver too) may
+    # overwrite it, and the finite check is the data's, done at the boundary
+    lam, V = scipy.linalg.eigh(G_RR, driver="evd", overwrite_a=True, check_finite=False)
     keep = lam > lam[-1] * 1e-12
     if not np.any(keep) or lam[-1] <= 0:
         raise InputError("data: key 'r': the excitation is zero; closed-loop methods need r")
-    return (G_RZ.T @ V[:, keep]) / np.sqrt(lam[keep])
+    # eigenvalues ascend: the kept ones are a tail, and the scaling goes on the small factor
+    first = int(np.argmax(keep))
+    return G_RZ.T @ (V[:, first:] / np.sqrt(lam[first:]))
 
 
 def _rank_revealing(L: np.ndarray, a: int, *, rtol: float = 1e-8) -> tuple[np.ndarray, int]:
@@ -587,19 +603,29 @@ def _weighted_svd(L, S_cva, *, r1, i, n_u, n_y, method):
     c2 = slice(r1, c)  # everything orthogonal to U_f (block-3 columns are 0 in W_p's rows)
     L21, L22 = L[a : a + b, c1], L[a : a + b, c2]
     L32 = L[a + b :, c2]
-    # orthonormal basis of the row space of L22 (rank-revealing)
-    U22, s22, Vt22 = np.linalg.svd(L22, full_matrices=False)
+    n4sid = method.endswith("n4sid")
+    if not n4sid:
+        # MOESP and CVA use L22 only through the projector onto its row space: when L22 has
+        # full column rank that is the identity on the c2 columns (L32 L22^+ L22 = L32), and
+        # its singular values alone tell it; the vectors are needed only below full rank
+        s22 = scipy.linalg.svdvals(L22, check_finite=False)
+        full = s22.size == L22.shape[1] and (s22.size == 0 or s22[-1] > s22[0] * 1e-8)
+    if n4sid or not full:
+        # orthonormal basis of the row space of L22 (rank-revealing)
+        U22, s22, Vt22 = np.linalg.svd(L22, full_matrices=False)
     tol = s22[0] * 1e-8 if s22.size else 0.0
     r22 = int(np.sum(s22 > tol))
-    V = Vt22[:r22].T  # (cols of c2, r22)
-    if method.endswith("n4sid"):
+    if n4sid:
         # O_i = L32 L22^+ [L21 L22]
+        V = Vt22[:r22].T  # (cols of c2, r22)
         L22p = V @ (U22[:, :r22] / s22[:r22]).T
         O = L32 @ L22p @ np.hstack([L21, L22])
         W1inv = np.eye(i * n_y)
         target = O
     else:
-        target = L32 @ V  # L32 L22^+ L22 in the basis V
+        # L32 L22^+ L22 in the basis V of L22's row space (the same singular values and left
+        # vectors as in any orthonormal basis of it: with full rank, the c2 columns themselves)
+        target = L32 if full else L32 @ Vt22[:r22].T
         W1inv = np.eye(i * n_y)
         if method.endswith("cva"):
             lam, E = np.linalg.eigh(S_cva)
@@ -615,7 +641,7 @@ def _weighted_svd(L, S_cva, *, r1, i, n_u, n_y, method):
             W1 = (E / np.sqrt(lam)) @ E.T
             W1inv = (E * np.sqrt(lam)) @ E.T
             target = W1 @ target
-    Us, sv, _ = np.linalg.svd(target, full_matrices=False)
+    Us, sv = scipy.linalg.svd(target, full_matrices=False, check_finite=False)[:2]
     return Us, sv, W1inv
 
 
@@ -632,21 +658,22 @@ def _b_d(L, A, C, *, r1, i, n_u, n_y, feedthrough):
     P = Ug[:, n:].T  # (i n_y - n, i n_y), P Gamma = 0
     L11 = L[:a, :r1]
     L31 = L[a + b :, :r1]
-    if r1 == a and np.allclose(np.triu(L11, 1), 0.0):
+    if r1 == a and not np.any(np.abs(L11[np.triu_indices(a, 1)]) > 1e-8):  # lower triangular
         K = P @ scipy.linalg.solve_triangular(L11, L31.T, lower=True, trans="T").T  # P L31 L11^-1
     else:
         K = P @ L31 @ np.linalg.pinv(L11)
-    rows = []
-    rhs = []
-    for q in range(i):
-        Pq = P[:, q * n_y : (q + 1) * n_y]
-        tail = (
-            P[:, (q + 1) * n_y :] @ Gam[: (i - q - 1) * n_y]
-            if q < i - 1
-            else np.zeros((P.shape[0], n))
-        )
-        rows.append(np.hstack([Pq, tail]) if feedthrough else tail)
-        rhs.append(K[:, q * n_u : (q + 1) * n_u])
+    # block row q: [P_q, sum_{p > q} P_p C A^(p - q - 1)]; the tails by Horner's rule from the
+    # last block row up, tail_q = P_(q+1) C + tail_(q+1) A
+    n_p = P.shape[0]
+    tails = np.zeros((i, n_p, n))
+    for q in range(i - 2, -1, -1):
+        tails[q] = P[:, (q + 1) * n_y : (q + 2) * n_y] @ C + tails[q + 1] @ A
+    if feedthrough:
+        Pq = P.reshape(n_p, i, n_y).transpose(1, 0, 2)  # (i, n_p, n_y): block q is P_q
+        rows = list(np.concatenate([Pq, tails], axis=2))
+    else:
+        rows = list(tails)
+    rhs = list(K.reshape(n_p, i, n_u).transpose(1, 0, 2))
     if r1 == a:
         sol = np.linalg.lstsq(np.vstack(rows), np.vstack(rhs), rcond=None)[0]
     else:
