@@ -56,6 +56,7 @@ from controllers.modal_sf import (
     _obs_matrices,
     _per_mode,
     _rigid_bandwidths,
+    add_rigid_weights,
     design_model,
     observer_controller,
 )
@@ -273,7 +274,6 @@ def inferential_weights(
     n_u = dm.Gamma.shape[1]
     Q = np.zeros((dm.n, dm.n))
     W = np.zeros((dm.n_p, dm.n_p))
-    i0 = dm.n_p + dm.n_d
     rigid = [k for k, md in enumerate(modes) if md.kind == "rigid"]
     if not rigid:
         raise InputError(
@@ -281,23 +281,11 @@ def inferential_weights(
         )
     w_r = 2 * np.pi * float(np.min(bw[rigid]))
     wo_r = min(float(np.min(ro[rigid])) * w_r, 2 * np.pi * 0.45 * dm.fs)
-    j = 0
-    for k, (md, sl) in enumerate(zip(modes, dm.mode_states)):
-        nb = float(np.sum(np.square(md.b))) or 1e-300
-        nc = float(np.sum(np.square(md.c))) or 1e-300
+    for md, sl in zip(modes, dm.mode_states):
         if md.kind == "flexible":
+            nc = float(np.sum(np.square(md.c))) or 1e-300
             W[sl.stop - 1, sl.stop - 1] = flexible_observer * wo_r**4 * dm.dt**2 / nc
-            continue
-        if md.kind != "rigid":
-            continue
-        w = 2 * np.pi * bw[k]
-        Q[sl.start, sl.start] = w**4 / nb
-        Q[sl.start + 1, sl.start + 1] = max(4 * zr[k] ** 2 - 2, 0.0) * w**2 / nb
-        if j < dm.n_i:
-            Q[i0 + j, i0 + j] = w**4 / nb * (integral_ratio * w) ** 2
-        j += 1
-        wo = min(ro[k] * w, 2 * np.pi * 0.45 * dm.fs)
-        W[sl.start + 1, sl.start + 1] = wo**4 * dm.dt**2 / nc
+    add_rigid_weights(dm, Q, W, bw=bw, zr=zr, ro=ro, integral_ratio=integral_ratio)
     # z's rigid-body acceleration per input: the z row of the rigid residue sum c_z b^T
     nz = _rigid_acceleration_norm(dm, Cz)
     q = z_weight * w_r**4 / nz**2

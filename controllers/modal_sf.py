@@ -543,11 +543,9 @@ def bandwidth_lqg(
     zr = _per_mode(rigid_damping, len(modes), "rigid_damping")
     Q = np.zeros((dm.n, dm.n))
     W = np.zeros((dm.n_p, dm.n_p))
-    i0 = dm.n_p + dm.n_d
-    j = 0
     rigid = [k for k, md in enumerate(modes) if md.kind == "rigid"]
     w_r = 2 * np.pi * float(np.min(bw[rigid])) if rigid else 0.0
-    for k, (md, sl) in enumerate(zip(modes, dm.mode_states)):
+    for md, sl in zip(modes, dm.mode_states):
         if md.kind == "flexible" and flexible > 0 and rigid:
             # active damping: the mode's scaled states (w q, dq/dt) weighted like a rigid
             # position at the (lowest) rigid bandwidth, times `flexible`; its observer gets the
@@ -557,20 +555,7 @@ def bandwidth_lqg(
             Q[sl, sl] = flexible * w_r**4 / nb / md.omega**2 * np.eye(2)
             wo = min(float(np.min(ro[rigid])) * w_r, 2 * np.pi * 0.45 * dm.fs)
             W[sl.stop - 1, sl.stop - 1] = flexible * wo**4 * dm.dt**2 / nc
-            continue
-        if md.kind != "rigid":
-            continue
-        w = 2 * np.pi * bw[k]
-        nb = float(np.sum(np.square(md.b))) or 1e-300
-        nc = float(np.sum(np.square(md.c))) or 1e-300
-        Q[sl.start, sl.start] = w**4 / nb
-        # velocity weight: the LQR pair s^2 + 2 zeta w s + w^2 (zeta >= 1/sqrt 2)
-        Q[sl.start + 1, sl.start + 1] = max(4 * zr[k] ** 2 - 2, 0.0) * w**2 / nb
-        if j < dm.n_i:
-            Q[i0 + j, i0 + j] = w**4 / nb * (integral_ratio * w) ** 2
-        j += 1
-        wo = min(ro[k] * w, 2 * np.pi * 0.45 * dm.fs)
-        W[sl.start + 1, sl.start + 1] = wo**4 * dm.dt**2 / nc
+    add_rigid_weights(dm, Q, W, bw=bw, zr=zr, ro=ro, integral_ratio=integral_ratio)
     K = lqr_gain(dm, Q, np.eye(dm.Gamma.shape[1]))
     Ad, C = _obs_matrices(dm)
     try:
@@ -578,6 +563,32 @@ def bandwidth_lqg(
     except (ValueError, np.linalg.LinAlgError) as exc:
         raise InputError(f"kalman: the Riccati equation has no usable solution ({exc})") from exc
     return K, np.asarray(L, float)
+
+
+def add_rigid_weights(dm, Q, W, *, bw, zr, ro, integral_ratio: float) -> None:
+    """Fill the LQR weights ``Q`` and Kalman process noise ``W`` of every rigid mode (in place).
+
+    Rigid mode k at bandwidth ``w_k = 2 pi bw[k]``: position ``w_k^4 / |b_k|^2``,
+    velocity ``(4 zeta_k^2 - 2) w_k^2 / |b_k|^2`` (the LQR pair ``s^2 + 2 zeta w s +
+    w^2``, zeta >= 1/sqrt 2), its integral state ``w_k^4 / |b_k|^2 (integral_ratio
+    w_k)^2``; process noise ``w_o^4 dt^2 / |c_k|^2`` on its velocity state, ``w_o =
+    ro[k] w_k`` (at most 0.45 fs). ``bw``, ``zr``, ``ro``: per mode of ``dm.modal``.
+    """
+    i0 = dm.n_p + dm.n_d
+    j = 0
+    for k, (md, sl) in enumerate(zip(dm.modal.modes, dm.mode_states)):
+        if md.kind != "rigid":
+            continue
+        w = 2 * np.pi * bw[k]
+        nb = float(np.sum(np.square(md.b))) or 1e-300
+        nc = float(np.sum(np.square(md.c))) or 1e-300
+        Q[sl.start, sl.start] = w**4 / nb
+        Q[sl.start + 1, sl.start + 1] = max(4 * zr[k] ** 2 - 2, 0.0) * w**2 / nb
+        if j < dm.n_i:
+            Q[i0 + j, i0 + j] = w**4 / nb * (integral_ratio * w) ** 2
+        j += 1
+        wo = min(ro[k] * w, 2 * np.pi * 0.45 * dm.fs)
+        W[sl.start + 1, sl.start + 1] = wo**4 * dm.dt**2 / nc
 
 
 # ------------------------------------------------------------------ observers
