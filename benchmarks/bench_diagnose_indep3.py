@@ -1,7 +1,8 @@
 """Diagnose on the third independent generator (tests/indepgen3.py): confusion table.
 
 Run: ``python benchmarks/bench_diagnose_indep3.py [--seed S] [--kinds frf,time]
-[--plants shaft,planar,beam] [--effects a,b] [--n-frf 2] [--save DIR] [--json OUT]``.
+[--plants shaft,planar,beam] [--effects a,b] [--n-frf 2] [--start any|rest|moving]
+[--save DIR] [--json OUT]``.
 
 Per case: truth, top finding, key parameter check, error_after / noise floor,
 the effect's visibility (its share of the response over the noise floor) and
@@ -193,6 +194,12 @@ def main(argv=None) -> int:
     ap.add_argument("--n-frf", type=int, default=2, help="FRF cases per plant x effect")
     ap.add_argument("--save", metavar="DIR", help="write every case (model, measurement, answer)")
     ap.add_argument("--json", metavar="OUT", help="write the per-case rows as JSON")
+    ap.add_argument(
+        "--start",
+        choices=("any", "rest", "moving"),
+        default="any",
+        help="time records: only those starting at rest, or only those starting mid-motion",
+    )
     args = ap.parse_args(argv)
     from workbench.diagnosis import diagnose
 
@@ -208,6 +215,9 @@ def main(argv=None) -> int:
     t_all = time.perf_counter()
     for k, (plant, effect, kind, rng) in enumerate(suite):
         case = make_case(effect, plant, kind, rng)
+        if kind == "time" and args.start != "any":
+            if case.answer["at_rest"] != (args.start == "rest"):
+                continue
         if args.save:
             save_case(case, Path(args.save) / f"{k:03d}-{case.name}")
         data = to_measurement(case)

@@ -770,14 +770,20 @@ def _time_effect_error(truth: Truth, nominal: Modes, data: dict) -> float:
 
 
 def make_suite(seed: int, *, kinds=("frf", "time"), plants=PLANTS, effects=EFFECTS, n_frf=2):
-    """Every effect x plant, ``n_frf`` FRF cases and one time record each, seeded."""
+    """Every effect x plant, ``n_frf`` FRF cases and one time record each, seeded.
+
+    A case's generator is seeded by (seed, plant, effect, kind, repetition) as
+    their indices in PLANTS, EFFECTS and ("frf", "time"): a subset of the suite
+    holds the very cases of the whole suite.
+    """
     out = []
-    for p_i, plant in enumerate(plants):
-        for e_i, effect in enumerate(effects):
+    for plant in plants:
+        for effect in effects:
             for kind in kinds:
                 reps = n_frf if kind == "frf" else 1
                 for rep in range(reps):
-                    rng = np.random.default_rng([seed, p_i, e_i, kinds.index(kind), rep])
+                    key = [PLANTS.index(plant), EFFECTS.index(effect), ("frf", "time").index(kind)]
+                    rng = np.random.default_rng([seed, *key, rep])
                     out.append((plant, effect, kind, rng))
     return out
 
