@@ -62,6 +62,11 @@ def stage_diagnose(st: RunState, table: dict) -> None:
             {k: f[k] for k in ("effect", "parameters", "error_after")} for f in payload["findings"]
         ],
     }
+    if "remaining" in payload:  # compare's verdict on the diagnosed model: within noise or not
+        rem = payload["remaining"]
+        st.summary["diagnose"]["remaining"] = {
+            k: rem[k] for k in ("within_noise", "z_mean", "n_failing_bands", "explanation")
+        }
     st.diagnosis = result
 
 

@@ -21,8 +21,8 @@ from workbench.core.errors import InputError
 from workbench.core.jsonutil import jsonable
 from workbench.core.model import LTIModel, as_model, pade_delay, pade_order, with_pade
 from workbench.diagnosis import LINEAR_EFFECTS, detect
-from workbench.diagnosis.diagnose import _spec_error, base_model, model_notes
-from workbench.diagnosis.effects import candidate_structures
+from workbench.diagnosis.diagnose import _bic, _spec_error, base_model, model_notes
+from workbench.diagnosis.effects import candidate_structures, refinements
 from workbench.diagnosis.fit import FitResult, fit, screen
 from workbench.diagnosis.nonlinear import PortNonlinearity
 from workbench.diagnosis.problem import make_problem
@@ -123,12 +123,15 @@ def augment(
                 f"--effect {effect}: does not apply to this model (e.g. suspension_stiffness "
                 "needs rigid-body modes, modal_mismatch a mode in the measured band)"
             )
-        best: FitResult | None = None
+        results: list[FitResult] = []
         for s in structures:
             _, starts = screen(s, problem, base)
-            r = fit(s, problem, base, starts=starts)
-            if best is None or r.cost < best.cost:
-                best = r
+            results.append(fit(s, problem, base, starts=starts))
+        for r in list(results):  # a shared modal pattern refined mode by mode
+            for s, start in refinements(r, base):
+                results.append(fit(s, problem, base, starts=[start], n_starts=1))
+        # the structures differ in their number of parameters: rank as diagnose does (BIC)
+        best = min(results, key=lambda r: _bic(r.cost, problem.n_obs, r.n_params))
         params, params_std = best.structure.report(best, problem, base)
         note = "; ".join(model_notes(model))
         return Augmented(

@@ -5,10 +5,22 @@ projected cost, the most promising are fitted (fit.py), and the candidates
 are ranked by the Bayesian information criterion with the noise scale
 estimated from the data, BIC = n ln(cost / n) + k ln n (k = all parameters,
 linear ones included, so a flexible effect does not win by fitting noise).
-The best is accepted when its BIC is lower, it lowers the spec error by at
-least 15 %, and (when G_var gives the noise floor) the error was not already
-at the noise floor. An accepted effect is added to the model and the next
-round looks for a second one on top of it.
+The best is accepted when its BIC is lower and it lowers the spec error by at
+least 15 % (or the weighted misfit by 30 %, or it brings the model within
+noise by compare's criterion); a candidate whose spec error does not fall is
+never a finding (it is listed under alternatives with its numbers). An
+accepted effect is added to the model, the linear parts of the added modes are
+refitted jointly (backfit / polish), and the next round looks for a second
+effect on top of it.
+
+The loop ends when compare (:func:`workbench.validate.compare.compare`, its
+own noise test) finds the model within noise, when no effect is significant,
+or after ``max_effects`` rounds. The final verdict is ``Diagnosis.remaining``:
+within noise, or the bands that still fail; 'none' is reported only when
+compare finds the model within noise (or, without a noise reference, when no
+effect lowers the error). A nonlinearity is a finding only with a fitted port
+element (friction, cubic spring, saturation) whose nonlinear simulation model
+lowers the error (:func:`workbench.diagnosis.nonlinear.fit_port_element`).
 """
 
 from __future__ import annotations
@@ -24,7 +36,13 @@ from workbench.core.errors import InputError
 from workbench.core.jsonutil import jsonable
 from workbench.core.lti import as_matrices, frf, relative_error_frf, relative_error_time
 from workbench.diagnosis import detect
-from workbench.diagnosis.effects import candidate_structures
+from workbench.diagnosis.effects import (
+    _rank_one,
+    backfit,
+    candidate_structures,
+    polish,
+    refinements,
+)
 from workbench.diagnosis.explain import explain
 from workbench.diagnosis.fit import FitResult, fit, fit_joint, screen
 from workbench.diagnosis.modal import decompose
@@ -124,6 +142,9 @@ class Diagnosis:
         Runner-up explanations of the first round (effect, error_after, delta_bic).
     noise_floor : float or None
         Error expected from the noise alone (FRF data with G_var).
+    remaining : dict or None
+        compare's verdict on the final model: within noise, or the bands that still
+        fail (what no finding explains).
     model : ModalModel
         The model with every finding added, in the diagnosis's form
         (:func:`workbench.diagnosis.modal.decompose`: rigid modes merged, added
@@ -138,6 +159,10 @@ class Diagnosis:
     data_kind: str = "frf"
     notes: tuple[str, ...] = ()
     model: ModalModel | None = field(default=None, repr=False, compare=False)
+    remaining: dict | None = None
+    """compare's verdict on the final model (:func:`workbench.validate.compare.compare`):
+    ``within_noise``, ``z_mean``, the worst failing bands and what they mean; None when
+    the data carry no noise reference (FRF without G_var, non-periodic time record)."""
 
     def to_json(self) -> dict:
         out: dict[str, Any] = {
@@ -150,6 +175,8 @@ class Diagnosis:
         out["alternatives"] = jsonable(list(self.alternatives))
         if self.notes:
             out["notes"] = list(self.notes)
+        if self.remaining is not None:
+            out["remaining"] = jsonable(self.remaining)
         return out
 
 
@@ -274,6 +301,10 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Dia
     # unexcited lines of r is tested on the raw output, before any linear model is fitted (a
     # nonlinearity such as friction makes a linear model's simulation drift, and the linear
     # search would otherwise name whatever absorbs the drift, e.g. suspension_stiffness).
+    # FRF with G_var: compare's noise test (cheap on an FRF) decides every round whether
+    # something is still missing; elsewhere the floor / periodic tests below, and compare's
+    # verdict on the final model
+    per_round_verdict = problem.kind == "frf" and problem.has_var
     nl_first = None
     if isinstance(data, TimeData) and data.loop == "closed" and data.r is not None:
         nl0 = detect.nonlinearity(data, None)
@@ -287,7 +318,11 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Dia
             max_effects = min(max_effects, 1)
             n_full_fits = 2 if n_full_fits is None else n_full_fits
     for round_ in range(max_effects):
-        if floor is not None and cur_err <= FLOOR_RATIO * floor:
+        if per_round_verdict:
+            # the loop ends where compare says the model is right within noise
+            if _verdict(current, data).within_noise:
+                break
+        elif floor is not None and cur_err <= FLOOR_RATIO * floor:
             break
         if isinstance(data, TimeData):
             F = detect.periodic_misfit(data, problem.predict(current))
@@ -318,6 +353,9 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Dia
             # one-parameter structures are cheap and a coarse grid understates them: refine
             if i < n_fits or len(s.bounds(problem, current)[0]) <= 1:
                 results.append(fit(s, problem, current, starts=starts))
+        for r in list(results):
+            for s, start in refinements(r, current):
+                results.append(fit(s, problem, current, starts=[start], n_starts=1))
         bic0 = _bic(cur_cost, n, sum(a.n_params for a in accepted))
         ranked = sorted(results, key=lambda r: _bic(r.cost, n, r.n_params))
         best = ranked[0]
@@ -367,7 +405,26 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Dia
         # significant (BIC), and large: the spec error falls by 15 %, or the noise-weighted
         # misfit by 30 % (with two effects present the first may move the spec error little)
         large = last.error <= ERROR_RATIO * cur_err or last.cost <= COST_RATIO * cur_cost
+        if not large and d_bic > 0 and per_round_verdict:
+            # a small but significant effect that brings the model within noise by compare's
+            # criterion (a subtle low suspension: few lines, the rest already right)
+            large = _verdict(last.model, data).within_noise
         if d_bic <= 0 or not large:
+            break
+        chain_errs = [cur_err0] + [a.error for a in best_chain]
+        if not last.error < cur_err:
+            chain_errs.append(np.inf)  # not below the (refined) current model's error
+        if not all(b < a for a, b in zip(chain_errs, chain_errs[1:])) and accepted:
+            # the joint refit moved an earlier finding so that its step no longer lowers the
+            # error: keep the earlier findings as they were and add the new one on top
+            seq = accepted + [best]
+            seq_errs = [cur_err0] + [a.error for a in seq]
+            if all(b < a for a, b in zip(seq_errs, seq_errs[1:])):
+                best_chain, best_bases, last = seq, accepted_bases + [current], best
+                chain_errs = seq_errs
+        if not all(b < a for a, b in zip(chain_errs, chain_errs[1:])):
+            # a finding never makes the error worse: the candidate is only an alternative
+            alternatives.append(_rejected(last, cur_err, problem, best_bases[-1]))
             break
         runner = next((r for r in ranked if r.effect != last.effect), None)
         runners.append(runner)
@@ -379,6 +436,15 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Dia
         ]
         current = last.model
         cur_cost, cur_err = last.cost, last.error
+        if any(m.effect in ("missing_mode", "upper_residual") for m in current.modes):
+            polished = backfit(current, problem, d0=base.D)
+            if per_round_verdict and not _verdict(polished, data).within_noise:
+                polished = polish(polished, problem, d0=base.D)
+            if polished is not current:
+                current = polished
+                cur_cost, cur_err = problem.cost(current), problem.error(current)
+                found = _refresh_added(found, current, base)
+                found[-1] = replace(found[-1], model=current, error_after=cur_err)
         if last.effect != "missing_mode":
             exclude.add(last.effect)
     found = _merge_compliance(found)
@@ -388,8 +454,12 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Dia
         if isinstance(data, TimeData) and nl_first is None
         else None
     )
+    # a nonlinearity is a finding only when a fitted port element (friction, cubic spring,
+    # saturation) in the simulation model lowers the error: a linear misfit at low frequency
+    # (a suspension, crosstalk) is not reduced by one, and is no false alarm
+    nl_ev, nl_first_rank = None, False
     if nl_first is not None:
-        found.insert(0, _nonlinearity_finding(nl_first, data, error_before))
+        nl_ev, nl_first_rank = nl_first, True
     elif F_end is not None and F_end > PERIODIC_NL and (nl is None or nl.f_stat <= NL_F):
         # a reproducible (period-synchronous) residual that no linear effect of the vocabulary
         # removes: the response is not linear in the recorded input (friction, saturation of
@@ -397,28 +467,44 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Dia
         # spring to the world on a rigid body, which is what a force error integrated twice
         # looks like to a linear model), after the linear findings otherwise.
         level = float(min(cur_err**2, 1.0))
-        ev = detect.NonlinearityEvidence(
+        nl_ev = detect.NonlinearityEvidence(
             level=level, f_stat=float(F_end), n_lines=0, band_hz=problem.band_hz
         )
-        finding = _nonlinearity_finding(ev, data, error_before)
-        drift_only = [f.effect for f in found] == ["suspension_stiffness"]
-        if drift_only:
-            found.insert(0, finding)
-        else:
-            found.append(finding)
+        nl_first_rank = [f.effect for f in found] == ["suspension_stiffness"]
     elif nl is not None and nl.f_stat > NL_F and nl.level > 1e-4:
         # periodic power where a linear system has none: distortion. It ranks first when it
         # carries a share of the output power comparable with the linear misfit.
-        finding = _nonlinearity_finding(nl, data, error_before)
-        if nl.level >= 0.5 * error_before**2:
+        nl_ev, nl_first_rank = nl, nl.level >= 0.5 * error_before**2
+    if nl_ev is not None:
+        # the element is fitted on the final linear model and, when the linear findings may
+        # only absorb what the nonlinearity does (a drift), on the model as given
+        # (a suspension found by the linear search is what a hardening spring or friction
+        # linearizes to: the element is then tried on the model as given too)
+        absorbs = nl_first_rank or (
+            bool(found) and all(f.effect == "suspension_stiffness" for f in found)
+        )
+        linear = [current] + ([base] if absorbs and current is not base else [])
+        finding, alt = _nonlinearity_finding(
+            nl_ev, data, error_before, linear, cur_err, direct=nl_ev.n_lines > 0
+        )
+        if finding is None:
+            alternatives.append(alt)
+        elif finding.model is base:
+            # the nonlinear element on the given model explains the record better than the
+            # linear findings: they absorbed its drift or its linearized stiffness
+            found, current = [finding], base
+            cur_err = problem.error(base)
+        elif nl_first_rank:
             found.insert(0, finding)
         else:
             found.append(finding)
+    remaining = _remaining(current, data)
     if not any(f.effect != "nonlinearity" for f in found):
-        found.append(
-            _none_finding(problem, current, data, cur_err, error_before, floor, alternatives)
-        )
-        found = [f for f in found if f.effect != "none"] or found
+        if remaining is None or remaining["within_noise"]:
+            found.append(
+                _none_finding(problem, current, data, cur_err, error_before, floor, alternatives)
+            )
+            found = [f for f in found if f.effect != "none"] or found
     return Diagnosis(
         error_before=error_before,
         findings=tuple(found),
@@ -427,7 +513,75 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Dia
         data_kind=problem.kind,
         notes=tuple(notes),
         model=current,
+        remaining=remaining,
     )
+
+
+def _rejected(fr: FitResult, err_before: float, problem, base) -> dict:
+    """A candidate that lowers the weighted misfit but not the spec error: not a finding."""
+    params = {
+        k: v
+        for k, v in fr.structure.report(fr, problem, base)[0].items()
+        if k not in ("residue_matrix", "modes")
+    }
+    return {
+        "effect": fr.effect,
+        "error_before": float(err_before),
+        "error_after": float(fr.error),
+        "parameters": jsonable(params),
+        "rejected": "error_after >= error_before: adding it does not lower the error",
+    }
+
+
+def _verdict(model: ModalModel, data):
+    """compare's judgement of ``model`` (its own criterion, :mod:`workbench.validate.compare`)."""
+    from workbench.validate.compare import compare
+
+    return compare(model.to_lti(), data)
+
+
+#: failing bands listed in ``Diagnosis.remaining``
+N_REMAINING_BANDS = 6
+
+
+def _remaining(model: ModalModel, data) -> dict | None:
+    """What compare says is left: within noise, or the worst failing bands named.
+
+    None when compare has no noise reference (FRF without G_var, non-periodic time
+    record): it then declares no band failing, so its silence proves nothing.
+    """
+    if isinstance(data, FrfData) and (data.G_var is None or not np.any(data.G_var > 0)):
+        return None
+    if isinstance(data, TimeData) and not data.period:
+        return None
+    cmp = _verdict(model, data)
+    if cmp.z_mean is None:
+        return None
+    bands = sorted(cmp.failing_bands, key=lambda b: -b.median * b.n_lines)
+    out: dict[str, Any] = {
+        "within_noise": bool(cmp.within_noise),
+        "z_mean": float(cmp.z_mean),
+        "n_failing_bands": len(bands),
+        "failing_bands": [b.as_dict() for b in bands[:N_REMAINING_BANDS]],
+        "criterion": cmp.criterion,
+    }
+    names_out, names_in = data.output_names, data.input_names
+    if cmp.within_noise:
+        out["explanation"] = (
+            f"compare finds the final model within noise (z_mean {cmp.z_mean:.3g}, no failing band)"
+        )
+    else:
+        where = []
+        for b in bands[:3]:
+            ch = names_out[b.output] if b.output < len(names_out) else str(b.output)
+            if b.input is not None:
+                ch += "/" + (names_in[b.input] if b.input < len(names_in) else str(b.input))
+            where.append(f"{ch} {b.f_lo_hz:.4g}-{b.f_hi_hz:.4g} Hz (median z {b.median:.3g})")
+        out["explanation"] = (
+            f"not explained by any effect found: compare still fails in {len(bands)} band(s) "
+            f"(z_mean {cmp.z_mean:.3g}, about 1 when the model is right), worst " + "; ".join(where)
+        )
+    return out
 
 
 def _sigma(problem, model_after, fr: FitResult | None, freq, G_after) -> np.ndarray:
@@ -529,6 +683,31 @@ def _finding(fr: FitResult, runner, problem, base, data, err_before, floor) -> F
     )
 
 
+def _refresh_added(found: list[Finding], model: ModalModel, base: ModalModel) -> list[Finding]:
+    """Parameters of the added modes and the residual read back from the refined ``model``.
+
+    After :func:`~workbench.diagnosis.effects.backfit` / ``polish`` the poles and
+    residues of the added modes moved a little: the findings report what the final model
+    holds (their standard deviations stay those of the joint fit).
+    """
+    added = [m for m in model.modes if m.effect == "missing_mode"]
+    upper = [m for m in model.modes if m.effect == "upper_residual"]
+    out = []
+    for f in found:
+        p = dict(f.parameters)
+        if f.effect == "missing_mode" and added and "freq_hz" in p:
+            m = min(added, key=lambda m: abs(np.log(m.freq_hz / p["freq_hz"])))
+            N0 = m.numerator()[0]
+            b, c = _rank_one(N0)
+            p.update(freq_hz=m.freq_hz, damping=m.damping, b=b, c=c, residue_matrix=N0.tolist())
+        elif f.effect == "residual_compliance" and upper and "upper_freq_hz" in p:
+            m = upper[0]
+            static = model.D - base.D + m.numerator()[0] / m.omega**2
+            p.update(matrix=static.tolist(), upper_freq_hz=m.freq_hz, upper_damping=m.damping)
+        out.append(replace(f, parameters=p))
+    return out
+
+
 def _merge_compliance(found: list[Finding]) -> list[Finding]:
     """One residual_compliance finding: the static parts of modes above the band add up."""
     rc = [f for f in found if f.effect == "residual_compliance"]
@@ -565,30 +744,74 @@ def _above_band(params: dict, problem) -> bool:
     return f * (1 - min(z, 0.5)) > problem.band_hz[1]
 
 
-def _nonlinearity_finding(nl, data, err) -> Finding:
+def _nonlinearity_finding(nl, data, err, linear: list, cur_err: float, *, direct: bool):
+    """The nonlinearity finding with its fitted port element, or (None, alternative).
+
+    ``linear``: the linear models (ModalModel) the element may sit on; the one whose
+    nonlinear simulation model reproduces the record best is kept. Without a square
+    model (ports collocated with the inputs) no element can be fitted: the finding
+    carries the distortion level only and the error of the linear model.
+    """
+    from workbench.diagnosis.nonlinear import fit_port_element
+
+    params: dict[str, Any] = {"level": nl.level, "f_stat": nl.f_stat}
+    ins, outs = tuple(range(data.n_u)), tuple(range(data.n_y))
+    error_after, model, note = err, None, ""
+    if isinstance(data, TimeData) and data.n_u == data.n_y:
+        fits = [(fit_port_element(m.to_lti(), data.u, data.y, data.fs), m) for m in linear]
+        ef, model = min(fits, key=lambda t: t[0].error_after)
+        params.update(element=ef.element, ports=list(ef.ports), **ef.parameters)
+        params["element_errors"] = ef.candidates
+        error_after = ef.error_after
+        # distortion on unexcited lines is direct evidence: the element must only lower the
+        # error; a residual that is merely not explained needs the element to explain it
+        needed = cur_err if direct else ERROR_RATIO * cur_err
+        if not error_after < needed:
+            alt = {
+                "effect": "nonlinearity",
+                "error_before": float(cur_err),
+                "error_after": float(error_after),
+                "parameters": jsonable(params),
+                "rejected": (
+                    "no port nonlinearity (Coulomb friction, cubic spring, saturation) in the "
+                    "simulation model lowers the error: the misfit is linear"
+                ),
+            }
+            return None, alt
+        ins = outs = tuple(ef.ports)
+        note = (
+            f" Fitted element: {ef.element.replace('_', ' ')} at port(s) "
+            f"{', '.join(str(j) for j in ef.ports)}; the nonlinear simulation model "
+            f"(workbench.diagnosis.nonlinear) brings the error from {ef.error_before:.4g} "
+            f"to {ef.error_after:.4g}."
+        )
+    else:
+        note = " No port element fitted: that needs a time record and a square model."
     ev = dict(
         parameters={"level": nl.level},
         band_hz=nl.band_hz,
         n_lines=nl.n_lines,
         f_stat=nl.f_stat,
         error_before=err,
-        error_after=err,
+        error_after=error_after,
         inputs=(),
         outputs=(),
         n_u=data.n_u,
         n_y=data.n_y,
         kind="time",
     )
-    return Finding(
+    finding = Finding(
         effect="nonlinearity",
-        inputs=tuple(range(data.n_u)),
-        outputs=tuple(range(data.n_y)),
+        inputs=ins,
+        outputs=outs,
         band_hz=nl.band_hz,
-        parameters={"level": nl.level, "f_stat": nl.f_stat},
+        parameters=params,
         parameters_std={},
-        error_after=err,
-        explanation=explain("nonlinearity", ev),
+        error_after=float(error_after),
+        explanation=explain("nonlinearity", ev) + note,
+        model=model,
     )
+    return finding, None
 
 
 def _none_finding(problem, model, data, cur_err, error_before, floor, alternatives) -> Finding:

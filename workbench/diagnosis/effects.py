@@ -11,7 +11,11 @@ effect                 change to the model                              theta
 time_delay             exp(-s tau) on every channel                     tau (ms)
 missing_mode           + (N1 s + N0)/(s^2 + 2 z w s + w^2)              ln f, ln z  (N0, N1 linear)
 modal_mismatch         one mode's (w, z) moved, residues kept           ln f, ln z
+modal_mismatch         every flexible mode: f s_f, z s_z (one cause)   ln s_f, ln s_z
+  (ModalPattern)         [refined mode by mode: ModalModes]             [ln f_k, ln z_k]
 residual_compliance    D + M                                            -           (M linear)
+residual_compliance    D + (N1 s + N0)/(s^2 + 2 z w s + w^2), w above  ln f, ln z  (D, N0, N1)
+  (UpperResidual)        the band: the modes above it, with their growth
 actuator_dynamics      columns times 1/(1 + s tau_j)                    tau_j 2 pi f_max
 sensor_dynamics        rows times 1/(1 + s tau_i)                       tau_i 2 pi f_max
 suspension_stiffness   rigid-body 1/s^2 -> 1/(s^2 + 2 z w s + w^2)       ln f, ln z
@@ -32,7 +36,10 @@ __all__ = [
     "TimeDelay",
     "MissingMode",
     "ModalMismatch",
+    "ModalPattern",
+    "ModalModes",
     "ResidualCompliance",
+    "UpperResidual",
     "ActuatorDynamics",
     "SensorDynamics",
     "SuspensionStiffness",
@@ -61,6 +68,25 @@ def _rank_one(N: np.ndarray) -> tuple[list[float], list[float]]:
     if c[np.argmax(np.abs(c))] < 0:
         b, c = -b, -c
     return [float(x) for x in b], [float(x) for x in c]
+
+
+def _weighted_rank_one(N: np.ndarray, std: np.ndarray, *, n_iter: int = 8) -> np.ndarray:
+    """Rank-one ``c b^T`` closest to ``N`` (m, n) in the norm weighted by 1/std^2.
+
+    Each entry of the per-channel solution ``N`` carries its own noise ``std`` (channels
+    differ by orders of magnitude in a MIMO FRF): an unweighted SVD would let the
+    largest entries decide and leave the projection error where the data are most
+    precise. Alternating weighted least squares from the SVD start (each sweep lowers
+    the weighted misfit).
+    """
+    U, S, Vt = np.linalg.svd(N, full_matrices=False)
+    c, b = U[:, 0] * S[0], Vt[0].copy()
+    W = 1.0 / np.maximum(np.asarray(std, float), 1e-300) ** 2
+    W = W / W.max() if np.isfinite(W.max()) and W.max() > 0 else np.ones_like(N)
+    for _ in range(n_iter):
+        c = (W * N) @ b / np.maximum(W @ b**2, 1e-300)
+        b = (W * N).T @ c / np.maximum(W.T @ c**2, 1e-300)
+    return np.outer(c, b)
 
 
 @dataclass(frozen=True)
@@ -97,6 +123,8 @@ class TimeDelay:
 class MissingMode:
     effect: str = "missing_mode"
     theta_names: tuple[str, ...] = ("log_freq_hz", "log_damping")
+    #: weighted alternating least-squares sweeps of the rank-one residue
+    rank_one_iterations: int = 8
 
     def grid(self, problem, base):
         f_lo, f_hi = problem.band_hz
@@ -115,10 +143,12 @@ class MissingMode:
         N0, N1, s0, s1 = problem.fit_new_term(base, mode.denominator())
         # one mode: a residue of rank one across channels (the per-channel fit, projected)
         w = mode.omega
-        U, S, Vt = np.linalg.svd(np.vstack([N0, w * N1]), full_matrices=False)
-        R = S[0] * np.outer(U[:, 0], Vt[0])
+        R = _weighted_rank_one(
+            np.vstack([N0, w * N1]), np.vstack([s0, w * s1]), n_iter=self.rank_one_iterations
+        )
         N0, N1 = R[: base.n_y], R[base.n_y :] / w
-        c, b = U[: base.n_y, 0] * np.sqrt(S[0]), Vt[0] * np.sqrt(S[0])  # c b^T = N0
+        U, S, Vt = np.linalg.svd(N0)
+        c, b = U[:, 0] * np.sqrt(S[0]), Vt[0] * np.sqrt(S[0])  # c b^T ~ N0
         mode = replace(mode, b=b, c=c, N0=N0, N1=N1, effect="missing_mode")
         return Realized(
             replace(base, modes=base.modes + (mode,)), {"N0": N0, "N1": N1}, {"N0": s0, "N1": s1}
@@ -175,6 +205,180 @@ class ModalMismatch:
             {"freq_hz": f, "damping": z, "model_freq_hz": t.freq_hz, "model_damping": t.damping},
             {"freq_hz": sf, "damping": sz},
         )
+
+
+@dataclass(frozen=True)
+class ModalPattern:
+    """Every flexible mode of the model off by one shared factor: one physical cause.
+
+    A wrong Young's modulus or density scales every elastic frequency by one factor
+    (omega ~ sqrt(E / rho)); a wrong damping guess is off for all modes alike. The
+    model's flexible modes, from the ``skip_lowest``-th up (the lowest ones may be
+    suspension modes, set by another stiffness), move jointly: ``f_k -> s_f f_k``,
+    ``z_k -> s_z z_k``, residues kept. Two parameters for any number of modes.
+    """
+
+    skip_lowest: int = 0
+    effect: str = "modal_mismatch"
+    theta_names: tuple[str, ...] = ("log_freq_scale", "log_damping_scale")
+
+    def indices(self, base) -> list[int]:
+        ks = [k for k, m in enumerate(base.modes) if _model_flexible(m) and m.freq_hz > 0]
+        ks.sort(key=lambda k: base.modes[k].freq_hz)
+        return ks[self.skip_lowest :]
+
+    def grid(self, problem, base):
+        ks = self.indices(base)
+        z0 = max(min(base.modes[k].damping for k in ks), 1e-3)
+        # the peaks line up only on a narrow valley of the common scale: steps of one
+        # half-power bandwidth of the lightest mode, z0 (least squares refines)
+        fine = np.exp(np.arange(np.log(0.85), np.log(1.18), max(z0, 1e-3)))
+        coarse = np.geomspace(0.6, 1.6, 21)
+        pts = [(a, 1.0) for a in fine] + [(a, b) for a in coarse for b in (0.5, 2.0)]
+        pts += [(1.0, b) for b in (0.2, 0.4, 0.6, 0.8, 1.25, 1.6, 2.5, 4.0)]
+        return [np.log(p) for p in pts]
+
+    def bounds(self, problem, base):
+        return np.log([0.5, 0.02]), np.log([2.0, 50.0])
+
+    def build(self, theta, problem, base):
+        sf, sz = np.exp(theta)
+        modes = list(base.modes)
+        for k in self.indices(base):
+            m = modes[k]
+            modes[k] = m.moved(m.freq_hz * sf, min(m.damping * sz, 0.9))
+        return Realized(replace(base, modes=tuple(modes)))
+
+    def n_linear(self, base):
+        return 0
+
+    def report(self, fr, problem, base):
+        sf, sz = np.exp(fr.theta)
+        ssf, ssz = sf * fr.theta_std[0], sz * fr.theta_std[1]
+        modes = []
+        for k in self.indices(base):
+            m = base.modes[k]
+            modes.append(
+                {
+                    "freq_hz": float(m.freq_hz * sf),
+                    "damping": float(min(m.damping * sz, 0.9)),
+                    "model_freq_hz": float(m.freq_hz),
+                    "model_damping": float(m.damping),
+                }
+            )
+        # the worst mode: the largest shift in half-power bandwidths, in the band
+        f_lo, f_hi = problem.band_hz
+        inside = [m for m in modes if f_lo <= m["model_freq_hz"] <= f_hi] or modes
+        worst = max(
+            inside,
+            key=lambda m: (
+                abs(np.log(m["freq_hz"] / m["model_freq_hz"])) / m["model_damping"]
+                + abs(np.log(m["damping"] / m["model_damping"]))
+            ),
+        )
+        params = dict(worst)
+        params["modes"] = modes
+        params["pattern"] = {"freq_scale": float(sf), "damping_scale": float(sz)}
+        std = {
+            "freq_hz": float(worst["model_freq_hz"] * ssf),
+            "damping": float(worst["model_damping"] * ssz),
+            "pattern": {"freq_scale": float(ssf), "damping_scale": float(ssz)},
+        }
+        return params, std
+
+
+@dataclass(frozen=True)
+class ModalModes(ModalPattern):
+    """The modes of :class:`ModalPattern`, each with its own frequency and damping, fitted jointly.
+
+    The same physical cause can move modes by slightly different factors (damping that
+    grows with frequency, a wrong stiffness shared by elastic and suspension parts).
+    Started from the shared-factor grid; the report lists every mode and gives the
+    ``pattern`` where the modes share it (their ratios agree within
+    :data:`PATTERN_TOLERANCE` or three standard deviations).
+    """
+
+    theta_names: tuple[str, ...] = ("log_freq_hz_per_mode", "log_damping_per_mode")
+
+    def _f0z0(self, base):
+        ks = self.indices(base)
+        f0 = np.array([base.modes[k].freq_hz for k in ks])
+        z0 = np.array([max(base.modes[k].damping, 1e-6) for k in ks])
+        return f0, z0
+
+    def grid(self, problem, base):
+        return [self.from_pattern(g, base) for g in ModalPattern.grid(self, problem, base)]
+
+    def from_pattern(self, theta_pattern: np.ndarray, base) -> np.ndarray:
+        """The per-mode theta of a shared (ln freq scale, ln damping scale)."""
+        f0, z0 = self._f0z0(base)
+        return np.concatenate([np.log(f0) + theta_pattern[0], np.log(z0) + theta_pattern[1]])
+
+    def bounds(self, problem, base):
+        f0, z0 = self._f0z0(base)
+        lo = np.concatenate([np.log(0.5 * f0), np.full(f0.size, _LOG_Z[0])])
+        hi = np.concatenate([np.log(2.0 * f0), np.full(f0.size, _LOG_Z[1])])
+        return lo, hi
+
+    def build(self, theta, problem, base):
+        ks = self.indices(base)
+        n = len(ks)
+        modes = list(base.modes)
+        for j, k in enumerate(ks):
+            modes[k] = modes[k].moved(float(np.exp(theta[j])), float(np.exp(theta[n + j])))
+        return Realized(replace(base, modes=tuple(modes)))
+
+    def report(self, fr, problem, base):
+        ks = self.indices(base)
+        n = len(ks)
+        f, z = np.exp(fr.theta[:n]), np.exp(fr.theta[n:])
+        sf, sz = f * fr.theta_std[:n], z * fr.theta_std[n:]
+        f0, z0 = self._f0z0(base)
+        modes = [
+            {
+                "freq_hz": float(f[j]),
+                "damping": float(z[j]),
+                "model_freq_hz": float(f0[j]),
+                "model_damping": float(base.modes[k].damping),
+            }
+            for j, k in enumerate(ks)
+        ]
+        f_lo, f_hi = problem.band_hz
+        inside = [j for j in range(n) if f_lo <= f0[j] <= f_hi] or list(range(n))
+        worst = max(inside, key=lambda j: abs(np.log(f[j] / f0[j])) / z0[j])
+        params = dict(modes[worst])
+        params["modes"] = modes
+        pattern = _shared_ratio(f[inside] / f0[inside], sf[inside] / f0[inside], "freq_scale")
+        pattern.update(
+            _shared_ratio(z[inside] / z0[inside], sz[inside] / z0[inside], "damping_scale")
+        )
+        if pattern:
+            params["pattern"] = pattern
+        std = {
+            "freq_hz": float(sf[worst]),
+            "damping": float(sz[worst]),
+            "modes": [{"freq_hz": float(a), "damping": float(b)} for a, b in zip(sf, sz)],
+        }
+        return params, std
+
+
+#: modes share a factor when their ratios agree within this relative spread (or 3 std)
+PATTERN_TOLERANCE = {"freq_scale": 0.003, "damping_scale": 0.15}
+
+
+def _shared_ratio(ratio: np.ndarray, std: np.ndarray, name: str) -> dict:
+    """``{name: weighted mean}`` when every ratio agrees with it, else ``{}``."""
+    if ratio.size < 2:
+        return {}
+    std = np.where(np.isfinite(std) & (std > 0), std, np.inf)
+    w = 1.0 / np.maximum(std, 1e-12) ** 2
+    mean = (
+        float(np.sum(w * ratio) / np.sum(w)) if np.all(np.isfinite(w)) else float(np.median(ratio))
+    )
+    if abs(mean - 1.0) < 0.5 * PATTERN_TOLERANCE[name]:
+        return {}  # no shift to share
+    ok = np.abs(ratio - mean) <= np.maximum(PATTERN_TOLERANCE[name] * mean, 3 * std)
+    return {name: mean} if np.all(ok) else {}
 
 
 @dataclass(frozen=True)
@@ -246,6 +450,71 @@ class ResidualCompliance(_LinearOnly):
         return (
             {"matrix": fr.realized.linear["matrix"].tolist()},
             {"matrix": fr.realized.linear_std["matrix"].tolist()},
+        )
+
+
+#: the upper pseudo-mode lies between these multiples of the top line
+_UPPER_RANGE = (1.02, 10.0)
+
+
+@dataclass(frozen=True)
+class UpperResidual:
+    """Residual compliance with its frequency dependence: the modes above the band.
+
+    ``D + (N1 s + N0) / (s^2 + 2 z w s + w^2)`` added, ``w`` above the band
+    (the upper residual of modal analysis, as in :mod:`workbench.modal.fit`):
+    the static part ``D + N0 / w^2`` is the residual compliance; the pseudo-mode
+    also carries the inertia-like growth towards the truncated modes (and, on
+    sampled data, the images of the modes and of the rigid body about the
+    sampling frequency, which a constant ``D`` cannot follow near Nyquist).
+    ``N0``, ``N1`` are full matrices (several modes above the band add up).
+    """
+
+    effect: str = "residual_compliance"
+    theta_names: tuple[str, ...] = ("log_upper_freq_hz", "log_upper_damping")
+
+    def grid(self, problem, base):
+        f_hi = problem.band_hz[1]
+        return [
+            np.log([f_hi * a, z]) for a in np.geomspace(1.1, 8.0, 8) for z in (0.003, 0.03, 0.3)
+        ]
+
+    def bounds(self, problem, base):
+        f_hi = problem.band_hz[1]
+        return (
+            np.array([np.log(_UPPER_RANGE[0] * f_hi), _LOG_Z[0]]),
+            np.array([np.log(_UPPER_RANGE[1] * f_hi), _LOG_Z[1]]),
+        )
+
+    def build(self, theta, problem, base):
+        f, z = _freq_damping(theta)
+        mode = Mode("flexible", f, z, np.zeros(base.n_u), np.zeros(base.n_y))
+        dD, N0, N1, sD, s0, s1 = problem.fit_upper_residual(base, mode.denominator())
+        mode = replace(mode, N0=N0, N1=N1, effect="upper_residual")
+        static = dD + N0 / mode.omega**2
+        new = replace(base, D=base.D + dD, modes=base.modes + (mode,))
+        return Realized(
+            new,
+            {"matrix": static, "D": dD, "N0": N0, "N1": N1},
+            {"matrix": np.hypot(sD, s0 / mode.omega**2), "D": sD, "N0": s0, "N1": s1},
+        )
+
+    def n_linear(self, base):
+        return 3 * base.n_y * base.n_u
+
+    def report(self, fr, problem, base):
+        f, z, sf, sz = _mode_std(fr)
+        return (
+            {
+                "matrix": fr.realized.linear["matrix"].tolist(),
+                "upper_freq_hz": f,
+                "upper_damping": z,
+            },
+            {
+                "matrix": fr.realized.linear_std["matrix"].tolist(),
+                "upper_freq_hz": sf,
+                "upper_damping": sz,
+            },
         )
 
 
@@ -353,6 +622,20 @@ def _model_flexible(m: Mode) -> bool:
     return m.kind == "flexible" and not m.effect
 
 
+def refinements(fr: FitResult, base: ModalModel) -> list[tuple]:
+    """Structures to fit from a fitted one's optimum: (structure, start theta) pairs.
+
+    A shared-factor :class:`ModalPattern` is refined mode by mode
+    (:class:`ModalModes`) from its optimum: screening the per-mode structure on its
+    own grid would repeat the pattern's grid at the cost of every mode.
+    """
+    s = fr.structure
+    if type(s) is ModalPattern:
+        mm = ModalModes(skip_lowest=s.skip_lowest)
+        return [(mm, mm.from_pattern(fr.theta, base))]
+    return []
+
+
 def candidate_structures(base: ModalModel, problem, *, exclude=()) -> list:
     """Every structure that applies to ``base`` and ``problem``, minus the excluded effects.
 
@@ -360,11 +643,15 @@ def candidate_structures(base: ModalModel, problem, *, exclude=()) -> list:
     structures index its modes.
     """
     f_lo, f_hi = problem.band_hz
-    out: list = [TimeDelay(), MissingMode(), ResidualCompliance()]
+    out: list = [TimeDelay(), MissingMode(), ResidualCompliance(), UpperResidual()]
     out += [ActuatorDynamics(), SensorDynamics()]
     for k, m in enumerate(base.modes):
         if _model_flexible(m) and f_lo / 1.4 <= m.freq_hz <= f_hi * 1.4:
             out.append(ModalMismatch(index=k))
+    # several modes off by one factor: all flexible modes, or all above the lowest one or two
+    n_flex = len(ModalPattern().indices(base))
+    for skip in range(min(3, n_flex - 1)):
+        out.append(ModalPattern(skip_lowest=skip))
     if any(m.kind == "rigid" for m in base.modes):
         out.append(SuspensionStiffness())
     if base.n_y > 1:
@@ -372,3 +659,77 @@ def candidate_structures(base: ModalModel, problem, *, exclude=()) -> list:
     if base.n_u > 1:
         out.append(Crosstalk(side="in"))
     return [s for s in out if s.effect not in exclude or s.effect == "missing_mode"]
+
+
+def backfit(model: ModalModel, problem, *, d0: np.ndarray, sweeps: int = 4) -> ModalModel:
+    """Refit the linear parts of the added modes with everything else in place (Gauss-Seidel).
+
+    A joint fit solves the residues of an added mode (:class:`MissingMode`) and of
+    the upper residual (:class:`UpperResidual`) one after the other, each on what the
+    effects stacked before it leave: the mode's residue then absorbs part of the
+    smooth contribution of the modes above the band and is projected to rank one
+    before the residual is fitted. On a precise FRF that order alone can keep the
+    error above the noise. Each sweep refits every such part on the data minus all
+    the others (the poles kept), so the linear parts converge to their joint
+    least-squares values; sweeps stop when the weighted misfit no longer falls.
+
+    ``d0`` is the feedthrough the model had before the upper residual was added.
+    Returns the model with the lowest cost (``model`` itself when nothing improves).
+    """
+    best, best_cost = model, problem.cost(model)
+    cur = model
+    for _ in range(sweeps):
+        for mode in cur.modes:
+            if mode.effect not in ("missing_mode", "upper_residual"):
+                continue
+            rest_modes = tuple(m for m in cur.modes if m is not mode)
+            theta = np.log([mode.freq_hz, mode.damping])
+            if mode.effect == "missing_mode":
+                cur = MissingMode().build(theta, problem, replace(cur, modes=rest_modes)).model
+            else:
+                rest = replace(cur, modes=rest_modes, D=np.asarray(d0, float))
+                cur = UpperResidual().build(theta, problem, rest).model
+        cost = problem.cost(cur)
+        if not cost < best_cost * (1 - 1e-6):
+            break
+        best, best_cost = cur, cost
+    return best
+
+
+def polish(model: ModalModel, problem, *, d0: np.ndarray, max_nfev: int = 40) -> ModalModel:
+    """Refine the poles of the added modes with their residues backfitted at every step.
+
+    The frequencies and damping ratios of the :class:`MissingMode` and
+    :class:`UpperResidual` parts are refitted by least squares while every
+    evaluation re-solves all their linear parts jointly (:func:`backfit`): the
+    variable-projection fit of the whole set of added modes. Returns the refined
+    model, or ``model`` when the cost does not fall.
+    """
+    import scipy.optimize
+
+    idx = [k for k, m in enumerate(model.modes) if m.effect in ("missing_mode", "upper_residual")]
+    if not idx:
+        return model
+
+    def at(theta):
+        modes = list(model.modes)
+        for j, k in enumerate(idx):
+            f, z = np.exp(theta[2 * j : 2 * j + 2])
+            modes[k] = replace(modes[k], freq_hz=float(f), damping=float(z))
+        return backfit(replace(model, modes=tuple(modes)), problem, d0=d0, sweeps=2)
+
+    th0 = np.concatenate([np.log([model.modes[k].freq_hz, model.modes[k].damping]) for k in idx])
+    lo = np.concatenate([[th0[2 * j] - 0.05, _LOG_Z[0]] for j in range(len(idx))])
+    hi = np.concatenate([[th0[2 * j] + 0.05, _LOG_Z[1]] for j in range(len(idx))])
+    th0 = np.clip(th0, lo + 1e-9, hi - 1e-9)
+    res = scipy.optimize.least_squares(
+        lambda th: problem.residual(at(th)),
+        th0,
+        bounds=(lo, hi),
+        method="trf",
+        x_scale="jac",
+        max_nfev=max_nfev,
+        diff_step=1e-5,
+    )
+    out = at(res.x)
+    return out if problem.cost(out) < problem.cost(model) else model

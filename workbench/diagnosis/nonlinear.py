@@ -27,7 +27,14 @@ from workbench import sim
 from workbench.core import lti
 from workbench.core.errors import InputError
 
-__all__ = ["PortNonlinearity", "simulate_nonlinear", "fit_friction"]
+__all__ = [
+    "PortNonlinearity",
+    "simulate_nonlinear",
+    "fit_friction",
+    "fit_port_element",
+    "ElementFit",
+    "ELEMENTS",
+]
 
 
 @dataclass(frozen=True)
@@ -180,3 +187,154 @@ def fit_friction(
     sol = scipy.optimize.least_squares(residual, theta0, max_nfev=max_nfev, x_scale=1.0)
     nl, y_fit = model(sol.x)
     return nl, before, lti.relative_error_time(y, y_fit)
+
+
+#: the port elements :func:`fit_port_element` tries
+ELEMENTS = ("coulomb_friction", "cubic_stiffness", "saturation")
+
+
+@dataclass(frozen=True)
+class ElementFit:
+    """A port nonlinearity fitted to a record (:func:`fit_port_element`).
+
+    Attributes
+    ----------
+    element : str
+        One of :data:`ELEMENTS`.
+    ports : tuple of int
+        Inputs (collocated ports) where the element acts, 0-based.
+    parameters : dict
+        ``friction_force`` (N per port) and ``friction_velocity`` (m/s), or
+        ``cubic_stiffness`` (N/m^3 per port), or ``saturation`` (N per input; inf = none).
+    nonlinearity : PortNonlinearity
+        The element as a simulation model.
+    error_before, error_after : float
+        Spec time-domain error of the linear model and of the nonlinear simulation model.
+    candidates : dict
+        Every element tried: its error predicted by the regression (``{element: error}``).
+    """
+
+    element: str
+    ports: tuple[int, ...]
+    parameters: dict
+    nonlinearity: PortNonlinearity
+    error_before: float
+    error_after: float
+    candidates: dict
+
+
+def fit_port_element(
+    sys, u: np.ndarray, y: np.ndarray, fs: float, *, substeps: int = 4
+) -> ElementFit:
+    """Which port nonlinearity explains the record: Coulomb friction, a cubic spring or saturation.
+
+    Parameters
+    ----------
+    sys : LTIModel or control.StateSpace
+        The linear model (continuous, square: output j measures the displacement where
+        input j pushes); an LTIModel's delay is part of it.
+    u, y : (N, n_u), (N, n_y) arrays
+        Recorded input and output.
+    fs : float
+        Sampling frequency, Hz.
+    substeps : int
+        Substeps per sample of the final nonlinear simulation.
+
+    Notes
+    -----
+    Friction and the cubic spring are forces at the ports that depend on the port
+    motion, ``-F_j tanh(v_j / v0)`` and ``-k_j p_j^3``: with the motion taken from the
+    measured output, the output they add is linear in ``F_j`` / ``k_j`` (the linear
+    model driven by the signal at port j), so each is a least-squares regression of
+    the linear model's residual (equation error in the nonlinearity, output error in
+    the dynamics). Saturation is scanned over levels of |u| (the linear model driven
+    by the clipped input). The best element is then simulated with
+    :func:`simulate_nonlinear` and its error is the one reported.
+    """
+    from workbench.core.model import as_model
+
+    lin = as_model(sys)
+    _ports(lin)
+    u = np.asarray(u, float)
+    y = np.asarray(y, float)
+    n_u = u.shape[1]
+    y_lin = sim.simulate_zoh(lin, u, fs)
+    before = lti.relative_error_time(y, y_lin)
+    e = y - y_lin
+    port = lin.without_delay()  # port forces act directly, not through the input delay
+    v = np.gradient(y, 1.0 / fs, axis=0)
+    v0 = 1e-3 * float(np.sqrt(np.mean(v**2))) or 1e-12
+    signals = {"coulomb_friction": np.tanh(v / v0), "cubic_stiffness": y**3}
+    trials: list[tuple[str, PortNonlinearity, dict]] = []
+    for name, phi in signals.items():
+        # regressor j: the output of a unit force law at port j, with the minus sign of a
+        # resisting force
+        X = np.stack(
+            [-sim.simulate_zoh(port, np.eye(n_u)[j] * phi[:, [j]], fs).ravel() for j in range(n_u)],
+            -1,
+        )
+        for common in (False, True):  # one level per port, or one level for all
+            Xc = X.sum(axis=1, keepdims=True) if common else X
+            scale = np.linalg.norm(Xc, axis=0)
+            ok = scale > 0
+            c = np.zeros(Xc.shape[1])
+            if ok.any():
+                c[ok] = np.linalg.lstsq(Xc[:, ok] / scale[ok], e.ravel(), rcond=None)[0]
+                c[ok] /= scale[ok]
+            # a friction level or a hardening spring is >= 0
+            c = np.broadcast_to(np.maximum(c, 0.0), (n_u,)).copy()
+            if not c.max() > 0:
+                continue
+            c[c < 0.05 * c.max()] = 0.0
+            if name == "coulomb_friction":
+                nl = PortNonlinearity(friction_force=c, friction_velocity=v0, substeps=substeps)
+                params = {"friction_force": [float(x) for x in c], "friction_velocity": v0}
+            else:
+                nl = PortNonlinearity(
+                    friction_force=np.zeros(n_u), cubic_stiffness=c, substeps=substeps
+                )
+                params = {"cubic_stiffness": [float(x) for x in c]}
+            trials.append((name, nl, params))
+    # saturation: the linear response to the clipped input, over levels of |u|
+    amp = np.abs(u)
+    best_sat, best_err = None, np.inf
+    for q in (0.5, 0.7, 0.8, 0.9, 0.95, 0.98, 0.99, 0.995, 0.999):
+        level = np.quantile(amp, q, axis=0)
+        err = lti.relative_error_time(y, sim.simulate_zoh(lin, np.clip(u, -level, level), fs))
+        if err < best_err:
+            best_sat, best_err = level, err
+    scored = [
+        (
+            float(best_err),
+            "saturation",
+            PortNonlinearity(friction_force=np.zeros(n_u), saturation=best_sat, substeps=1),
+            {"saturation": [float(x) for x in best_sat]},
+        )
+    ]
+    # friction and the spring: judged by the nonlinear simulation itself (the regression's
+    # motion is the measured one; a from-rest simulation of a rigid body is far more
+    # sensitive), so what is reported is what the simulation model reproduces
+    for name, nl, params in trials:
+        with np.errstate(over="ignore", invalid="ignore"):  # a diverging trial scores inf
+            y_nl = simulate_nonlinear(lin, u, fs, nl)
+        err = lti.relative_error_time(y, y_nl) if np.all(np.isfinite(y_nl)) else np.inf
+        scored.append((float(err), name, nl, params))
+    after, element, nl, params = min(scored, key=lambda t: t[0])
+    preds: dict[str, float] = {}
+    for err, name, _, _ in scored:
+        preds[name] = min(preds.get(name, np.inf), err)
+    vals = np.asarray(next(iter(params.values())), float)
+    if element == "saturation":
+        ports = tuple(int(j) for j in np.flatnonzero(np.isfinite(vals)))
+    else:
+        ports = tuple(int(j) for j in np.flatnonzero(vals > 0))
+    before = float(before)
+    return ElementFit(
+        element=element,
+        ports=ports,
+        parameters=params,
+        nonlinearity=nl,
+        error_before=before,
+        error_after=float(after),
+        candidates=preds,
+    )

@@ -40,6 +40,23 @@ def _solve_channels(M: np.ndarray, r: np.ndarray) -> np.ndarray:
     return np.linalg.solve(M + ridge + 1e-300 * np.eye(p), r[..., None])[..., 0]
 
 
+def _solve_basis(basis: list, e: np.ndarray, w2: np.ndarray):
+    """Real coefficients x[..., p] per channel minimizing sum_f w2 |e - sum_p x_p basis_p|^2.
+
+    ``basis``: p complex arrays (n_f, n_y, n_u); returns x and its unit-noise std, (n_y, n_u, p).
+    """
+    X = np.stack(basis, -1)  # (n_f, n_y, n_u, p)
+    M = np.einsum("fij,fijp,fijq->ijpq", w2, X.conj(), X).real
+    r = np.einsum("fij,fijp,fij->ijp", w2, X.conj(), e).real
+    d = np.sqrt(np.maximum(np.einsum("ijpp->ijp", M), 1e-300))
+    Ms = M / (d[..., :, None] * d[..., None, :])
+    x = _solve_channels(Ms, r / d) / d
+    p = M.shape[-1]
+    cov = np.linalg.inv(Ms + 1e-12 * np.eye(p))
+    std = np.sqrt(np.abs(np.einsum("ijpp->ijp", cov))) / d
+    return x, std
+
+
 class FrfProblem:
     """Fit to a measured FRF (spec 1b)."""
 
@@ -131,6 +148,23 @@ class FrfProblem:
         cov = np.linalg.inv(M + 1e-300 * np.eye(2))
         std = np.sqrt(np.abs(np.stack([cov[..., 0, 0], cov[..., 1, 1]], -1)))
         return x[..., 0], x[..., 1] / wr, std[..., 0], std[..., 1] / wr
+
+    def fit_upper_residual(self, model: ModalModel, den: np.ndarray):
+        """Residual terms of modes above the band: D + (N1 s + N0) / den(s), jointly per channel.
+
+        ``den`` = (a1, a0) of a pseudo-mode above the band (``s^2 + a1 s + a0``).
+        Returns dD, N0, N1 (n_y, n_u) and their standard deviations (unit noise scale).
+        """
+        e = self.data.G - self.predict(model)
+        h = model.channel_factor(self.freq)
+        d = self.s**2 + den[0] * self.s + den[1]
+        wr = np.sqrt(max(den[1], 1e-300))
+        basis = [h, h * (wr**2 / d)[:, None, None], h * (self.s * wr / d)[:, None, None]]
+        x, std = _solve_basis(basis, e, self.w2)
+        scale = np.array([1.0, wr**2, wr])  # N0 = x_1 w^2, N1 = x_2 w
+        return tuple(x[..., k] * scale[k] for k in range(3)) + tuple(
+            std[..., k] * scale[k] for k in range(3)
+        )
 
     def fit_feedthrough(self, model: ModalModel):
         """Real matrix added to D, per channel; returns dD and its std (unit noise scale)."""
@@ -285,6 +319,17 @@ class TimeProblem:
         X, groups = filtered_inputs(model, None, self._u_in(model), self.fs)
         coef, std = self._regress(model, X[..., 0], groups)
         return coef, std
+
+    def fit_upper_residual(self, model: ModalModel, den: np.ndarray):
+        """As :meth:`FrfProblem.fit_upper_residual`, on the simulated record."""
+        u_in = self._u_in(model)
+        X0, groups = filtered_inputs(model, None, u_in, self.fs)
+        X, _ = filtered_inputs(model, den, u_in, self.fs)
+        n_u = model.n_u
+        Xc = np.concatenate([X0[..., 0], X[..., 0], X[..., 1]], axis=-1)
+        coef, std = self._regress(model, Xc, groups)
+        parts = [slice(0, n_u), slice(n_u, 2 * n_u), slice(2 * n_u, 3 * n_u)]
+        return tuple(coef[:, p] for p in parts) + tuple(std[:, p] for p in parts)
 
     def fit_crosstalk(self, model: ModalModel, side: str):
         ym = self.predict(model)
