@@ -45,9 +45,12 @@ def _solve_basis(basis: list, e: np.ndarray, w2: np.ndarray):
 
     ``basis``: p complex arrays (n_f, n_y, n_u); returns x and its unit-noise std, (n_y, n_u, p).
     """
-    X = np.stack(basis, -1)  # (n_f, n_y, n_u, p)
-    M = np.einsum("fij,fijp,fijq->ijpq", w2, X.conj(), X).real
-    r = np.einsum("fij,fijp,fij->ijp", w2, X.conj(), e).real
+    n_f, n_y, n_u = e.shape
+    # per channel (n_y n_u batches): A (n_f, p), M = A^H W A, r = A^H W e by batched matmul
+    A = np.stack(basis, -1).reshape(n_f, n_y * n_u, -1).transpose(1, 0, 2)
+    Aw = A.conj().transpose(0, 2, 1) * w2.reshape(n_f, -1).T[:, None, :]
+    M = (Aw @ A).real.reshape(n_y, n_u, A.shape[2], A.shape[2])
+    r = (Aw @ e.reshape(n_f, -1).T[:, :, None])[..., 0].real.reshape(n_y, n_u, -1)
     d = np.sqrt(np.maximum(np.einsum("ijpp->ijp", M), 1e-300))
     Ms = M / (d[..., :, None] * d[..., None, :])
     x = _solve_channels(Ms, r / d) / d
