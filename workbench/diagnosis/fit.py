@@ -197,6 +197,14 @@ def fit(
         # a start on a bound (a zero delay, say) stalls the trust region: the first steps are
         # tiny relative to |x| = 0 and xtol ends the search; start just inside
         inner = np.where(np.isfinite(hi - lo), 1e-3 * (hi - lo), 0.0)
+        # optional hook: a structure with jacobian(theta, problem, base) gives the analytic
+        # Jacobian of the residual (workbench.modal.fit.ModalStructure); others: finite differences
+        jac_fn = "2-point"
+        if callable(getattr(structure, "jacobian", None)):
+
+            def jac_fn(theta):
+                return structure.jacobian(theta, problem, base)
+
         for th0 in starts:
             th0 = np.clip(th0, lo + inner, hi - inner)
             with warnings.catch_warnings():
@@ -204,6 +212,7 @@ def fit(
                 res = scipy.optimize.least_squares(
                     residual,
                     th0,
+                    jac=jac_fn,
                     bounds=(lo, hi),
                     method="trf",
                     x_scale="jac",

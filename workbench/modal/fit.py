@@ -335,6 +335,12 @@ def _solve_rows(X: np.ndarray, problem: FrfProblem) -> tuple[np.ndarray, np.ndar
     -------
     x, x_std : (n_y, n_p) arrays; ``x_std`` for unit noise (scaled by the engine).
     """
+    x, std, _ = _project_rows(X, problem)
+    return x, std
+
+
+def _project_rows(X: np.ndarray, problem: FrfProblem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_solve_rows` and the inverse normal matrices ``A_i^-1`` (n_y, n_p, n_p)."""
     n_f, n_u, n_p = X.shape
     G, w2 = problem.data.G, problem.w2
     n_y = G.shape[1]
@@ -350,13 +356,15 @@ def _solve_rows(X: np.ndarray, problem: FrfProblem) -> tuple[np.ndarray, np.ndar
     rhs = (Xf.conj().T @ WG).real.T  # (n_y, n_p)
     x = np.zeros((n_y, n_p))
     std = np.zeros_like(x)
+    A_inv = np.empty_like(A)
     for i in range(n_y):
         scale = np.sqrt(np.diag(A[i]))
         scale = np.where(scale > 0, scale, 1.0)
         cov = np.linalg.inv(A[i] / np.outer(scale, scale) + 1e-13 * np.eye(n_p))
         x[i] = cov @ (rhs[i] / scale) / scale
         std[i] = np.sqrt(np.abs(np.diag(cov))) / scale
-    return x, std
+        A_inv[i] = cov / np.outer(scale, scale)
+    return x, std, A_inv
 
 
 def _denominators(s: np.ndarray, freq_hz: np.ndarray, damping: np.ndarray) -> np.ndarray:
@@ -504,6 +512,102 @@ class ModalStructure:
             output_names=self.output_names,
         )
         return Realized(model, linear, std)
+
+    def jacobian(self, theta, problem, base) -> np.ndarray:
+        """Jacobian of ``problem.residual(self.build(theta).model)`` w.r.t. theta, (n_obs, n_theta).
+
+        The exact variable-projection derivative (Golub & Pereyra 1973): the linear
+        coefficients ``x_i`` of every output row move with theta as the weighted least
+        squares solution does. Rows are ordered as :meth:`FrfProblem.residual` stacks
+        them: (line, output, input, real / imaginary).
+
+        Notes
+        -----
+        Per output row ``i``, with the weighted basis ``Phi = w X`` (stacked real),
+        ``A = Phi^T Phi``, the residual ``r = w G - Phi x`` and ``x = A^-1 Phi^T w G``::
+
+            dx/dt = A^-1 (dPhi^T r - Phi^T dPhi x)
+            dr/dt = -(dPhi x + Phi dx/dt)
+
+        (``-P_perp dPhi x`` is Kaufman's part; the other, ``-Phi A^-1 dPhi^T r``,
+        vanishes for a zero residual). ``dPhi/dt`` is sparse: a mode's frequency and
+        ``ln`` damping move its column of the basis, ``d(1/den)/df = -(2 pi)(2 z s +
+        2 w)/den^2``, ``d(1/den)/d ln z = -2 z w s / den^2``; an entry ``b_kj`` scales
+        mode k's column at input j; the upper pseudo-mode's two parameters move the
+        ``E`` columns.
+        """
+        theta = np.asarray(theta, float)
+        freq, damp, B = self.unpack(theta)
+        m, n_u, n_y, n_t = self.n_modes, self.n_u, self.n_y, theta.size
+        s = problem.s[:, None]
+        n_f = s.shape[0]
+        inv = 1.0 / _denominators(problem.s, freq, damp)  # (n_f, m)
+        omega = 2 * np.pi * freq
+        d_freq = -(inv * inv) * (2 * np.pi) * (2 * damp * s + 2 * omega)
+        d_lnz = -(inv * inv) * (2 * damp * omega) * s
+        upper_hz, upper_z = self.upper_at(theta)
+        X = np.concatenate(
+            [
+                inv[:, None, :] * B.T[None],
+                _extra_basis(problem.s, n_u, self.rigid, upper_hz, upper_z),
+            ],
+            2,
+        )  # (n_f, n_u, n_p)
+        x, _, A_inv = _project_rows(X, problem)
+        C = x[:, :m]  # (n_y, m): c_k as columns
+        kf, jf = np.nonzero(~np.eye(n_u, dtype=bool)[np.asarray(self.pivot)])  # b[free] order
+        tb = 2 * m + np.arange(kf.size)
+        w = problem.w.transpose(1, 0, 2)  # (n_y, n_f, n_u)
+        # V = w dX/dt x, the weighted derivative of the model at fixed x, real and imaginary
+        # parts apart (real products only), (n_y, n_t, n_f, n_u): a parameter's column is one
+        # contiguous block
+        Vr = np.zeros((n_y, n_t, n_f, n_u))
+        Vi = np.zeros((n_y, n_t, n_f, n_u))
+        wCB = w[:, None] * (C[:, :, None] * B[None])[:, :, None, :]  # (n_y, m, n_f, n_u)
+        for t0, d in ((0, d_freq), (m, d_lnz)):
+            np.multiply(wCB, d.real.T[None, :, :, None], out=Vr[:, t0 : t0 + m])
+            np.multiply(wCB, d.imag.T[None, :, :, None], out=Vi[:, t0 : t0 + m])
+        for t, k, j in zip(tb, kf, jf):
+            wc = w[:, :, j] * C[:, k, None]  # (n_y, n_f)
+            np.multiply(wc, inv[:, k].real, out=Vr[:, t, :, j])
+            np.multiply(wc, inv[:, k].imag, out=Vi[:, t, :, j])
+        pred = np.einsum("fjp,ip->ifj", X, x)
+        rw = w * w * (problem.data.G.transpose(1, 0, 2) - pred)  # w^2 (G - X x)
+        # dPhi^T r, (n_y, n_p, n_t): nonzero only in the columns each parameter moves
+        Q = np.zeros((n_y, X.shape[2], n_t))
+        ar = np.arange(m)
+        Q[:, ar, ar] = np.einsum("fk,ifj,kj->ik", d_freq.conj(), rw, B).real
+        Q[:, ar, m + ar] = np.einsum("fk,ifj,kj->ik", d_lnz.conj(), rw, B).real
+        Q[:, kf, tb] = np.einsum("fk,ifj->ijk", inv.conj(), rw)[:, jf, kf].real
+        if upper_hz is not None:
+            col = m + n_u * (1 + int(self.rigid)) + np.arange(n_u)
+            wE = w * x[:, None, col]  # (n_y, n_f, n_u): w_fij E_ij
+            inv_up = 1.0 / _denominators(problem.s, [upper_hz], [upper_z])[:, 0]
+            w_up = 2 * np.pi * upper_hz
+            s1 = problem.s
+            d_up = (
+                -(inv_up * inv_up) * (2 * np.pi) * (2 * upper_z * s1 + 2 * w_up),
+                -(inv_up * inv_up) * (2 * upper_z * w_up) * s1,
+            )
+            for t, d in zip((n_t - 2, n_t - 1), d_up):
+                np.multiply(wE, d.real[None, :, None], out=Vr[:, t])
+                np.multiply(wE, d.imag[None, :, None], out=Vi[:, t])
+                Q[:, col, t] = np.einsum("f,ifj->ij", d.conj(), rw).real
+        out = np.empty((n_f, n_y, n_u, 2, n_t))
+        n_p = X.shape[2]
+        for i in range(n_y):
+            Xw = w[i][:, :, None] * X
+            Pr = np.ascontiguousarray(Xw.real).reshape(n_f * n_u, n_p)
+            Pi = np.ascontiguousarray(Xw.imag).reshape(n_f * n_u, n_p)
+            Vr_i = Vr[i].reshape(n_t, n_f * n_u)
+            Vi_i = Vi[i].reshape(n_t, n_f * n_u)
+            T = (Vr_i @ Pr + Vi_i @ Pi).T  # Phi^T dPhi x, (n_p, n_t)
+            dx = A_inv[i] @ (Q[i] - T)
+            # dr/dt = -(dPhi x + Phi dx/dt)
+            for part, V_i, P in ((0, Vr_i, Pr), (1, Vi_i, Pi)):
+                Jt = V_i + dx.T @ P.T  # (n_t, n_f n_u)
+                np.negative(Jt.reshape(n_t, n_f, n_u).transpose(1, 2, 0), out=out[:, i, :, part])
+        return out.reshape(-1, n_t)
 
     def report(self, fit_result, problem, base):
         freq, damp, _ = self.unpack(fit_result.theta)
