@@ -9,8 +9,11 @@ and returns a frozen :class:`Comparison`:
 - a noise-normalized error per frequency line and channel, ``z``, and the
   bands where the model fails (contiguous runs of lines, per channel, where
   a smoothed ``z`` exceeds a threshold chosen from the noise law);
-- time data: simulation and one-step-ahead prediction errors, residual
-  spectra and the residual/input cross-correlation with 99 % bounds.
+- time data: simulation errors from rest (the spec measure) and from the
+  initial state estimated by least squares (``error_estimated_start``; a
+  record need not start at rest), one-step-ahead prediction errors, and, from
+  the estimated-start residual, the residual spectra, the residual/input
+  cross-correlation with 99 % bounds and the failing bands.
 
 Data flow::
 
