@@ -20,7 +20,9 @@ The nonlinear fit reuses the one fitting engine of the workbench
 parameters are each mode's frequency, log damping and input vector ``b_k``
 (normalized to 1 at its largest entry, which removes the scale shared with
 ``c_k``); the output vectors ``c_k``, ``D`` and ``L`` enter linearly and are
-solved in closed form inside every residual evaluation.
+solved in closed form inside every residual evaluation. The engine gets the exact
+variable-projection Jacobian (:meth:`ModalStructure.jacobian`, Golub-Pereyra) instead
+of finite differences: 6 Jacobians instead of ~230 residuals on the beam (38 theta).
 
 References
 ----------
