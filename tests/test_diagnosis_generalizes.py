@@ -236,3 +236,41 @@ def test_walkthrough_scenario_ends_within_noise(tmp_path):
     assert findings["remaining"]["within_noise"] is True
     effects = [f["effect"] for f in findings["findings"]]
     assert {"missing_mode", "time_delay"} <= set(effects) and "none" not in effects
+
+
+STAGE_CASES = [
+    ({"mode_freq_error": (0.03,)}, ["modal_mismatch"], {"freq_scale": 1.03}),
+    ({"mode_damping_error": (-0.5,)}, ["modal_mismatch"], {"damping_scale": 0.5}),
+    (
+        # distinct cutoffs: on a nearly decoupled square plant an input lag and an output
+        # lag of the same channel look alike; the flexible modes' coupling tells them apart
+        {
+            "mode_freq_error": (0.03,),
+            "actuator_cutoff_hz": (1200.0, 1500.0, 1000.0, 1800.0, 1300.0, 1100.0),
+        },
+        ["actuator_dynamics", "modal_mismatch"],
+        {"freq_scale": 1.03},
+    ),
+]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "fields,effects,pattern", STAGE_CASES, ids=["freq-all", "damping-all", "lag+freq-all"]
+)
+def test_stage_pattern_cases(fields, effects, pattern):
+    """plants.wafer_stage: every flexible mode off by one factor (alone or with a lag)."""
+    import plants
+
+    true = plants.get_plant("wafer_stage", **fields)
+    nominal = plants.get_plant("wafer_stage")
+    freq = np.arange(4.0, 2000.0, 2.0)
+    G = true.frf(freq)
+    data = _noisy_frf(G, freq, 0.005, np.random.default_rng(1))
+    diag = diagnose(nominal.nominal_model(), data, delay_s=true.delay_s)
+    assert sorted(f.effect for f in diag.findings) == effects
+    p = next(f for f in diag.findings if f.effect == "modal_mismatch").parameters
+    for key, value in pattern.items():
+        assert abs(p["pattern"][key] / value - 1) < 0.01, p["pattern"]
+    assert diag.findings[-1].error_after < 1.2 * _floor(data, G)
+    assert diag.remaining["within_noise"]
