@@ -9,11 +9,20 @@ Data flow::
     candidate structures, one per effect (effects.py) ──screen + fit (fit.py)──> FitResult
                       │
                       ▼
-    rank by BIC, accept if the error falls, add it, repeat (diagnose.py)
+    rank by BIC, accept if the error falls, add it, refit the added modes jointly
+    (effects.backfit / polish), repeat until compare finds the model within noise (diagnose.py)
+                      │
+                      ▼
+    nonlinearity: a port element (friction, cubic spring, saturation) fitted and simulated
+    (nonlinear.fit_port_element), a finding only when it lowers the error
                       │
                       ▼
     Diagnosis(error_before, findings[effect, inputs, outputs, band_hz, parameters ± std,
-              error_after, explanation (explain.py, detect.py)]) ──to_json()──> spec section 3
+              error_after, explanation (explain.py, detect.py)],
+              remaining = compare's verdict on the final model) ──to_json()──> spec section 3
+
+One physical cause is one finding: a modal_mismatch that moves every flexible mode by one
+factor (a wrong Young's modulus, a damping guess) lists the ``modes`` and the ``pattern``.
 
 Public entry points: :func:`diagnose` and, for one given effect,
 :func:`workbench.diagnosis.augment.augment`.
