@@ -123,8 +123,8 @@ class TimeDelay:
 class MissingMode:
     effect: str = "missing_mode"
     theta_names: tuple[str, ...] = ("log_freq_hz", "log_damping")
-    #: weighted alternating least-squares sweeps of the rank-one residue
-    rank_one_iterations: int = 8
+    #: weighted alternating least-squares sweeps of the rank-one residue (more in backfit)
+    rank_one_iterations: int = 2
 
     def grid(self, problem, base):
         f_lo, f_hi = problem.band_hz
@@ -685,7 +685,8 @@ def backfit(model: ModalModel, problem, *, d0: np.ndarray, sweeps: int = 4) -> M
             rest_modes = tuple(m for m in cur.modes if m is not mode)
             theta = np.log([mode.freq_hz, mode.damping])
             if mode.effect == "missing_mode":
-                cur = MissingMode().build(theta, problem, replace(cur, modes=rest_modes)).model
+                mm = MissingMode(rank_one_iterations=8)
+                cur = mm.build(theta, problem, replace(cur, modes=rest_modes)).model
             else:
                 rest = replace(cur, modes=rest_modes, D=np.asarray(d0, float))
                 cur = UpperResidual().build(theta, problem, rest).model
