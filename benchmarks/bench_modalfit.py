@@ -14,9 +14,9 @@ noise per element (G_var given), several seeds:
   ``pip install sdypy-EMA`` to include it; without it only ours is run.
 
 Printed: max frequency error (%), max damping error (%) over the 9 modes below
-1 kHz, wall and CPU time (``time.process_time``; best of 3 on seed 0: on a shared,
-loaded machine the wall clock varies by 2-4x, the CPU clock far less), and the
-ratios sdypy / ours.
+1 kHz, wall and CPU time (``time.process_time``; best of 5 interleaved rounds on
+seed 0: on a shared, loaded machine the wall clock varies by 2-4x, the CPU clock
+far less), and the ratios sdypy / ours.
 
 Run: OMP_NUM_THREADS=1 python benchmarks/bench_modalfit.py
 """
@@ -144,9 +144,16 @@ def main():
                 est = run_sdypy(freq, G, f_true, lower=10.0)
                 rows["sdypy >10Hz"].append(errors(*est, f_true[hi], z_true[hi], 10.0))
         G, var = noisy(G0, 0)
-        t_ours, _ = best_time(lambda: ours(freq, G, var, fe))
-        nan2 = (np.nan, np.nan)
-        t_sdypy = best_time(lambda: run_sdypy(freq, G, f_true))[0] if have_sdypy else nan2
+        # interleaved rounds, best of each: a load spike on this shared machine hits both
+        t_ours = t_sdypy = (np.inf, np.inf)
+        for _ in range(5):
+            t = best_time(lambda: ours(freq, G, var, fe), n=1)[0]
+            t_ours = tuple(map(min, t_ours, t))
+            if have_sdypy:
+                t = best_time(lambda: run_sdypy(freq, G, f_true), n=1)[0]
+                t_sdypy = tuple(map(min, t_sdypy, t))
+        if not have_sdypy:
+            t_sdypy = (np.nan, np.nan)
     print("errors: max over seeds of the max over modes; '>10 Hz': the modes above 10 Hz")
     head = ("method", "freq err %", "damp err %", ">10Hz freq %", ">10Hz damp %", "found", "extra")
     print(" ".join(f"{h:>12}" for h in head) + "   wall s    CPU s")
@@ -171,6 +178,14 @@ def main():
     ok = np.array(rows["ours"])
     met = np.max(ok[:, 0]) < 0.05 and np.max(ok[:, 1]) < 5 and np.min(ok[:, 4]) == f_true.size
     print(f"targets (freq < 0.05 %, damping < 5 %, all modes): {'met' if met else 'NOT met'}")
+    if have_sdypy:
+        b = np.array(rows["sdypy-EMA"])
+        faster = t_ours[1] < t_sdypy[1]
+        better = np.max(ok[:, 0]) < np.max(b[:, 0]) and np.max(ok[:, 1]) < np.max(b[:, 1])
+        print(
+            f"against sdypy-EMA (faster in CPU time, more accurate on the same FRF): "
+            f"{'met' if faster and better else 'NOT met'}"
+        )
 
 
 if __name__ == "__main__":

@@ -41,6 +41,7 @@ import os
 from dataclasses import dataclass, field
 
 import numpy as np
+import scipy.linalg
 
 from workbench.core.arrays import readonly
 from workbench.core.errors import InputError
@@ -200,17 +201,44 @@ def _lscf_band(f: np.ndarray, G: np.ndarray, W: np.ndarray, p: int):
         X = W[:, o, None] * Om  # (n_f, p+1)
         # Y[f, (r, i)] = -W Om^r H_o,i: the rows of alpha_r ordered r-major
         Y = -(X[:, :, None] * G[:, o, None, :]).reshape(f.size, nb)
-        R[o] = (X.conj().T @ X).real
-        S[o] = (X.conj().T @ Y).real
-        T[o] = (Y.conj().T @ Y).real
+        # Re(A^H B) = Ar^T Br + Ai^T Bi: one real product on stacked parts, half the flops of
+        # the complex product whose imaginary part would be thrown away
+        Xs = np.concatenate([X.real, X.imag])
+        Ys = np.concatenate([Y.real, Y.imag])
+        R[o] = Xs.T @ Xs
+        S[o] = Xs.T @ Ys
+        T[o] = Ys.T @ Ys
+    # the reduced normal matrix of order q is sum_o T_o - S_o^T R_o^-1 S_o on the leading
+    # (q + 1) rows of R_o, S_o: with R_o = L_o L_o^T, the leading block of L_o is the factor of
+    # the leading block of R_o and Z_o = L_o^-1 S_o serves every order (S_o^T R_o^-1 S_o =
+    # Z_q^T Z_q on Z_o's leading rows): one factorization per output instead of one per order.
+    # A narrow band makes R_o nearly singular at high orders: there the factor is not trusted
+    # (Cholesky fails, or its diagonal spans > 1e6) and every order solves with R_o's block
+    Z = np.empty_like(S)
+    chol = True
+    for o in range(n_y):
+        try:
+            L = np.linalg.cholesky(R[o])
+        except np.linalg.LinAlgError:
+            chol = False
+            break
+        dg = np.abs(np.diag(L))
+        if not dg.min() > 1e-6 * dg.max():
+            chol = False
+            break
+        Z[o] = scipy.linalg.solve_triangular(L, S[o], lower=True)
+    T_sum = T.sum(axis=0)
     orders, freqs, damps = [], [], []
     for q in range(1, p + 1):
         nq = (q + 1) * n_u
-        M = np.zeros((nq, nq))
-        for o in range(n_y):
-            Ro = R[o, : q + 1, : q + 1]
-            So = S[o, : q + 1, :nq]
-            M += T[o, :nq, :nq] - So.T @ np.linalg.solve(Ro, So)
+        if chol:
+            Zq = Z[:, : q + 1, :nq].reshape(n_y * (q + 1), nq)
+            M = T_sum[:nq, :nq] - Zq.T @ Zq
+        else:
+            M = T_sum[:nq, :nq].copy()
+            for o in range(n_y):
+                So = S[o, : q + 1, :nq]
+                M -= So.T @ np.linalg.solve(R[o, : q + 1, : q + 1], So)
         # alpha_q = I: [alpha_0..alpha_{q-1}] from the first q n_u rows
         m = q * n_u
         try:
@@ -337,12 +365,12 @@ def _solve_rows(X: np.ndarray, problem: FrfProblem) -> tuple[np.ndarray, np.ndar
     -------
     x, x_std : (n_y, n_p) arrays; ``x_std`` for unit noise (scaled by the engine).
     """
-    x, std, _ = _project_rows(X, problem)
+    x, std, _, _ = _project_rows(X, problem)
     return x, std
 
 
-def _project_rows(X: np.ndarray, problem: FrfProblem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`_solve_rows` and the inverse normal matrices ``A_i^-1`` (n_y, n_p, n_p)."""
+def _project_rows(X: np.ndarray, problem: FrfProblem) -> tuple[np.ndarray, ...]:
+    """:func:`_solve_rows`, the normal matrices ``A_i`` and their inverses (n_y, n_p, n_p)."""
     n_f, n_u, n_p = X.shape
     G, w2 = problem.data.G, problem.w2
     n_y = G.shape[1]
@@ -351,9 +379,10 @@ def _project_rows(X: np.ndarray, problem: FrfProblem) -> tuple[np.ndarray, np.nd
     # (n_p x n_f n_u) GEMM per row (forming every X_p conj(X_q) product first cost ~100x more)
     W = np.sqrt(w2.transpose(1, 0, 2).reshape(n_y, n_f * n_u))
     A = np.empty((n_y, n_p, n_p))
+    Xs = np.concatenate([Xf.real, Xf.imag])  # Re(Xw^H Xw) = Xr^T Xr + Xi^T Xi, one real GEMM
     for i in range(n_y):
-        Xw = Xf * W[i][:, None]
-        A[i] = (Xw.conj().T @ Xw).real
+        Xw = Xs * np.tile(W[i], 2)[:, None]
+        A[i] = Xw.T @ Xw
     WG = (w2 * G).transpose(0, 2, 1).reshape(n_f * n_u, n_y)
     rhs = (Xf.conj().T @ WG).real.T  # (n_y, n_p)
     x = np.zeros((n_y, n_p))
@@ -366,7 +395,7 @@ def _project_rows(X: np.ndarray, problem: FrfProblem) -> tuple[np.ndarray, np.nd
         x[i] = cov @ (rhs[i] / scale) / scale
         std[i] = np.sqrt(np.abs(np.diag(cov))) / scale
         A_inv[i] = cov / np.outer(scale, scale)
-    return x, std, A_inv
+    return x, std, A, A_inv
 
 
 def _denominators(s: np.ndarray, freq_hz: np.ndarray, damping: np.ndarray) -> np.ndarray:
@@ -436,6 +465,9 @@ class ModalStructure:
     output_names: tuple[str, ...] = ()
     effect: str = "modal_fit"
     theta_names: tuple[str, ...] = field(default=())
+    # the last projection (theta, problem) -> basis and linear solution: the engine asks for the
+    # residual and then the normal equations at the same theta, one projection serves both
+    _memo: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
     def n_modes(self) -> int:
@@ -474,14 +506,31 @@ class ModalStructure:
     def n_linear(self, base) -> int:
         return self.n_y * (self.n_modes + self.n_u * (1 + self.rigid + (self.upper_hz is not None)))
 
+    def _projection(self, theta, problem) -> tuple[np.ndarray, ...]:
+        """Basis ``X`` (n_f, n_u, n_p) at theta and :func:`_project_rows` on it (memoized)."""
+        theta = np.asarray(theta, float)
+        memo = self._memo
+        if memo.get("problem") is problem and np.array_equal(memo.get("theta"), theta):
+            return memo["value"]
+        freq, damp, B = self.unpack(theta)
+        inv = 1.0 / _denominators(problem.s, freq, damp)  # (n_f, m)
+        upper_hz, upper_z = self.upper_at(theta)
+        X = np.concatenate(
+            [
+                inv[:, None, :] * B.T[None],
+                _extra_basis(problem.s, self.n_u, self.rigid, upper_hz, upper_z),
+            ],
+            2,
+        )
+        value = (X, *_project_rows(X, problem))
+        memo.update(problem=problem, theta=theta.copy(), value=value)
+        return value
+
     def build(self, theta, problem, base) -> Realized:
         freq, damp, B = self.unpack(theta)
         m, n_u = self.n_modes, self.n_u
-        inv = 1.0 / _denominators(problem.s, freq, damp)  # (n_f, m)
-        modal = inv[:, None, :] * B.T[None]  # (n_f, n_u, m)
         upper_hz, upper_z = self.upper_at(theta)
-        extra = _extra_basis(problem.s, n_u, self.rigid, upper_hz, upper_z)
-        x, x_std = _solve_rows(np.concatenate([modal, extra], 2), problem)
+        _, x, x_std, _, _ = self._projection(theta, problem)
         C = x[:, :m].T  # (m, n_y)
         linear = {"c": C, "D": x[:, m : m + n_u]}
         std = {"c": x_std[:, :m].T, "D": x_std[:, m : m + n_u]}
@@ -538,6 +587,57 @@ class ModalStructure:
         mode k's column at input j; the upper pseudo-mode's two parameters move the
         ``E`` columns.
         """
+        n_f, n_y, n_u, n_t = problem.freq.size, self.n_y, self.n_u, np.size(theta)
+        out = np.empty((n_f, n_y, n_u, 2, n_t))
+        for i, V, P, _, _, dx in self._rows(theta, problem):
+            # dr/dt = -(dPhi x + Phi dx/dt), rows (line, output, input, re / im)
+            for part in (0, 1):
+                np.subtract(
+                    (P[part] @ -dx).reshape(n_f, n_u, n_t),
+                    V[part].reshape(n_f, n_u, n_t),
+                    out=out[:, i, :, part],
+                )
+        return out.reshape(-1, n_t)
+
+    def normal_equations(self, theta, problem, base, r) -> tuple[np.ndarray, np.ndarray]:
+        """``(J^T J, J^T r)`` of :meth:`jacobian` without forming ``J`` (n_obs x n_t).
+
+        With row ``i``'s ``J_i = -(V + P dx)`` and ``P^T V = T``, ``P^T P = A_i``::
+
+            J_i^T J_i = V^T V + T^T dx + dx^T T + dx^T A_i dx
+            J_i^T r_i = -(V^T r_i + dx^T P^T r_i)
+
+        (``P^T r_i`` vanishes at the projected solution; kept for the rounding). The
+        beam's modal fit (59 940 x 38) saves the 18 MB Jacobian and its Gram product
+        every iteration.
+
+        Parameters
+        ----------
+        r : (n_obs,) array
+            The residual at ``theta`` (:meth:`FrfProblem.residual` order).
+        """
+        n_f, n_y, n_u, n_t = problem.freq.size, self.n_y, self.n_u, np.size(theta)
+        r4 = np.asarray(r, float).reshape(n_f, n_y, n_u, 2)
+        H = np.zeros((n_t, n_t))
+        g = np.zeros(n_t)
+        for i, V, P, T, A_i, dx in self._rows(theta, problem):
+            TdX = T.T @ dx
+            H += TdX + TdX.T + dx.T @ (A_i @ dx)
+            for part in (0, 1):
+                r_ip = r4[:, i, :, part].reshape(-1)
+                H += V[part].T @ V[part]
+                g -= V[part].T @ r_ip + dx.T @ (P[part].T @ r_ip)
+        return H, g
+
+    def _rows(self, theta, problem):
+        """The Jacobian's parts, one output row at a time (see :meth:`jacobian`).
+
+        Yields ``(i, (V_re, V_im), (P_re, P_im), T, A_i, dx)``: the weighted model derivative at
+        fixed linear coefficients ``V`` (n_f n_u, n_t), the weighted basis ``P`` (n_f n_u,
+        n_p), ``T = P^T V`` summed over both parts, the normal matrix ``A_i`` and
+        ``dx/dtheta`` (n_p, n_t); row ``i``'s Jacobian is ``-(V + P dx)``. ``V`` lives in a
+        buffer reused for the next row.
+        """
         theta = np.asarray(theta, float)
         freq, damp, B = self.unpack(theta)
         m, n_u, n_y, n_t = self.n_modes, self.n_u, self.n_y, theta.size
@@ -548,42 +648,23 @@ class ModalStructure:
         d_freq = -(inv * inv) * (2 * np.pi) * (2 * damp * s + 2 * omega)
         d_lnz = -(inv * inv) * (2 * damp * omega) * s
         upper_hz, upper_z = self.upper_at(theta)
-        X = np.concatenate(
-            [
-                inv[:, None, :] * B.T[None],
-                _extra_basis(problem.s, n_u, self.rigid, upper_hz, upper_z),
-            ],
-            2,
-        )  # (n_f, n_u, n_p)
-        x, _, A_inv = _project_rows(X, problem)
+        X, x, _, A, A_inv = self._projection(theta, problem)  # X: (n_f, n_u, n_p)
         C = x[:, :m]  # (n_y, m): c_k as columns
         kf, jf = np.nonzero(~np.eye(n_u, dtype=bool)[np.asarray(self.pivot)])  # b[free] order
         tb = 2 * m + np.arange(kf.size)
         w = problem.w.transpose(1, 0, 2)  # (n_y, n_f, n_u)
-        # V = w dX/dt x, the weighted derivative of the model at fixed x, real and imaginary
-        # parts apart (real products only), (n_y, n_t, n_f, n_u): a parameter's column is one
-        # contiguous block
-        Vr = np.zeros((n_y, n_t, n_f, n_u))
-        Vi = np.zeros((n_y, n_t, n_f, n_u))
-        wCB = w[:, None] * (C[:, :, None] * B[None])[:, :, None, :]  # (n_y, m, n_f, n_u)
-        for t0, d in ((0, d_freq), (m, d_lnz)):
-            np.multiply(wCB, d.real.T[None, :, :, None], out=Vr[:, t0 : t0 + m])
-            np.multiply(wCB, d.imag.T[None, :, :, None], out=Vi[:, t0 : t0 + m])
-        for t, k, j in zip(tb, kf, jf):
-            wc = w[:, :, j] * C[:, k, None]  # (n_y, n_f)
-            np.multiply(wc, inv[:, k].real, out=Vr[:, t, :, j])
-            np.multiply(wc, inv[:, k].imag, out=Vi[:, t, :, j])
         pred = np.einsum("fjp,ip->ifj", X, x)
         rw = w * w * (problem.data.G.transpose(1, 0, 2) - pred)  # w^2 (G - X x)
         # dPhi^T r, (n_y, n_p, n_t): nonzero only in the columns each parameter moves
         Q = np.zeros((n_y, X.shape[2], n_t))
         ar = np.arange(m)
-        Q[:, ar, ar] = np.einsum("fk,ifj,kj->ik", d_freq.conj(), rw, B).real
-        Q[:, ar, m + ar] = np.einsum("fk,ifj,kj->ik", d_lnz.conj(), rw, B).real
-        Q[:, kf, tb] = np.einsum("fk,ifj->ijk", inv.conj(), rw)[:, jf, kf].real
+        rwB = rw @ B.T  # (n_y, n_f, m)
+        Q[:, ar, ar] = np.sum(d_freq.conj() * rwB, axis=1).real
+        Q[:, ar, m + ar] = np.sum(d_lnz.conj() * rwB, axis=1).real
+        Q[:, kf, tb] = (rw.transpose(0, 2, 1) @ inv.conj())[:, jf, kf].real  # (n_y, n_u, m)
+        d_up = ()
         if upper_hz is not None:
             col = m + n_u * (1 + int(self.rigid)) + np.arange(n_u)
-            wE = w * x[:, None, col]  # (n_y, n_f, n_u): w_fij E_ij
             inv_up = 1.0 / _denominators(problem.s, [upper_hz], [upper_z])[:, 0]
             w_up = 2 * np.pi * upper_hz
             s1 = problem.s
@@ -592,24 +673,35 @@ class ModalStructure:
                 -(inv_up * inv_up) * (2 * upper_z * w_up) * s1,
             )
             for t, d in zip((n_t - 2, n_t - 1), d_up):
-                np.multiply(wE, d.real[None, :, None], out=Vr[:, t])
-                np.multiply(wE, d.imag[None, :, None], out=Vi[:, t])
                 Q[:, col, t] = np.einsum("f,ifj->ij", d.conj(), rw).real
-        out = np.empty((n_f, n_y, n_u, 2, n_t))
+        d_re = [np.ascontiguousarray(d.real) for d in (d_freq, d_lnz, inv, *d_up)]
+        d_im = [np.ascontiguousarray(d.imag) for d in (d_freq, d_lnz, inv, *d_up)]
         n_p = X.shape[2]
+        # V_i = w dX/dt x_i, output row i's derivative of the model at fixed x, real and
+        # imaginary parts apart, (n_f, n_u, n_t) in the order of the Jacobian's rows (no
+        # transposed copy at the end); built one row at a time in two reused buffers (the
+        # whole (n_y, ...) array is 9 MB per part, slower to touch than to recompute)
+        V = np.zeros((2, n_f, n_u, n_t))
         for i in range(n_y):
+            wCB = w[i][..., None] * (C[i] * B.T)[None]  # (n_f, n_u, m)
+            for part, dd in ((0, d_re), (1, d_im)):
+                Vp = V[part]
+                np.multiply(wCB, dd[0][:, None, :], out=Vp[..., :m])
+                np.multiply(wCB, dd[1][:, None, :], out=Vp[..., m : 2 * m])
+                for t, k, j in zip(tb, kf, jf):
+                    np.multiply(w[i][:, j] * C[i, k], dd[2][:, k], out=Vp[:, j, t])
+                if upper_hz is not None:
+                    wE = w[i] * x[i, col]  # (n_f, n_u): w_fij E_ij
+                    np.multiply(wE, dd[3][:, None], out=Vp[..., n_t - 2])
+                    np.multiply(wE, dd[4][:, None], out=Vp[..., n_t - 1])
             Xw = w[i][:, :, None] * X
             Pr = np.ascontiguousarray(Xw.real).reshape(n_f * n_u, n_p)
             Pi = np.ascontiguousarray(Xw.imag).reshape(n_f * n_u, n_p)
-            Vr_i = Vr[i].reshape(n_t, n_f * n_u)
-            Vi_i = Vi[i].reshape(n_t, n_f * n_u)
-            T = (Vr_i @ Pr + Vi_i @ Pi).T  # Phi^T dPhi x, (n_p, n_t)
+            Vr_i = V[0].reshape(n_f * n_u, n_t)
+            Vi_i = V[1].reshape(n_f * n_u, n_t)
+            T = Pr.T @ Vr_i + Pi.T @ Vi_i  # Phi^T dPhi x, (n_p, n_t)
             dx = A_inv[i] @ (Q[i] - T)
-            # dr/dt = -(dPhi x + Phi dx/dt)
-            for part, V_i, P in ((0, Vr_i, Pr), (1, Vi_i, Pi)):
-                Jt = V_i + dx.T @ P.T  # (n_t, n_f n_u)
-                np.negative(Jt.reshape(n_t, n_f, n_u).transpose(1, 2, 0), out=out[:, i, :, part])
-        return out.reshape(-1, n_t)
+            yield i, (Vr_i, Vi_i), (Pr, Pi), T, A[i], dx
 
     def report(self, fit_result, problem, base):
         freq, damp, _ = self.unpack(fit_result.theta)
@@ -854,6 +946,7 @@ def _fit_modal(data, n_modes, band_hz, max_order, rigid, upper, max_nfev) -> Mod
     )
     base = ModalModel(modes=(), D=np.zeros((data.n_y, data.n_u)))
     res = fit(structure, problem, base, starts=[theta0], n_starts=1, max_nfev=max_nfev)
+    structure._memo.clear()  # the result keeps the structure, not the fit's working arrays
     freq, damp, B = structure.unpack(res.theta)
     m = f0.size
     order = np.argsort(freq)
