@@ -33,7 +33,11 @@ COMMANDS = (
     "update",
     "predict",
     "modalfit",
+    "import",
+    "export",
 )
+# a command whose module is not named as the command (``import`` is a Python keyword)
+MODULES = {"import": "import_data"}
 
 
 class _Parser(argparse.ArgumentParser):
@@ -55,7 +59,7 @@ def build_parser() -> argparse.ArgumentParser:
     for name in COMMANDS:
         # every listed command must import: a broken import fails loudly, it is never
         # turned into a missing command
-        module = importlib.import_module(f"workbench.cli.commands.{name}")
+        module = importlib.import_module(f"workbench.cli.commands.{MODULES.get(name, name)}")
         p = module.register(sub)
         p.set_defaults(_run=module.run)
     return parser
