@@ -115,3 +115,18 @@ def test_check_not_input_refuses_same_file_by_any_spelling(tmp_path, monkeypatch
     with pytest.raises(InputError):
         check_not_input(link, [data])
     check_not_input(tmp_path / "other.npz", [data, None])  # a different file is fine
+
+
+def test_written_files_get_the_mode_open_would_give(tmp_path):
+    """A result is shared like any file the user writes: 0666 under the umask, not
+    mkstemp's 0600."""
+    import os
+
+    from workbench.core.atomic import write_text
+
+    old = os.umask(0o022)
+    try:
+        write_text(tmp_path / "report.html", "<p>x</p>")
+    finally:
+        os.umask(old)
+    assert (tmp_path / "report.html").stat().st_mode & 0o777 == 0o644

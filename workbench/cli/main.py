@@ -35,6 +35,7 @@ COMMANDS = (
     "modalfit",
     "import",
     "export",
+    "report",
 )
 # a command whose module is not named as the command (``import`` is a Python keyword)
 MODULES = {"import": "import_data"}

@@ -95,6 +95,13 @@ def check_not_input(out: str | os.PathLike, inputs: Iterable[str | os.PathLike |
     check_output(out, inputs)
 
 
+def _umask() -> int:
+    """The process's umask (read by setting and restoring it: the OS offers no getter)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, *, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path next to ``path``; rename it onto ``path`` on success.
@@ -112,6 +119,10 @@ def atomic_path(path: str | os.PathLike, *, suffix: str | None = None) -> Iterat
     tmp = Path(tmp_name)
     try:
         yield tmp
+        # mkstemp makes the file 0600; a result is meant to be shared as any file the
+        # user writes: the mode open() would give under the process's umask
+        with contextlib.suppress(OSError):
+            os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):

@@ -19,12 +19,16 @@ def run(args) -> int:
     from workbench.cli.pipeline import run_scenario
     from workbench.core.atomic import check_output
     from workbench.io.scenario import load_scenario
+    from workbench.report import REPORT_NAME, write_run_report
 
     scenario = load_scenario(args.scenario, results=args.results)
     check_output(scenario.results, [args.scenario], folder=True, what="results folder")
     summary = run_scenario(scenario, progress=not args.quiet)
     print(_digest(summary))
-    print(f"results: {scenario.results}/ ({', '.join(summary['files'])})")
+    # the page of the folder, as ``workbench report`` rebuilds it (with the scenario's copy)
+    written = write_run_report(scenario.results, args.scenario, progress=not args.quiet)
+    print(f"results: {scenario.results}/ ({', '.join(sorted({*summary['files'], *written}))})")
+    print(f"report: {scenario.results / REPORT_NAME}")
     return 0
 
 
