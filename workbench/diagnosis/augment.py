@@ -117,6 +117,14 @@ def augment(
         error_before = _spec_error(model, data, delay0)
         if effect == "nonlinearity":
             return _augment_nonlinearity(model, data, base, problem, error_before)
+        start_note = ""
+        if getattr(problem, "transient", False):
+            # error before and after on the same footing: both from the estimated start
+            start_note = (
+                f"the record does not start at rest: errors are from the estimated start; "
+                f"from rest {error_before:.4g}"
+            )
+            error_before = problem.error(base)
         structures = [s for s in candidate_structures(base, problem) if s.effect == effect]
         if not structures:
             raise InputError(
@@ -133,7 +141,7 @@ def augment(
         # the structures differ in their number of parameters: rank as diagnose does (BIC)
         best = min(results, key=lambda r: _bic(r.cost, problem.n_obs, r.n_params))
         params, params_std = best.structure.report(best, problem, base)
-        note = "; ".join(model_notes(model))
+        note = "; ".join([*model_notes(model), *([start_note] if start_note else [])])
         return Augmented(
             _lti(best.model),
             effect,

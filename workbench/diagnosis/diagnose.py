@@ -285,6 +285,14 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Dia
     problem = make_problem(data)
     error_before = _spec_error(model, data, delay_s)
     notes = list(model_notes(model))
+    if getattr(problem, "transient", False):
+        from_rest = error_before
+        error_before = problem.error(base)
+        notes.append(
+            f"the record does not start at rest: errors are from the estimated start (the "
+            f"model's free response fitted per output), {error_before:.4g} for the model as "
+            f"given; from rest {from_rest:.4g}"
+        )
     floor = problem.noise_floor
     n = problem.n_obs
     current = base

@@ -26,7 +26,7 @@ from workbench.io.formats import FrfData, TimeData
 from workbench.modal.model import ModalModel, Mode
 from workbench.modal.simulate import filtered_inputs
 
-__all__ = ["FrfProblem", "TimeProblem", "make_problem"]
+__all__ = ["FrfProblem", "TimeProblem", "make_problem", "moving_start"]
 
 
 def _key(*arrays) -> tuple:
@@ -242,12 +242,47 @@ def _lstsq_std(X: np.ndarray, b: np.ndarray):
     return x / scale, np.sqrt(np.abs(np.diag(cov))) / scale
 
 
+#: a record starts in motion when some output's first value exceeds this fraction of its rms
+#: value (and 5 noise standard deviations); at rest it is the sensor noise (or an offset)
+MOVING_START = 0.1
+
+
+def moving_start(data: TimeData) -> bool:
+    """True when the record does not start at rest (from the data alone).
+
+    At rest every output's first sample is noise; a record cut from a running
+    experiment starts at some position. The noise standard deviation is
+    estimated from the second differences (``var = 6 sigma^2`` for white noise;
+    a smooth signal sampled fast adds little). The first step is not used: for
+    a signal slow against fs it is comparable to the noise. A record that happens
+    to start near position zero while moving is not recognized (then compared
+    from rest, the spec's measure).
+    """
+    y = np.asarray(data.y, float)
+    if y.shape[0] < 4:
+        return False
+    rms = np.sqrt(np.mean(y**2, axis=0))
+    noise = np.sqrt(np.mean(np.diff(y, 2, axis=0) ** 2, axis=0) / 6.0)
+    ok = rms > 0
+    bound = np.maximum(MOVING_START * rms[ok], 5.0 * noise[ok])
+    return bool(np.any(np.abs(y[0, ok]) > bound))
+
+
 class TimeProblem:
-    """Fit to a time record (spec 1a): ZOH simulation from rest driven by the recorded u."""
+    """Fit to a time record (spec 1a): ZOH simulation driven by the recorded u.
+
+    From rest (the spec's measure) when the record starts at rest. A record that
+    starts in motion (:func:`moving_start`) is compared from an estimated start:
+    the model's free response, the sampled modes' ``Re, Im lambda^k`` and the
+    rigid body's ``1, k`` (position and velocity), is fitted to the misfit by least
+    squares per output and added to the prediction; regressors of the linear fits
+    are projected the same way (variable projection: the start is a nuisance
+    parameter). ``transient`` says which.
+    """
 
     kind = "time"
 
-    def __init__(self, data: TimeData):
+    def __init__(self, data: TimeData, transient: bool | None = None):
         self.data = data
         self.u = data.u
         self.y = data.y
@@ -257,7 +292,44 @@ class TimeProblem:
         self.has_var = False
         self.noise_floor = None
         self.band_hz = _time_band(data)
+        self.transient = moving_start(data) if transient is None else bool(transient)
         self._cache: dict = {}
+        self._basis_cache: dict = {}
+
+    def _start_basis(self, model: ModalModel) -> np.ndarray | None:
+        """Orthonormal basis (N, n_b) of the model's free responses, or None (from rest)."""
+        if not self.transient:
+            return None
+        poles = tuple((m.freq_hz, m.damping) for m in model.modes if m.freq_hz > 0)
+        Q = self._basis_cache.get(poles)
+        if Q is not None:
+            return Q
+        k = np.arange(self.y.shape[0], dtype=float)
+        cols = [np.ones_like(k), k / k[-1]]
+        for m in model.modes:
+            if m.freq_hz <= 0:
+                continue
+            w = 2 * np.pi * m.freq_hz
+            z = min(m.damping, 0.999)
+            lam = np.exp((-z * w + 1j * w * np.sqrt(1 - z * z)) / self.fs)
+            if abs(lam) < 1e-3:  # gone within a sample
+                continue
+            free = lam**k
+            cols += [free.real, free.imag]
+        Q, R = np.linalg.qr(np.column_stack(cols))
+        keep = np.abs(np.diag(R)) > 1e-10 * np.max(np.abs(np.diag(R)))
+        if len(self._basis_cache) > 50:
+            self._basis_cache.clear()
+        self._basis_cache[poles] = Q = np.ascontiguousarray(Q[:, keep])
+        return Q
+
+    def _project(self, model: ModalModel, X: np.ndarray) -> np.ndarray:
+        """X (N, ...) with its component along the free responses removed."""
+        Q = self._start_basis(model)
+        if Q is None:
+            return X
+        flat = X.reshape(X.shape[0], -1)
+        return (flat - Q @ (Q.T @ flat)).reshape(X.shape)
 
     def _part(self, model: ModalModel, den, N0, N1, u_in) -> np.ndarray:
         k = _key(den, N0, N1, [model.delay_s], model.lags("in"), model.lags("out"), model.T_in)
@@ -278,7 +350,7 @@ class TimeProblem:
         return self.u if model.T_in is None else self.u @ model.T_in.T
 
     def predict(self, model: ModalModel) -> np.ndarray:
-        """Simulated output (N, n_y)."""
+        """Simulated output (N, n_y): from rest, or from the estimated start (``transient``)."""
         u_in = self._u_in(model)
         y = np.zeros(self.y.shape)
         if np.any(model.D):
@@ -287,6 +359,8 @@ class TimeProblem:
             y += self._part(model, m.denominator(), *m.numerator(), u_in)
         if model.T_out is not None:
             y = y @ model.T_out.T
+        if self.transient:
+            y = self.y - self._project(model, self.y - y)
         return y
 
     def residual(self, model: ModalModel) -> np.ndarray:
@@ -306,7 +380,7 @@ class TimeProblem:
         coef = np.zeros((self.y.shape[1], n_reg))
         std = np.zeros_like(coef)
         for g, rows in enumerate(groups):
-            Xg = X[g] / self.scale
+            Xg = self._project(model, X[g]) / self.scale
             for i in rows:
                 coef[i], std[i] = _lstsq_std(Xg, e[:, i])
         return coef, std
@@ -343,7 +417,8 @@ class TimeProblem:
             S = np.zeros((n_y, n_y))
             for i in range(n_y):
                 others = [k for k in range(n_y) if k != i]
-                E[i, others], S[i, others] = _lstsq_std(ym[:, others] / self.scale, e[:, i])
+                X = self._project(model, ym[:, others]) / self.scale
+                E[i, others], S[i, others] = _lstsq_std(X, e[:, i])
             return E, S
         # input side: regressor of E[j, k] = column j of the model driven by u_k
         u_in = self._u_in(model)
@@ -358,6 +433,7 @@ class TimeProblem:
                     R[:, rows] += np.einsum("nk,ij->nijk", X[g, :, :, 1], N1[rows])
         if model.T_out is not None:
             R = np.einsum("ab,nbjk->najk", model.T_out, R)
+        R = self._project(model, R)
         pairs = [(j, k) for j in range(n_u) for k in range(n_u) if j != k]
         Xr = np.stack([R[:, :, j, k].ravel() for j, k in pairs], -1) / self.scale
         x, s = _lstsq_std(Xr, e.ravel())
