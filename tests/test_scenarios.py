@@ -120,6 +120,26 @@ def test_wafer_stage_bandwidth_designs_judged_on_the_true_stage(runs):
         assert (folder / name).stat().st_size > 0
 
 
+@pytest.mark.slow
+def test_hinf_study_scenario_designs_all_three_and_judges_them_on_the_true_stage(tmp_path):
+    """scenarios/studies/wafer_stage_bandwidth_hinf.toml (~7 min, a study): the H-inf design
+    joins the baseline and modal-sf; on the true stage it is stable, its loops at |S| <= 2.2,
+    and its crossover is in the table with its gain over the baseline."""
+    import plants
+    from workbench.testing import assert_margins, assert_stable
+
+    path = SCENARIOS[0].parent / "studies" / "wafer_stage_bandwidth_hinf.toml"
+    assert main(["run", str(path), "--results", str(tmp_path), "--quiet"]) == 0
+    evaluation = json.loads((tmp_path / "evaluation.json").read_text())
+    assert set(evaluation["designs"]) == {"pid-notch", "modal-sf", "hinf"}
+    truth = plants.wafer_stage(residual_max_hz=5000.0)
+    assert_stable(truth, tmp_path / "controller_hinf.npz")
+    assert_margins(truth, tmp_path / "controller_hinf.npz", s_peak_max=2.2)
+    loops = evaluation["designs"]["hinf"]["analysis"]["loops"]
+    assert all(lp["crossover_hz"] > 50.0 for lp in loops)
+    assert "hinf" in evaluation["bandwidth_gain"]
+
+
 def test_evaluate_stage_reports_an_unstable_design_and_the_gain(tmp_path):
     """[evaluate] on hand-made designs (fast, no identification): a sign-flipped controller is
     unstable on the true plant (no time simulation, noted), the gain is the crossover ratio."""
