@@ -10,11 +10,13 @@ Data flow::
         v
     workbench._kernels.closed_loop_kernel (numba, one pass over the N samples) -> u, y
 
-The noise is drawn from the caller's generator exactly as ``plant.step`` draws it
-(one ``standard_normal(n_raw)`` per sample, i.e. one ``(N, n_raw)`` draw), so the
-compiled loop and ``plant.step`` / ``controller.step`` give the same u and y to
-rounding (tested). The plant's description is the plant's own business (it may
-read its own settings); identification code never sees it.
+The kernel draws the noise from the caller's generator, in the loop, exactly as
+``plant.step`` draws it (``standard_normal(n_raw)`` per sample: NumPy's ziggurat on the
+generator's own bit stream, the same numbers and the generator left in the same state),
+so the compiled loop and ``plant.step`` / ``controller.step`` give the same u and y to
+rounding (tested). The kernel's arguments of a plant and of a controller are memoized on
+their matrices (a scan or a repeated run prepares them once). The plant's description is
+the plant's own business (it may read its own settings); identification code never sees it.
 """
 
 from __future__ import annotations
@@ -271,10 +273,61 @@ def _cached_realization(n: int, a_bytes: bytes) -> SparseRealization:
     return sr
 
 
+def _key(*arrays: np.ndarray) -> tuple:
+    """A hashable key of float arrays: their shapes and bytes."""
+    return tuple((a.shape, np.ascontiguousarray(a, dtype=float).tobytes()) for a in arrays)
+
+
+def _frozen(*arrays) -> tuple:
+    out = []
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        a.setflags(write=False)
+        out.append(a)
+    return tuple(out)
+
+
+@lru_cache(maxsize=16)
+def _plant_arrays(key: tuple) -> tuple:
+    """The kernel's plant arguments (memoized on the matrices: a scan or a repeated run
+    reuses them; banded storage and the realization test cost about 0.5 ms a call)."""
+    A, B0, B1, C, D, raw_map = (np.frombuffer(b, dtype=float).reshape(s) for s, b in key)
+    n = A.shape[0]
+    plant = sparse_realization(A) if _cost(A) > 3 * n else _identity(A)
+    Cr = plant.from_z(raw_map @ C)
+    cols = np.flatnonzero(np.any(Cr != 0, axis=0))  # states no sensor reads: skipped
+    return _frozen(
+        *banded(plant.A),
+        _t_or_empty(plant.to_z(B0), n),
+        _t_or_empty(plant.to_z(B1), n),
+        Cr[:, cols],
+        cols.astype(np.int64),
+        _t_or_empty(raw_map @ D, raw_map.shape[0]),
+    )
+
+
+@lru_cache(maxsize=16)
+def _controller_arrays(key: tuple) -> tuple:
+    """The kernel's controller arguments, memoized on the controller's matrices."""
+    Ac, Bc, Cc, Dc = (np.frombuffer(b, dtype=float).reshape(s) for s, b in key)
+    ctrl = _cached_realization(Ac.shape[0], Ac.tobytes())
+    return _frozen(*banded(ctrl.A), ctrl.to_z(Bc).T, ctrl.from_z(Cc), _t_or_empty(Dc, Cc.shape[0]))
+
+
+def _t_or_empty(M: np.ndarray, n_cols: int) -> np.ndarray:
+    """M transposed, or (0, n_cols) when M is zero: no work in the kernel."""
+    return np.ascontiguousarray(M.T) if np.any(M) else np.zeros((0, n_cols))
+
+
+#: The generator handed to the kernel for a noise-free plant (nothing is drawn from it).
+_NO_NOISE_RNG = np.random.default_rng(0)
+_NO_NOISE_STD = _frozen(np.zeros(0))[0]  # read-only as SampledStep's arrays: one signature
+
+
 def run_compiled_loop(
     step: SampledStep,
     controller_abcd,
-    r: np.ndarray,
+    r: np.ndarray | None,
     d: np.ndarray,
     rng: np.random.Generator | None,
     delay_samples: int,
@@ -287,10 +340,12 @@ def run_compiled_loop(
         The plant's sampled step.
     controller_abcd : (A, B, C, D)
         Discrete controller e -> u_c.
-    r : (N, n_y) array, d : (N, n_u) array
-        Reference and input excitation.
+    r : (N, n_y) array or None, d : (N, n_u) array
+        Reference (None: zero) and input excitation.
     rng : numpy.random.Generator or None
-        Source of the noise (None only for a noise-free plant).
+        Source of the noise (None only for a noise-free plant): the kernel draws
+        ``standard_normal(n_raw)`` per sample from it, as ``plant.step`` does
+        (the same numbers, the generator left in the same state).
     delay_samples : int
         Loop delay, samples.
 
@@ -307,30 +362,24 @@ def run_compiled_loop(
             "direct feedthrough (u[k] must not depend on y[k])"
         )
     N, n_u = d.shape
-    n_raw = step.raw_map.shape[0]
-    # the draws of plant.step (one standard_normal(n_raw) per sample), scaled in the kernel
+    n_y = step.C.shape[0]
     noisy = bool(np.any(step.noise_std > 0))
-    w = rng.standard_normal((N, n_raw)) if noisy else np.zeros((N, 0))
-    plant = sparse_realization(step.A) if _cost(step.A) > 3 * step.A.shape[0] else _identity(step.A)
-    ctrl = _cached_realization(Ac.shape[0], Ac.tobytes())
-
-    def c(a):
-        return np.ascontiguousarray(a, dtype=float)
-
-    def t_or_empty(M, n_cols):  # transposed, or (0, n_cols) when zero: no work in the kernel
-        return c(M.T) if np.any(M) else np.zeros((0, n_cols))
-
-    Cr = plant.from_z(step.raw_map @ step.C)
-    Dr = step.raw_map @ step.D
+    if noisy and not isinstance(rng, np.random.Generator):
+        raise InputError(f"rng: expected a numpy.random.Generator for the noise, got {rng!r}")
+    plant = _plant_arrays(_key(step.A, step.B0, step.B1, step.C, step.D, step.raw_map))
+    ctrl = _controller_arrays(_key(Ac, Bc, Cc, Dc))
+    noise_std = step.noise_std if noisy else _NO_NOISE_STD
+    r = np.zeros((N, 0)) if r is None else np.ascontiguousarray(r, dtype=float)
     u = np.empty((N, n_u))
-    y = np.empty((N, step.C.shape[0]))
-    _kernels.closed_loop_kernel(
-        *banded(plant.A),
-        t_or_empty(plant.to_z(step.B0), plant.A.shape[0]),
-        t_or_empty(plant.to_z(step.B1), plant.A.shape[0]),
-        c(Cr), t_or_empty(Dr, n_raw), step.m, c(step.saturation), c(step.decouple),
-        w, c(step.noise_std), step.quantization,
-        *banded(ctrl.A), c(ctrl.to_z(Bc).T), c(ctrl.from_z(Cc)), t_or_empty(Dc, n_u),
-        int(delay_samples), c(r), c(d), u, y,
+    y = np.empty((N, n_y))
+    args = (
+        *plant, step.m, step.saturation, step.decouple,
+        rng if noisy else _NO_NOISE_RNG, noise_std, step.quantization,
+        *ctrl, int(delay_samples), r, np.ascontiguousarray(d, dtype=float), u, y,
     )  # fmt: skip
+    if noisy:
+        with rng.bit_generator.lock:  # as NumPy holds it while it draws
+            _kernels.closed_loop_kernel(*args)
+    else:
+        _kernels.closed_loop_kernel(*args)
     return u, y
