@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from workbench.cli.commands.run import _digest
+from workbench.digest import run_digest as _digest
 
 SUMMARY = {
     "plant": {"name": "wafer_stage", "fs_hz": 5000.0, "n_u": 6, "n_y": 6},

@@ -357,10 +357,10 @@ def render_report(contents: dict[str, Any]) -> str:
 
 
 def _summary_section(summary: dict) -> list[str]:
-    from workbench.cli.commands.run import _digest  # the text workbench run prints
+    from workbench.digest import run_digest  # the text workbench run prints
 
     try:
-        digest = _digest(summary)
+        digest = run_digest(summary)
     except Exception as exc:  # a summary of an unknown shape: the JSON table still shows it
         digest = f"(no digest: {type(exc).__name__})"
     return ['<h2 id="summary">Summary</h2>', f'<pre id="digest">{_esc(digest)}</pre>']

@@ -277,7 +277,10 @@ class TimeProblem:
     rigid body's ``1, k`` (position and velocity), is fitted to the misfit by least
     squares per output and added to the prediction; regressors of the linear fits
     are projected the same way (variable projection: the start is a nuisance
-    parameter). ``transient`` says which.
+    parameter). ``transient`` says which. Not compare's
+    :func:`workbench.ident.validate.estimate_x0` (one state vector shared by the
+    outputs): every candidate structure's linear fits need the projector itself,
+    and a per-output basis of the modal model's poles gives it in one QR.
     """
 
     kind = "time"
