@@ -103,7 +103,11 @@ def main(argv=None) -> int:
     ap.add_argument("--variants", action="store_true", help="similarity/discrete/no-G_var reruns")
     ap.add_argument("--nonperiodic", action="store_true", help="time records without period")
     ap.add_argument("--reps", type=int, default=1)
-    ap.add_argument("--dump", default="", help="folder: write every wrong case there (model, measurement, answer)")
+    ap.add_argument(
+        "--dump",
+        default="",
+        help="folder: write every wrong case there (model, measurement, answer)",
+    )
     args = ap.parse_args(argv)
     rng = np.random.default_rng(args.seed)
     specs = []
