@@ -51,6 +51,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from controllers.modal_sf import ARE_METHOD as _ARE
 from controllers.modal_sf import (
     DesignModel,
     _obs_matrices,
@@ -413,9 +414,9 @@ def design_inferential(
         Qa[n:, n:] = Qf
         Q, N = Qa, np.vstack([N, np.zeros((n_f, N.shape[1]))])
     try:
-        K, _, _ = control.dlqr(Phi, Gamma, Q, R, N)
+        K, _, _ = control.dlqr(Phi, Gamma, Q, R, N, method=_ARE)
         Ad, C = _obs_matrices(dm)
-        L, _, _ = control.dlqe(Ad, np.eye(dm.n_p), C, W, np.eye(C.shape[0]))
+        L, _, _ = control.dlqe(Ad, np.eye(dm.n_p), C, W, np.eye(C.shape[0]), method=_ARE)
     except (ValueError, np.linalg.LinAlgError) as exc:
         raise InputError(f"inferential: a Riccati equation has no usable solution ({exc})") from exc
     K = np.asarray(K, float)

@@ -72,6 +72,13 @@ __all__ = [
     "tune_modal_sf",
 ]
 
+#: Riccati solver of every LQR / Kalman design here. python-control picks SLICOT
+#: (slycot, installed for the H-inf synthesis) when it is present; its sb02md /
+#: sg02ad refuse some of the stage's modal designs ("roundoff changed values of
+#: some complex eigenvalues") that scipy's solver (the generalized Schur method
+#: with balancing) solves, so the choice is explicit and the same on every machine.
+ARE_METHOD = "scipy"
+
 
 @dataclass(frozen=True)
 class DesignModel:
@@ -349,7 +356,7 @@ def lqr_gain(dm: DesignModel, Q, R=None) -> np.ndarray:
 
     R = np.eye(dm.Gamma.shape[1]) if R is None else np.atleast_2d(np.asarray(R, float))
     try:
-        K, _, _ = control.dlqr(dm.Phi, dm.Gamma, Q, R)
+        K, _, _ = control.dlqr(dm.Phi, dm.Gamma, Q, R, method=ARE_METHOD)
     except (ValueError, np.linalg.LinAlgError) as exc:
         raise InputError(f"lqr: the Riccati equation has no usable solution ({exc})") from exc
     return np.asarray(K, float)
@@ -559,7 +566,7 @@ def bandwidth_lqg(
     K = lqr_gain(dm, Q, np.eye(dm.Gamma.shape[1]))
     Ad, C = _obs_matrices(dm)
     try:
-        L, _, _ = control.dlqe(Ad, np.eye(dm.n_p), C, W, np.eye(C.shape[0]))
+        L, _, _ = control.dlqe(Ad, np.eye(dm.n_p), C, W, np.eye(C.shape[0]), method=ARE_METHOD)
     except (ValueError, np.linalg.LinAlgError) as exc:
         raise InputError(f"kalman: the Riccati equation has no usable solution ({exc})") from exc
     return K, np.asarray(L, float)
@@ -617,7 +624,7 @@ def kalman_gain(dm: DesignModel, *, process=1.0, sensor=1.0) -> np.ndarray:
     rn = np.broadcast_to(np.asarray(sensor, float), (n_y,)) ** 2
     if np.any(rn <= 0) or np.any(qn < 0):
         raise InputError("kalman_gain: expected process >= 0 and sensor > 0 noise levels")
-    L, _, _ = control.dlqe(Ad, G, C, np.diag(qn), np.diag(rn))
+    L, _, _ = control.dlqe(Ad, G, C, np.diag(qn), np.diag(rn), method=ARE_METHOD)
     return np.asarray(L, float)
 
 

@@ -298,7 +298,7 @@ def _chromium(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
 
 @pytest.mark.skipif(
     CHROMIUM is None,
-    reason="chromium not installed (apt-get install chromium); CI does not install it",
+    reason="chromium not installed (apt-get install chromium; .ci/run installs it as root)",
 )
 def test_every_figure_loads_in_headless_chromium(folder, tmp_path):
     from PIL import Image

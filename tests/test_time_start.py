@@ -90,3 +90,22 @@ def test_augment_finds_a_delay_on_a_record_cut_mid_motion():
     assert out.parameters["delay_s"] == pytest.approx(0.002, abs=2e-5)
     assert out.error_after < 0.02 < out.error_before
     assert "does not start at rest" in out.note
+
+
+def test_orthonormal_columns_span_the_same_space_as_householder_qr():
+    from workbench.diagnosis.problem import _orthonormal_columns
+
+    rng = np.random.default_rng(3)
+    k = np.arange(8000, dtype=float)
+    cols = [np.ones_like(k), k / k[-1]]
+    for f, z in [(0.5, 0.05), (40.0, 0.02), (900.0, 0.01)]:
+        s, wd = -z * 2 * np.pi * f / 5000, 2 * np.pi * f * np.sqrt(1 - z * z) / 5000
+        cols += [np.exp(s * k) * np.cos(wd * k), np.exp(s * k) * np.sin(wd * k)]
+    X = rng.standard_normal((k.size, 3))
+    for B in (np.column_stack(cols), np.column_stack(cols + [cols[0] + 1e-14 * cols[1]])):
+        Q = _orthonormal_columns(B)
+        Qr, R = np.linalg.qr(B)
+        Qr = Qr[:, np.abs(np.diag(R)) > 1e-10 * np.abs(np.diag(R)).max()]
+        assert Q.shape == Qr.shape
+        assert np.abs(Q.T @ Q - np.eye(Q.shape[1])).max() < 1e-12
+        assert np.abs((X - Q @ (Q.T @ X)) - (X - Qr @ (Qr.T @ X))).max() < 1e-10

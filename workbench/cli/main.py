@@ -46,7 +46,13 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The command-line parser; with ``only``, just that command's subparser.
+
+    A command imports its own dependencies (scipy.signal, matplotlib, ...): building
+    every subparser costs ~1 s of imports, so :func:`main` builds only the command
+    it was given and the full parser for ``--help`` or an unknown command.
+    """
     parser = _Parser(
         prog="workbench",
         description=(
@@ -57,7 +63,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
-    for name in COMMANDS:
+    for name in COMMANDS if only is None else (only,):
         # every listed command must import: a broken import fails loudly, it is never
         # turned into a missing command
         module = importlib.import_module(f"workbench.cli.commands.{MODULES.get(name, name)}")
@@ -73,7 +79,9 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else list(argv)
+    command = next((a for a in argv if not a.startswith("-")), None)
+    parser = build_parser(command if command in COMMANDS else None)
     args = parser.parse_args(argv)
     with warnings.catch_warnings():
         warnings.simplefilter("always", DataWarning)

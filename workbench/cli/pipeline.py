@@ -358,6 +358,20 @@ def stage_functions() -> dict:
     }
 
 
+def _stage_bar(stages: list[str], progress: bool):
+    """A tqdm bar over the stages on stderr: drawn only when asked and stderr is a terminal."""
+    from tqdm import tqdm
+
+    return tqdm(
+        total=len(stages),
+        desc="run",
+        unit="stage",
+        file=sys.stderr,
+        disable=None if progress else True,  # None: off when stderr is not a terminal
+        bar_format="{desc}: {n}/{total} stages |{bar}| {elapsed} {postfix}",
+    )
+
+
 def run_scenario(scenario: Scenario, *, progress: bool = True) -> dict[str, Any]:
     """Run every stage the scenario names, in pipeline order; return the summary."""
     from workbench.io.scenario import STAGES
@@ -368,14 +382,15 @@ def run_scenario(scenario: Scenario, *, progress: bool = True) -> dict[str, Any]
     stages = [s for s in STAGES if scenario.has(s)]
     timings = {}
     functions = stage_functions()
-    for k, stage in enumerate(stages, 1):
-        if progress:
-            print(f"[{k}/{len(stages)}] {stage} ...", file=sys.stderr, flush=True)
+    bar = _stage_bar(stages, progress)
+    for stage in stages:
+        bar.set_postfix_str(stage, refresh=True)
         t0 = time.perf_counter()
         functions[stage](st, scenario.table(stage))
         timings[stage] = time.perf_counter() - t0
-        if progress:
-            print(f"[{k}/{len(stages)}] {stage} done in {timings[stage]:.2f} s", file=sys.stderr)
+        bar.update(1)
+    bar.set_postfix_str("done", refresh=True)
+    bar.close()
     st.summary["scenario"] = {
         "name": scenario.name,
         "seed": scenario.seed,

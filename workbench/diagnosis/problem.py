@@ -20,6 +20,7 @@ structure works on both kinds of data.
 from __future__ import annotations
 
 import numpy as np
+import scipy.linalg
 
 from workbench.core.lti import relative_error_frf, relative_error_time
 from workbench.io.formats import FrfData, TimeData
@@ -227,6 +228,30 @@ def _peaks(freq: np.ndarray, power: np.ndarray, n: int) -> list[float]:
     return out
 
 
+def _orthonormal_columns(B: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
+    """Orthonormal basis (N, r) of the span of B's columns (N >> n_b), C-contiguous.
+
+    CholeskyQR2 on the column-scaled B (two Gram-Cholesky passes: as accurate as
+    Householder QR when B is not ill-conditioned, ~4x faster for a tall B), and
+    Householder QR with rank detection (columns whose R_ii < rtol max R_ii are
+    dropped) when the Gram matrix is too ill-conditioned for Cholesky.
+    """
+    norms = np.linalg.norm(B, axis=0)
+    Bs = B[:, norms > 0] / norms[norms > 0]
+    G = Bs.T @ Bs
+    d = np.linalg.eigvalsh(G)
+    if d[0] > 1e-8 * d[-1]:  # cond(B) < 1e4: CholeskyQR2 keeps full accuracy
+        Q = Bs
+        eye = np.eye(Q.shape[1])
+        for _ in range(2):
+            L = np.linalg.cholesky(Q.T @ Q)
+            Q = Q @ scipy.linalg.solve_triangular(L, eye, lower=True).T  # Q R^-1, R = L^T
+        return Q
+    Q, R = np.linalg.qr(Bs)
+    keep = np.abs(np.diag(R)) > rtol * np.max(np.abs(np.diag(R)))
+    return np.ascontiguousarray(Q[:, keep])
+
+
 def _lstsq_std(X: np.ndarray, b: np.ndarray):
     """Least squares by the normal equations of the column-scaled X; returns x and unit-noise "
     "std."""
@@ -314,16 +339,16 @@ class TimeProblem:
                 continue
             w = 2 * np.pi * m.freq_hz
             z = min(m.damping, 0.999)
-            lam = np.exp((-z * w + 1j * w * np.sqrt(1 - z * z)) / self.fs)
-            if abs(lam) < 1e-3:  # gone within a sample
+            # lam^k = exp(k log lam) in real arithmetic (4x faster than complex powers)
+            sigma, wd = -z * w / self.fs, w * np.sqrt(1 - z * z) / self.fs
+            if sigma < np.log(1e-3):  # gone within a sample
                 continue
-            free = lam**k
-            cols += [free.real, free.imag]
-        Q, R = np.linalg.qr(np.column_stack(cols))
-        keep = np.abs(np.diag(R)) > 1e-10 * np.max(np.abs(np.diag(R)))
+            envelope = np.exp(sigma * k)
+            cols += [envelope * np.cos(wd * k), envelope * np.sin(wd * k)]
+        Q = _orthonormal_columns(np.column_stack(cols))
         if len(self._basis_cache) > 50:
             self._basis_cache.clear()
-        self._basis_cache[poles] = Q = np.ascontiguousarray(Q[:, keep])
+        self._basis_cache[poles] = Q
         return Q
 
     def _project(self, model: ModalModel, X: np.ndarray) -> np.ndarray:

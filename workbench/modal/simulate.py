@@ -16,6 +16,8 @@ Data flow::
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import scipy.linalg
 import scipy.signal
@@ -103,6 +105,40 @@ def _charpoly(M: np.ndarray) -> np.ndarray:
     return c
 
 
+@functools.lru_cache(maxsize=512)
+def _zoh_coefficients(num_bytes: bytes, den_bytes: bytes, dt: float, frac: float):
+    """(b, a) of the ZOH-sampled strictly proper part of num/den (monic den, num padded).
+
+    Cached: a diagnosis fit evaluates the same mode with the same lag and delay
+    many times (every other parameter's Jacobian column), and the discretization
+    (balance, expm, three characteristic polynomials) costs more than the filter.
+    """
+    num, den = np.frombuffer(num_bytes), np.frombuffer(den_bytes)
+    n = den.size - 1
+    strict = num[1:] - num[0] * den[1:]
+    # controllable canonical form of the strictly proper part
+    A = np.zeros((n, n))
+    A[0, :] = -den[1:]
+    if n > 1:
+        A[1:, :-1] = np.eye(n - 1)
+    B = np.zeros((n, 1))
+    B[0, 0] = 1.0
+    C = strict[None, :]
+    # balance the companion matrix: a0 ~ w^2 makes expm costly and inaccurate
+    A, Tb = scipy.linalg.matrix_balance(A, permute=False)
+    B = B / np.diag(Tb)[:, None]
+    C = C * np.diag(Tb)[None, :]
+    Ad, B0, B1, _ = c2d_zoh(A, B, dt, delay_s=frac)
+    # SISO transfer functions of (Ad, B0, C) and (Ad, B1, C): numerator
+    # det(zI - Ad + B C) - det(zI - Ad) (what scipy's ss2tf computes, without its overhead)
+    a = _charpoly(Ad)
+    b0 = _charpoly(Ad - B0 @ C) - a
+    b1 = _charpoly(Ad - B1 @ C) - a
+    b = np.concatenate([b0, [0.0]]) + np.concatenate([[0.0], b1])
+    b.flags.writeable = a.flags.writeable = False
+    return b, a
+
+
 def zoh_filter(num, den, u: np.ndarray, dt: float, delay_s: float = 0.0) -> np.ndarray:
     """Exact ZOH response of ``num(s)/den(s)`` (proper) to ``u`` (N, ...), input delay, from rest.
 
@@ -119,26 +155,7 @@ def zoh_filter(num, den, u: np.ndarray, dt: float, delay_s: float = 0.0) -> np.n
     N = u.shape[0]
     y = np.zeros(u.shape)
     if n > 0:
-        strict = num[1:] - d * den[1:]
-        # controllable canonical form of the strictly proper part
-        A = np.zeros((n, n))
-        A[0, :] = -den[1:]
-        if n > 1:
-            A[1:, :-1] = np.eye(n - 1)
-        B = np.zeros((n, 1))
-        B[0, 0] = 1.0
-        C = strict[None, :]
-        # balance the companion matrix: a0 ~ w^2 makes expm costly and inaccurate
-        A, Tb = scipy.linalg.matrix_balance(A, permute=False)
-        B = B / np.diag(Tb)[:, None]
-        C = C * np.diag(Tb)[None, :]
-        Ad, B0, B1, _ = c2d_zoh(A, B, dt, delay_s=frac)
-        # SISO transfer functions of (Ad, B0, C) and (Ad, B1, C): numerator
-        # det(zI - Ad + B C) - det(zI - Ad) (what scipy's ss2tf computes, without its overhead)
-        a = _charpoly(Ad)
-        b0 = _charpoly(Ad - B0 @ C) - a
-        b1 = _charpoly(Ad - B1 @ C) - a
-        b = np.concatenate([b0, [0.0]]) + np.concatenate([[0.0], b1])
+        b, a = _zoh_coefficients(num.tobytes(), den.tobytes(), float(dt), float(frac))
         y = scipy.signal.lfilter(b, a, u, axis=0)
         if m_int:
             y = np.concatenate([np.zeros((min(m_int, N),) + u.shape[1:]), y[: max(N - m_int, 0)]])
