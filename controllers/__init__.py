@@ -15,7 +15,7 @@ Designs on a model (each result holds a Controller)::
 
     tune_pid_notch(model, fs, ms_max=2.0)            # decentralized PID + notches
     tune_modal_sf(model, ms_max=2.0, fs=fs)          # modal state feedback + observer
-    tune_hinf(model, ms_max=2.0, fs=fs).controller   # per-DOF mixed-sensitivity H-inf (LMIs)
+    tune_hinf(model, ms_max=2.0, fs=fs).controller   # per-DOF mixed-sensitivity H-inf (Riccati)
     design_mpc(model, fs, u_max=F_max)               # constrained MPC + Kalman (not linear)
 
 Sign convention (spec section 5): ``u = K e`` with ``e = r - y``; an excitation
@@ -28,6 +28,7 @@ from controllers.hinf import (
     HinfReport,
     design_hinf_mixed,
     hinf_lmi,
+    hinf_riccati,
     mixed_sensitivity,
     tune_hinf,
     weight,
@@ -67,6 +68,7 @@ __all__ = [
     "design_mpc",
     "design_modal_sf",
     "hinf_lmi",
+    "hinf_riccati",
     "mixed_sensitivity",
     "tune_pid",
     "tune_hinf",
