@@ -20,6 +20,20 @@ The loop delay: a design assumes the model's own ``delay_s`` plus
 the plant input u, which comes after the real-time system's delay); the true
 plant's ``delay_s`` already holds that delay, so ``[evaluate]
 loop_delay_samples`` defaults to 0 (the same rule as ``workbench loop``).
+
+Fixed controllers on a varied plant (``workbench sweep``)::
+
+    [design]
+    controllers = { pid-notch = "../results/wafer_stage_bandwidth/controller_pid-notch.npz" }
+    [evaluate]
+    scan = false     # loop figures only: no scan simulation (it needs [modes] for its
+                     # feedforward; or keep [evaluate.scan] with feedforward = false)
+    plots = false    # no per-run PNGs (loop_<design>/, evaluate_*.png)
+
+reads each design from its spec-5 controller file (paths relative to the
+scenario file; the loop delay the design assumed is the file's
+``delay_samples``), so ``[plant]`` + ``[design]`` + ``[evaluate]`` runs
+without ``[identify]`` / ``[modes]``.
 """
 
 from __future__ import annotations
@@ -79,11 +93,21 @@ def _tune(method: str, model, fs: float, ms_max: float, m: int):
 
 
 def stage_design(st: RunState, table: dict) -> None:
-    """Design every method of ``[design] methods`` on the identified modal model."""
+    """Design every method of ``[design] methods`` on the identified modal model.
+
+    With ``[design] controllers = { name = "controller.npz", ... }`` the designs are
+    read from spec-5 controller files instead (:func:`_load_designs`): no model, no
+    tuning, so ``[plant]`` + ``[design]`` + ``[evaluate]`` judges fixed controllers on a
+    (varied) true plant.
+    """
     from workbench.io import formats
     from workbench.loop import analyze_loop
     from workbench.modal.minimality import check_minimality
 
+    files = take(table, "controllers", None, where="design", kind=dict)
+    if files is not None:
+        _load_designs(st, files, table)
+        return
     methods = take(table, "methods", list(METHODS), where="design", kind=list)
     ms_max = float(take(table, "ms_max", 2.0, where="design", kind=(int, float)))
     m = take(table, "loop_delay_samples", 0, where="design", kind=int)
@@ -143,6 +167,100 @@ def stage_design(st: RunState, table: dict) -> None:
     }
 
 
+def _load_designs(st: RunState, files: dict, table: dict) -> None:
+    """``[design] controllers``: each design read from its spec-5 controller file.
+
+    Paths resolve against the scenario's folder (:meth:`Scenario.resolve`). The loop
+    delay a design assumed is the file's ``delay_samples``. The tuning keys
+    (``methods``, ``ms_max``, ``loop_delay_samples``) have no meaning here and are
+    refused. A missing file is one line naming the run that writes it.
+    """
+    from controllers.protocol import StateSpaceController
+
+    for key in ("methods", "ms_max", "loop_delay_samples"):
+        if key in table:
+            raise InputError(
+                f"[design] key '{key}': not with 'controllers' (designs read from files are "
+                "not tuned); give one of the two"
+            )
+    refuse_leftovers(table, where="design")
+    if not files:
+        raise InputError(
+            "[design] key 'controllers': expected { name = \"controller.npz\", ... }, got {}"
+        )
+    out: dict[str, Any] = {"source": "controller files ([design] controllers)", "designs": {}}
+    for name, given in files.items():
+        if not isinstance(given, str):
+            raise InputError(
+                f"[design] key 'controllers.{name}': expected a controller file path, got {given!r}"
+            )
+        path = st.scenario.resolve(given)
+        if not path.is_file():
+            raise InputError(
+                f"[design] key 'controllers.{name}': no such file {path}; {_writer_of(st, path)}"
+            )
+        controller = StateSpaceController.read(path)
+        if st.plant is not None and (controller.n_y, controller.n_u) != (
+            st.plant.n_y,
+            st.plant.n_u,
+        ):
+            raise InputError(
+                f"[design] key 'controllers.{name}': {path} has {controller.n_y} inputs "
+                f"(errors) and {controller.n_u} outputs, expected {st.plant.n_y} and "
+                f"{st.plant.n_u} for the plant of [plant]"
+            )
+        m = int(controller.delay_samples)
+        st.designs[name] = Design(name, controller, m, {"file": str(path)})
+        out["designs"][name] = {
+            "status": "read",
+            "file": str(path),
+            "n_x": int(controller.n_x),
+            "loop_delay_samples": m,
+        }
+    st.write_json("design.json", out)
+    st.summary["design"] = {"designs": {k: v["file"] for k, v in out["designs"].items()}}
+
+
+def _writer_of(st: RunState, path) -> str:
+    """Which run writes the controller file ``path``, as a sentence for an error message.
+
+    A scenario in the same folder as this one (or in ``studies/`` under it) whose
+    results folder is the file's folder and that has a ``[design]`` table: that
+    scenario's ``workbench run`` writes ``controller_<method>.npz`` there.
+    """
+    import tomllib
+    from pathlib import Path
+
+    generic = (
+        "a controller_<method>.npz is written by `workbench run` of a scenario with a "
+        "[design] table (into its results folder) or by `workbench design`"
+    )
+    here = st.scenario.path
+    if here is None:
+        return generic
+    folder = Path(path).parent.resolve()
+    for candidate in sorted([*here.parent.glob("*.toml"), *here.parent.glob("studies/*.toml")]):
+        if candidate.resolve() == here:
+            continue
+        try:
+            raw = tomllib.loads(candidate.read_text())
+        except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError):
+            continue
+        head = raw.get("scenario", {})
+        results = head.get("results", f"results/{head.get('name', candidate.stem)}")
+        if "design" in raw and Path(results).resolve() == folder:
+            shown = os.path.relpath(candidate)
+            method = Path(path).stem.removeprefix("controller_")
+            methods = raw["design"].get("methods", list(METHODS))
+            if method in methods:
+                return f"`workbench run {shown}` writes it (into {results}/)"
+            return (
+                f"`workbench run {shown}` writes its controllers into {results}/, but its "
+                f"[design] methods {methods} do not include {method!r}"
+            )
+    return generic
+
+
 # ------------------------------------------------------------------ evaluation
 _SCAN_KEYS = {
     # key: (default, meaning); SI units. Defaults: a y scan at 0.1 m/s over 5 mm, short-stroke
@@ -160,9 +278,12 @@ _SCAN_KEYS = {
 }
 
 
-def _scan_settings(table: dict) -> dict:
-    raw = take(table, "scan", {}, where="evaluate", kind=dict)
-    raw = dict(raw)
+def _scan_settings(table: dict) -> dict | None:
+    """The ``[evaluate.scan]`` settings; None for ``[evaluate] scan = false`` (no scan)."""
+    raw = take(table, "scan", {}, where="evaluate", kind=(dict, bool))
+    if raw is False:
+        return None
+    raw = {} if raw is True else dict(raw)
     out = {}
     for key, (default, _meaning) in _SCAN_KEYS.items():
         kind = type(default) if not isinstance(default, float) else (int, float)
@@ -182,6 +303,12 @@ def _feedforward(st: RunState, profile, dof: int, n_u: int, enabled: bool) -> np
     """
     if not enabled:
         return None
+    if st.modal is None:
+        raise InputError(
+            "[evaluate.scan] key 'feedforward': needs the identified modal model ([identify] "
+            "and [modes]); with [design] controllers from files set feedforward = false, or "
+            "[evaluate] scan = false"
+        )
     N0, _ = st.modal.rigid_residue()
     if not np.any(N0):
         raise InputError("[evaluate.scan] feedforward: the modal model has no rigid-body modes")
@@ -207,6 +334,8 @@ def stage_evaluate(st: RunState, table: dict) -> None:
     baseline = take(table, "baseline", "pid-notch", where="evaluate", kind=str)
     m = take(table, "loop_delay_samples", 0, where="evaluate", kind=int)
     sc = _scan_settings(table)
+    # plots = false: figures only (a sweep's runs need no per-run PNGs, ~1 s per design)
+    plots = take(table, "plots", True, where="evaluate", kind=bool)
     refuse_leftovers(table, where="evaluate")
     if st.plant is None:
         raise InputError("[evaluate] needs the true plant: a [plant] table")
@@ -216,19 +345,21 @@ def stage_evaluate(st: RunState, table: dict) -> None:
         raise InputError(f"[evaluate] key 'loop_delay_samples': expected an integer >= 0, got {m}")
     plant = st.plant
     names = list(plant.output_names)
-    if sc["dof"] not in names:
+    if sc is not None and sc["dof"] not in names:
         raise InputError(
             f"[evaluate.scan] key 'dof': expected one of {', '.join(names)}, got {sc['dof']!r}"
         )
-    dof = names.index(sc["dof"])
     # the true machine's linear part with its own delay (residual / extra modes included)
     truth = LTIModel.from_statespace(plant.linear_model(), delay_s=float(plant.delay_s))
-    limits = ScanLimits(sc["velocity"], sc["acceleration"], sc["jerk"], sc["snap"])
-    profile = scan(
-        sc["velocity"], sc["length"], limits, plant.fs, lead_s=sc["lead_s"], settle_s=sc["settle_s"]
-    )
-    r = profile.reference(plant.n_y, dof)
-    d = _feedforward(st, profile, dof, plant.n_u, sc["feedforward"])
+    if sc is not None:
+        dof = names.index(sc["dof"])
+        limits = ScanLimits(sc["velocity"], sc["acceleration"], sc["jerk"], sc["snap"])
+        profile = scan(
+            sc["velocity"], sc["length"], limits, plant.fs,
+            lead_s=sc["lead_s"], settle_s=sc["settle_s"],
+        )  # fmt: skip
+        r = profile.reference(plant.n_y, dof)
+        d = _feedforward(st, profile, dof, plant.n_u, sc["feedforward"])
     # one noise realization for every design: the comparison is of the controllers
     noise_seed = int(st.rng.integers(2**63 - 1))
     results: dict[str, Any] = {}
@@ -238,9 +369,12 @@ def stage_evaluate(st: RunState, table: dict) -> None:
         analysis = analyze_loop(truth, design.controller, loop_delay_samples=m)
         analyses[method] = analysis
         entry: dict[str, Any] = {"analysis": analysis.summary(), "tracking": None}
-        for p in save_loop_plots(analysis, st.out / f"loop_{method}"):
-            st.files.append(os.path.relpath(p, st.out))
-        if analysis.stable:
+        if plots:
+            for p in save_loop_plots(analysis, st.out / f"loop_{method}"):
+                st.files.append(os.path.relpath(p, st.out))
+        if sc is None:
+            entry["note"] = "[evaluate] scan = false: no time simulation"
+        elif analysis.stable:
             u, y = closed_loop(
                 plant, design.controller, r=r, d=d,
                 rng=np.random.default_rng(noise_seed), delay_samples=m,
@@ -260,7 +394,9 @@ def stage_evaluate(st: RunState, table: dict) -> None:
         "plant": plant.name if hasattr(plant, "name") else str(plant),
         "loop_delay_samples": m,
         "baseline": baseline,
-        "scan": {
+        "scan": None
+        if sc is None
+        else {
             **sc,
             "durations_s": profile.durations_s,
             "constant_velocity_s": profile.constant_velocity_s,
@@ -269,13 +405,14 @@ def stage_evaluate(st: RunState, table: dict) -> None:
         "designs": results,
         "bandwidth_gain": gains,
     }
-    text = _table(analyses, results, gains, baseline, sc["dof"])
+    text = _table(analyses, results, gains, baseline, "-" if sc is None else sc["dof"])
     st.write_json("evaluation.json", payload)
     from workbench.core import atomic
 
     atomic.write_text(st.path("evaluation.txt"), text + "\n")
-    _plot_sensitivity(st.path("evaluate_sensitivity.png"), analyses, names)
-    if errors:
+    if plots:
+        _plot_sensitivity(st.path("evaluate_sensitivity.png"), analyses, names)
+    if errors and plots:
         _plot_scan_error(
             st.path("evaluate_scan_error.png"), profile, errors, dof, sc["dof"], sc["window_s"]
         )

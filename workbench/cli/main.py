@@ -21,6 +21,7 @@ COMMANDS = (
     "simulate",
     "frf",
     "run",
+    "sweep",
     "identify",
     "modes",
     "minimality",

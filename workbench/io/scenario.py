@@ -18,7 +18,8 @@ present::
     [evaluate]     every design on the true plant: loop figures, scan tracking
     [inferential]  the beam's unmeasured point: inferential vs conventional control
 
-and ``[regress]`` (tolerances of ``workbench regress``), which runs no stage.
+and ``[regress]`` (tolerances of ``workbench regress``) and ``[sweep]`` (default
+variations of ``workbench sweep``, :mod:`workbench.sweep`), which run no stage.
 
 Unknown tables and keys are refused with one line, so a typo never silently
 changes an experiment.
@@ -52,8 +53,9 @@ STAGES = (
     "evaluate",
     "inferential",
 )
-#: tables that configure a command rather than run a stage (``[regress]``: workbench regress)
-SETTINGS_TABLES = ("regress",)
+#: tables that configure a command rather than run a stage (``[regress]``: workbench regress,
+#: ``[sweep]``: workbench sweep)
+SETTINGS_TABLES = ("regress", "sweep")
 
 
 @dataclass(frozen=True)
