@@ -103,9 +103,10 @@ class FrfProblem:
         return out
 
     def core(self, model: ModalModel) -> np.ndarray:
-        G = np.broadcast_to(model.D, (self.freq.size,) + model.D.shape).astype(complex)
+        G = np.empty((self.freq.size,) + model.D.shape, complex)
+        G[...] = model.D
         for m in model.modes:
-            G = G + self._mode_response(m)
+            G += self._mode_response(m)  # in place: one (n_f, n_y, n_u) array, not one per mode
         return G
 
     def predict(self, model: ModalModel) -> np.ndarray:
