@@ -196,11 +196,12 @@ class Mode:
             den = s - self.pole.real
         else:
             den = s**2 + 2 * z * w * s + w**2
+        inv = (1.0 / den)[:, None, None]  # one division per line, not per channel
         if self.N1 is None or not np.any(self.N1):
             N0 = np.outer(self.c, self.b) if self.N0 is None else self.N0
-            return N0[None] / den[:, None, None]
+            return N0[None] * inv
         N0, N1 = self.numerator()
-        return (N0[None] + s[:, None, None] * N1[None]) / den[:, None, None]
+        return (N0[None] + s[:, None, None] * N1[None]) * inv
 
 
 @dataclass(frozen=True)
