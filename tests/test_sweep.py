@@ -465,3 +465,70 @@ def test_docstring_examples():
     for module in (workbench.sweep.spec, workbench.sweep.figures):
         result = doctest.testmod(module)
         assert result.attempted > 0 and result.failed == 0, module.__name__
+
+
+def _descendants(pid: int) -> list[int]:
+    """Every process below ``pid`` (from /proc: each process's parent)."""
+    parent = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / "stat").read_text()
+            except OSError:
+                continue
+            parent[int(entry.name)] = int(stat.rsplit(")", 1)[1].split()[1])
+    out, todo = [], [pid]
+    while todo:
+        p = todo.pop()
+        kids = [c for c, pp in parent.items() if pp == p]
+        out += kids
+        todo += kids
+    return out
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc (Linux)")
+def test_killed_worker_loses_no_finished_row_and_the_rerun_does_only_the_rest(tiny, tmp_path):
+    """SIGKILL to one pool worker mid-sweep: exit 1, the finished rows stay (whole JSON files),
+    and the same command afterwards runs only the variations without a row."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    # longer runs (4000-sample records, ~0.3 s) so the sweep is still going when a worker dies
+    text = tiny.read_text().replace("n_samples = 200", "n_samples = 4000")
+    tiny.write_text(text)
+    out = tmp_path / "sweep"
+    argv = [sys.executable, "-m", "workbench", "sweep", str(tiny), "--workers", "2", "--quiet",
+            "--vary", "plant.effects.delay_s=0:4e-4:24", "--out", str(out)]  # fmt: skip
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    rows = out / "rows"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and len(list(rows.glob("*.json"))) < 2:
+        time.sleep(0.05)
+    assert proc.poll() is None, "the sweep ended before a worker could be killed"
+    # the pool's workers: forked by the forkserver (they carry its command line), no children;
+    # not multiprocessing's resource tracker, the other helper process below the sweep
+    tree = _descendants(proc.pid)
+
+    def cmdline(pid):
+        try:
+            return (Path("/proc") / str(pid) / "cmdline").read_bytes().decode(errors="replace")
+        except OSError:
+            return ""
+
+    workers = [p for p in tree if not _descendants(p) and "forkserver" in cmdline(p)]
+    assert workers, tree
+    os.kill(workers[0], signal.SIGKILL)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 1, err
+    assert "worker process died" in err and "Traceback" not in err
+    kept = {p.name: p.stat().st_mtime_ns for p in rows.glob("*.json")}
+    assert 2 <= len(kept) < 24
+    for p in rows.glob("*.json"):  # whole files only: the parent writes rows atomically
+        assert json.loads(p.read_text())["status"] == "ok"
+    assert not list(rows.glob(".*"))  # no temporary file left behind
+    again = subprocess.run(argv[:6] + ["0"] + argv[7:], capture_output=True, text=True)
+    assert again.returncode == 0, again.stderr
+    assert len(list(rows.glob("*.json"))) == 24
+    assert {p.name: p.stat().st_mtime_ns for p in rows.glob("*.json") if p.name in kept} == kept
