@@ -105,7 +105,7 @@ class _FiniteDifferences:
 def test_fit_with_analytic_jacobian_equals_the_finite_difference_fit(rigid, above, noise):
     """Same optimum from the same start (tests/test_modalfit.py FRFs): theta within 2 % of its
     std (noise-free: the modes' parameters within 1e-8 relative), the std within 2 %, the cost
-    within 1e-8 relative."""
+    within 1e-8 relative (noise-free: both relative FRF errors below 1e-10)."""
     data = frf_data(known_model(rigid=rigid, above=above), noise=noise, seed=3)
     res = fit_modal(data, rigid=rigid)
     st = res.result.structure
@@ -113,7 +113,11 @@ def test_fit_with_analytic_jacobian_equals_the_finite_difference_fit(rigid, abov
     base = ModalModel(modes=(), D=np.zeros((data.n_y, data.n_u)))
     ref = fit(_FiniteDifferences(st), problem, base, starts=[st.theta0], n_starts=1, max_nfev=100)
     assert res.status == ref.status == "ok"
-    assert res.result.cost == pytest.approx(ref.cost, rel=1e-8, abs=1e-20)
+    if noise:
+        assert res.result.cost == pytest.approx(ref.cost, rel=1e-8)
+    else:  # both at rounding level (relative FRF errors ~1e-13 and ~1e-11, the latter where
+        # the finite-difference steps stop): their costs are not comparable, their errors tiny
+        assert max(res.result.error, ref.error) < 1e-10
     if noise:
         np.testing.assert_array_less(np.abs(res.result.theta - ref.theta), 0.02 * ref.theta_std)
         np.testing.assert_allclose(res.result.theta_std, ref.theta_std, rtol=0.02)
