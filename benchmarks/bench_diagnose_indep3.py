@@ -82,7 +82,8 @@ def param_error(effect: str, truth: dict, found: dict) -> float | None:
             return float("inf")
         return max(abs(float(a) / b - 1) for a, b in pairs)
     if effect == "suspension_stiffness":
-        return _nearest_rel(found.get("freq_hz"), truth["freq_hz"])
+        modes = found.get("modes") or [found]
+        return _nearest_rel([m.get("freq_hz") for m in modes], truth["freq_hz"])
     if effect == "residual_compliance":
         if "matrix" not in found:
             return float("inf")

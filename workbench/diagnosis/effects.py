@@ -43,6 +43,7 @@ __all__ = [
     "ActuatorDynamics",
     "SensorDynamics",
     "SuspensionStiffness",
+    "RigidSuspension",
     "Crosstalk",
     "candidate_structures",
 ]
@@ -423,6 +424,102 @@ class SuspensionStiffness:
         return {"freq_hz": f, "damping": z}, {"freq_hz": sf, "damping": sz}
 
 
+@dataclass(frozen=True)
+class RigidSuspension:
+    """Every rigid DOF on its own spring: one finding for a suspended body.
+
+    The merged rigid mode ``N0 / s^2`` (rank R) is factored ``N0 = C_r B_r`` (SVD) and
+    replaced by R modes ``(C_r p_k)(q_k^T B_r) / (s^2 + 2 z w_k s + w_k^2)``, ``P =
+    I + offdiag`` (p_k its columns, q_k^T the rows of P^-1): the body's stiffness in
+    the rigid coordinates is ``K = P W^2 P^-1``, a matrix similar to the symmetric
+    one of mass-normalized coordinates (the SVD's coordinates are only defined up to
+    an invertible map, which P absorbs). The residues sum to N0 (the mass line is
+    kept); one shared damping. theta = (ln f_1 .. ln f_R, ln z, P off-diagonal).
+    Started from one shared frequency and P = I (the grid of
+    :class:`SuspensionStiffness`), where P is not yet identifiable; the fit separates
+    the frequencies first. R(R-1) coupling parameters: offered for R = 2 or 3 rigid
+    DOFs (a planar stage), not for a 6-DOF body (30 couplings, a fit too costly on
+    time records; the shared-frequency structure covers it).
+    """
+
+    effect: str = "suspension_stiffness"
+
+    @property
+    def theta_names(self) -> tuple[str, ...]:
+        return ("log_freq_hz_per_dof", "log_damping", "coupling")
+
+    @staticmethod
+    def _factors(base):
+        k = next(i for i, m in enumerate(base.modes) if m.kind == "rigid")
+        N0 = base.modes[k].numerator()[0]
+        U, S, Vt = np.linalg.svd(N0)
+        R = int(np.sum(S > 1e-9 * S[0])) if S.size and S[0] > 0 else 0
+        root = np.sqrt(S[:R])
+        return k, U[:, :R] * root, root[:, None] * Vt[:R]
+
+    @staticmethod
+    def rank(base) -> int:
+        return RigidSuspension._factors(base)[1].shape[1]
+
+    def grid(self, problem, base):
+        R = self.rank(base)
+        single = SuspensionStiffness().grid(problem, base)
+        return [np.concatenate([[g[0]] * R, [g[1]], np.zeros(R * (R - 1))]) for g in single]
+
+    def bounds(self, problem, base):
+        R = self.rank(base)
+        lo, hi = SuspensionStiffness().bounds(problem, base)
+        return (
+            np.concatenate([[lo[0]] * R, [lo[1]], np.full(R * (R - 1), -10.0)]),
+            np.concatenate([[hi[0]] * R, [hi[1]], np.full(R * (R - 1), 10.0)]),
+        )
+
+    def build(self, theta, problem, base):
+        k, C, B = self._factors(base)
+        R = C.shape[1]
+        f, z = np.exp(theta[:R]), float(np.exp(theta[R]))
+        P = np.eye(R)
+        P[~np.eye(R, dtype=bool)] = theta[R + 1 :]
+        Q = np.linalg.inv(P)
+        rigid = base.modes[k]
+        new = [
+            Mode("flexible", float(f[j]), z, b=Q[j] @ B, c=C @ P[:, j], effect=self.effect)
+            for j in range(R)
+        ]
+        if rigid.N1 is not None and np.any(rigid.N1):  # an exact s-term stays on the first
+            new[0] = replace(new[0], N0=np.outer(new[0].c, new[0].b), N1=rigid.N1)
+        # the first in the rigid mode's place, the others appended: structures chained after
+        # this one index the modes of the base (ModalMismatch(index=...)), so none may move
+        modes = list(base.modes)
+        modes[k] = new[0]
+        return Realized(replace(base, modes=tuple(modes + new[1:])))
+
+    def n_linear(self, base):
+        return 0
+
+    def report(self, fr, problem, base):
+        R = self.rank(base)
+        f = np.exp(fr.theta[:R])
+        sf = f * fr.theta_std[:R]
+        z = float(np.exp(fr.theta[R]))
+        sz = z * float(fr.theta_std[R])
+        order = np.argsort(f)
+        # spec section 3: freq_hz / damping a number (the lowest suspension mode), and the
+        # cause's modes listed, one object per rigid DOF (as modal_mismatch lists its modes)
+        return (
+            {
+                "freq_hz": float(f[order[0]]),
+                "damping": z,
+                "modes": [{"freq_hz": float(f[i]), "damping": z} for i in order],
+            },
+            {
+                "freq_hz": float(sf[order[0]]),
+                "damping": sz,
+                "modes": [{"freq_hz": float(sf[i]), "damping": sz} for i in order],
+            },
+        )
+
+
 class _LinearOnly:
     """An effect whose parameters are all linear, fitted in closed form by the problem:
     no nonlinear parameters, so no start grid and no bounds."""
@@ -654,6 +751,8 @@ def candidate_structures(base: ModalModel, problem, *, exclude=()) -> list:
         out.append(ModalPattern(skip_lowest=skip))
     if any(m.kind == "rigid" for m in base.modes):
         out.append(SuspensionStiffness())
+        if 2 <= RigidSuspension.rank(base) <= 3:
+            out.append(RigidSuspension())
     if base.n_y > 1:
         out.append(Crosstalk(side="out"))
     if base.n_u > 1:

@@ -7,7 +7,10 @@ import numpy as np
 __all__ = ["explain"]
 
 
-def _hz(f: float) -> str:
+def _hz(f) -> str:
+    """``12.5 Hz``, or ``12.5, 13.2, 15.1 Hz`` for several frequencies."""
+    if isinstance(f, list | tuple | np.ndarray):
+        return ", ".join(f"{x:.4g}" for x in f) + " Hz"
     return f"{f:.4g} Hz"
 
 
@@ -87,7 +90,8 @@ def explain(effect: str, ev: dict) -> str:
         return (
             f"the rigid-body 1/w^2 line flattens at low frequency: the rigid-body modes are "
             "suspension modes at "
-            f"{_hz(p['freq_hz'])} with damping {p['damping']:.3g}, visible {lo:.4g}-{hi:.4g} Hz on "
+            f"{_hz([m['freq_hz'] for m in p['modes']] if p.get('modes') else p['freq_hz'])} "
+            f"with damping {p['damping']:.3g}, visible {lo:.4g}-{hi:.4g} Hz on "
             f"{where}; {fall}{tail}"
         )
     if effect == "crosstalk":

@@ -1,0 +1,87 @@
+"""A body on springs with one frequency per rigid DOF: one suspension finding, every frequency.
+
+Oracle: an independent second-order model ``M q'' + D q' + K q = B u``, ``y = C q`` of a
+planar-like body (two rigid DOFs, coupled springs), its suspension frequencies from
+scipy's generalized symmetric eigenproblem ``K phi = w^2 M phi`` and its FRF evaluated
+directly (``C (-w^2 M + j w D + K)^-1 B``); the nominal model is the free body (K = 0).
+"""
+
+from __future__ import annotations
+
+import control
+import numpy as np
+import scipy.linalg
+
+from workbench.diagnosis import diagnose
+from workbench.diagnosis.effects import RigidSuspension, SuspensionStiffness
+from workbench.diagnosis.fit import fit
+from workbench.diagnosis.modal import decompose
+from workbench.diagnosis.problem import FrfProblem
+from workbench.io.formats import FrfData
+
+M = np.diag([2.0, 0.05])  # kg, kg m^2: a translation and a rotation
+K = np.array([[6.0e3, 40.0], [40.0, 60.0]])  # N/m, N, N m/rad: coupled springs to the world
+ZETA = 0.03
+B = np.array([[1.0, 1.0, 0.0], [0.1, -0.1, 0.05]])  # 3 forces -> (force, torque)
+C = np.array([[1.0, 0.2], [1.0, -0.2], [0.0, 1.0]])  # 3 sensors <- (x, theta)
+
+
+def _truth():
+    lam, phi = scipy.linalg.eigh(K, M)  # phi^T M phi = I
+    w = np.sqrt(lam)
+    Minv_phiT = np.linalg.inv(phi.T)  # modal damping: phi^T D phi = diag(2 zeta w)
+    D = Minv_phiT @ np.diag(2 * ZETA * w) @ np.linalg.inv(phi)
+    return w / (2 * np.pi), D
+
+
+def _frf(freq, D, K_):
+    s = 2j * np.pi * freq
+    return np.stack([C @ np.linalg.solve(si * si * M + si * D + K_, B) for si in s])
+
+
+def _case(noise=1e-3, seed=0):
+    f_true, D = _truth()
+    freq = np.geomspace(1.0, 300.0, 400)
+    G = _frf(freq, D, K)
+    rng = np.random.default_rng(seed)
+    sd = noise * np.abs(G) + 1e-12
+    Gm = G + sd / np.sqrt(2) * (rng.standard_normal(G.shape) + 1j * rng.standard_normal(G.shape))
+    n = 2
+    A = np.block([[np.zeros((n, n)), np.eye(n)], [np.zeros((n, n)), np.zeros((n, n))]])
+    Bs = np.vstack([np.zeros((n, 3)), np.linalg.solve(M, B)])
+    nominal = control.ss(A, Bs, np.hstack([C, np.zeros((3, n))]), np.zeros((3, 3)))
+    return nominal, FrfData(freq=freq, G=Gm, G_var=sd**2, fs=5000.0), f_true, G
+
+
+def test_the_residues_of_the_suspension_modes_sum_to_the_rigid_body_mass_line():
+    nominal, data, _, _ = _case()
+    base = decompose(nominal)
+    s = RigidSuspension()
+    assert s.rank(base) == 2
+    theta = np.array([np.log(8.0), np.log(11.0), np.log(0.05), 0.3, -0.7])
+    model = s.build(theta, FrfProblem(data), base).model
+    added = [m for m in model.modes if m.effect == "suspension_stiffness"]
+    assert np.allclose(sorted(m.freq_hz for m in added), [8.0, 11.0], rtol=1e-12)
+    rigid = next(m for m in base.modes if m.kind == "rigid")
+    total = sum(np.outer(m.c, m.b) for m in added)
+    assert np.allclose(total, rigid.numerator()[0], rtol=1e-12, atol=1e-12 * np.abs(total).max())
+
+
+def test_one_finding_with_each_suspension_frequency_at_the_noise_floor():
+    nominal, data, f_true, G = _case()
+    floor = np.mean(np.linalg.norm(data.G - G, axis=(1, 2)) / np.linalg.norm(G, axis=(1, 2)))
+    found = diagnose(nominal, data).to_json()["findings"]
+    top = found[0]
+    assert top["effect"] == "suspension_stiffness"
+    freqs = sorted(m["freq_hz"] for m in top["parameters"]["modes"])
+    assert np.allclose(freqs, f_true, rtol=1e-3), (freqs, f_true)
+    assert top["parameters"]["freq_hz"] == freqs[0]  # spec: a number, the lowest
+    assert abs(top["parameters"]["damping"] / ZETA - 1) < 0.05
+    assert top["error_after"] < 2 * floor
+    assert [f["effect"] for f in found].count("suspension_stiffness") == 1
+    # one shared spring frequency (the structure the diagnosis had before) cannot: the two
+    # springs differ by a factor > 1.2, and its best fit stays far above the floor
+    assert f_true[1] / f_true[0] > 1.2
+    problem = FrfProblem(data)
+    shared = fit(SuspensionStiffness(), problem, decompose(nominal))
+    assert shared.error > 10 * floor
