@@ -33,3 +33,11 @@ def require_shared(path: Path = SHARED_EXAMPLES) -> Path:
     if os.environ.get("CI"):
         pytest.fail(message)
     pytest.skip(message)
+
+
+def one_line(err: str) -> str:
+    """The single line of a CLI's bad-input message (no traceback), asserted and returned."""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    return lines[0]

@@ -14,6 +14,7 @@ import json
 import control
 import numpy as np
 import pytest
+from conftest import one_line
 
 from controllers.protocol import StateSpaceController
 from workbench.cli.main import main
@@ -36,13 +37,6 @@ def model_file(tmp_path_factory):
     path = tmp_path_factory.mktemp("design") / "model.npz"
     mass_flex().write(path)
     return path
-
-
-def one_line(err: str) -> str:
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    assert "Traceback" not in err
-    return lines[0]
 
 
 @pytest.fixture(scope="module")

@@ -8,18 +8,11 @@ import sys
 
 import numpy as np
 import pytest
-from conftest import SHARED_EXAMPLES, require_shared
+from conftest import SHARED_EXAMPLES, one_line, require_shared
 
 from workbench.cli.main import main
 
 EXAMPLES = SHARED_EXAMPLES
-
-
-def one_line(err: str) -> str:
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    assert "Traceback" not in err
-    return lines[0]
 
 
 @pytest.mark.parametrize(

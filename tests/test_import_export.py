@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import scipy.io
+from conftest import one_line
 
 from workbench.cli.main import main
 from workbench.core.errors import InputError
@@ -73,13 +74,6 @@ def assert_same(a, b) -> None:
 def num(x) -> str:
     """A number as CSV text that reads back to the same double."""
     return repr(float(x))
-
-
-def one_line(err: str) -> str:
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    assert "Traceback" not in err
-    return lines[0]
 
 
 def refused(argv, capsys, *words) -> str:

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import one_line
 
 from workbench.cli.main import main
 from workbench.core.errors import InputError
@@ -60,13 +61,6 @@ def tiny(tmp_path) -> Path:
     path = tmp_path / "tiny.toml"
     path.write_text(TINY.format(results=tmp_path / "results"))
     return path
-
-
-def one_line(err: str) -> str:
-    lines = err.strip().splitlines()
-    assert len(lines) == 1, err
-    assert "Traceback" not in err
-    return lines[0]
 
 
 def table_rows(out: Path) -> list[dict]:

@@ -386,20 +386,34 @@ def parameter_std(
     return np.where(undetermined, np.nan, np.sqrt(var))
 
 
+def cholesky_qr2(A: np.ndarray, *, with_q: bool = True):
+    """Thin QR of a tall ``A`` (n, k), n >> k, by CholeskyQR2: ``(Q or None, R)``.
+
+    Two passes of ``R = chol(A^T A)^T``, ``Q = A R^-1`` (Fukaya et al. 2014): as accurate
+    as Householder QR while ``cond(A) < ~1e7``, and 4-10x faster for a tall A (two Gram
+    products and small triangular inverses instead of n k^2 Householder updates). Raises
+    ``np.linalg.LinAlgError`` when a Gram matrix is not positive definite (A numerically
+    rank deficient); callers check ``cond(R)`` for their accuracy needs.
+    """
+    eye = np.eye(A.shape[1])
+    R1 = np.linalg.cholesky(A.T @ A).T
+    Q1 = A @ scipy.linalg.solve_triangular(R1, eye)  # A R1^-1 as one GEMM
+    R2 = np.linalg.cholesky(Q1.T @ Q1).T
+    Q = Q1 @ scipy.linalg.solve_triangular(R2, eye) if with_q else None
+    return Q, R2 @ R1
+
+
 def _right_svd(J: np.ndarray, rtol: float) -> tuple[np.ndarray, np.ndarray]:
     """Singular values and right singular vectors of a tall ``J`` (n, k), n >> k.
 
-    CholeskyQR2 (Fukaya et al. 2014): ``R`` from two Cholesky passes on Gram matrices,
-    then the SVD of the small ``R``; 15 ms instead of 140 ms for LAPACK's SVD of the
-    beam modal fit's 59 940 x 38 Jacobian (one thread). It is accurate while
-    ``cond(J) < ~1e7``; beyond (or where Cholesky fails: a rank-deficient J) the
-    full SVD decides which directions are undetermined at ``rtol``.
+    The SVD of the small ``R`` of :func:`cholesky_qr2`; 15 ms instead of 140 ms for
+    LAPACK's SVD of the beam modal fit's 59 940 x 38 Jacobian (one thread). It is
+    accurate while ``cond(J) < ~1e7``; beyond (or where Cholesky fails: a rank-deficient
+    J) the full SVD decides which directions are undetermined at ``rtol``.
     """
     if J.shape[0] > 4 * J.shape[1] and J.shape[1] > 0:
         try:
-            R1 = np.linalg.cholesky(J.T @ J).T
-            Q1 = scipy.linalg.solve_triangular(R1, J.T, trans="T").T
-            R = np.linalg.cholesky(Q1.T @ Q1).T @ R1
+            _, R = cholesky_qr2(J, with_q=False)
             _, sv, Vt = np.linalg.svd(R)
             if np.all(np.isfinite(sv)) and sv[-1] > 1e3 * max(rtol, 1e-10) * sv[0]:
                 return sv, Vt

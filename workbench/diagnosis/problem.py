@@ -20,9 +20,9 @@ structure works on both kinds of data.
 from __future__ import annotations
 
 import numpy as np
-import scipy.linalg
 
 from workbench.core.lti import relative_error_frf, relative_error_time
+from workbench.diagnosis.fit import cholesky_qr2
 from workbench.io.formats import FrfData, TimeData
 from workbench.modal.model import ModalModel, Mode
 from workbench.modal.simulate import filtered_inputs
@@ -232,22 +232,19 @@ def _peaks(freq: np.ndarray, power: np.ndarray, n: int) -> list[float]:
 def _orthonormal_columns(B: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
     """Orthonormal basis (N, r) of the span of B's columns (N >> n_b), C-contiguous.
 
-    CholeskyQR2 on the column-scaled B (two Gram-Cholesky passes: as accurate as
-    Householder QR when B is not ill-conditioned, ~4x faster for a tall B), and
-    Householder QR with rank detection (columns whose R_ii < rtol max R_ii are
-    dropped) when the Gram matrix is too ill-conditioned for Cholesky.
+    :func:`~workbench.diagnosis.fit.cholesky_qr2` on the column-scaled B while
+    ``cond(B) < 1e4`` (there as accurate as Householder QR, ~4x faster for a tall B),
+    else Householder QR with rank detection (columns whose R_ii < rtol max R_ii are
+    dropped).
     """
     norms = np.linalg.norm(B, axis=0)
     Bs = B[:, norms > 0] / norms[norms > 0]
-    G = Bs.T @ Bs
-    d = np.linalg.eigvalsh(G)
-    if d[0] > 1e-8 * d[-1]:  # cond(B) < 1e4: CholeskyQR2 keeps full accuracy
-        Q = Bs
-        eye = np.eye(Q.shape[1])
-        for _ in range(2):
-            L = np.linalg.cholesky(Q.T @ Q)
-            Q = Q @ scipy.linalg.solve_triangular(L, eye, lower=True).T  # Q R^-1, R = L^T
-        return Q
+    try:
+        Q, R = cholesky_qr2(Bs)
+        if np.linalg.cond(R) < 1e4:
+            return Q
+    except np.linalg.LinAlgError:
+        pass
     Q, R = np.linalg.qr(Bs)
     keep = np.abs(np.diag(R)) > rtol * np.max(np.abs(np.diag(R)))
     return np.ascontiguousarray(Q[:, keep])
