@@ -290,8 +290,9 @@ def run_sweep(
     try:
         for v, result in results:
             row = {"run_id": v.run_id, "overrides": dict(v.overrides), **result}
-            atomic.write_text(rows_dir / f"{v.run_id}.json", json.dumps(jsonable(row)) + "\n")
-            done[v.run_id] = json.loads(json.dumps(jsonable(row)))
+            text = json.dumps(jsonable(row))
+            atomic.write_text(rows_dir / f"{v.run_id}.json", text + "\n")
+            done[v.run_id] = json.loads(text)  # the row as a resumed sweep reads it back
             n_failed += row["status"] != "ok"
             bar.update(1)
             bar.set_postfix(failed=n_failed, refresh=False)
