@@ -175,6 +175,61 @@ def part2(p, quick: bool):
                   f"{d.report.settings['flexible']:g}{note}")  # fmt: skip
 
 
+def _template_fb(f, S) -> float:
+    """Largest fb with |S(f)| <= (f/fb)^2 for every line f <= fb (the Youla programs' template)."""
+    a = np.abs(S)
+    ok = [fb for fb in f if np.all(a[f <= fb] <= (f[f <= fb] / fb) ** 2)]
+    return float(max(ok)) if ok else 0.0
+
+
+def part3(p, quick: bool):
+    """Limits of performance on the Ry loop: the best template over ALL stabilizing
+    controllers (controllers.youla.max_bandwidth, Q on a growing Laguerre basis) on the
+    rigid body alone and with the flexible modes, against the designs' own templates."""
+    from controllers.hinf import tune_hinf
+    from controllers.modal_sf import tune_modal_sf
+    from controllers.pid_notch import tune_pid_notch
+    from controllers.youla import _design_grid, max_bandwidth, youla_maps
+    from workbench.loop import analyze_loop, discrete_plant, loop_frf
+
+    fs = p.fs
+    sizes = (20, 40) if quick else (20, 40, 80, 120)
+    print("\nPart 3: limits of performance on the Ry loop (1-sample delay), |S| <= 2: the "
+          "widest template |S(f)| <= (f/fb)^2 over all stabilizing controllers (Youla, Q on "
+          "n Laguerre functions, pole 0.75), and the crossover of its design")  # fmt: skip
+    for label, rigid_only in (("Ry, flexible modes 1x", False), ("Ry, rigid body only", True)):
+        model = _ry_slice(p, 1.0, 1.0 / fs)
+        if rigid_only:
+            import dataclasses
+
+            model = dataclasses.replace(
+                model, modes=tuple(md for md in model.modes if md.kind == "rigid")
+            )
+        lti = model.to_lti()
+        G = discrete_plant(lti, fs, 0)
+        f = _design_grid(model, 0, fs)
+        K0, _ = tune_pid_notch(lti, fs, ms_max=2.0)
+        row = []
+        for name, K in (("pid-notch", K0.controller),
+                        ("modal-sf", tune_modal_sf(model, ms_max=2.0, fs=fs).controller),
+                        ("hinf", tune_hinf(model, ms_max=2.0, fs=fs).controller)):  # fmt: skip
+            a = analyze_loop(lti, K)
+            _, L = loop_frf(lti, K, f)
+            fb = _template_fb(f, 1 / (1 + L[:, 0, 0]))
+            row.append(f"{name} fc {a.loops[0].crossover_hz:.1f} / fb {fb:.1f}")
+        print(f"  {label}: " + ", ".join(row) + " Hz")
+        fc0 = analyze_loop(lti, K0.controller).loops[0].crossover_hz
+        for n in sizes:
+            d = max_bandwidth(youla_maps(G, K0.controller, f, n_basis=n, pole=0.75),
+                              ms_max=2.0 * 0.99, slope=2.0, level=1.0)  # fmt: skip
+            a = analyze_loop(lti, d.controller)
+            lp = a.loops[0]
+            print(f"    n {n:4d}: template fb {d.value:6.1f} Hz, its design: fc "
+                  f"{lp.crossover_hz:6.1f} Hz, |S| {lp.s_peak:.3f}, stable {a.stable}, "
+                  f"fc / pid-notch {lp.crossover_hz / fc0:.2f} ({d.solves} programs, "
+                  f"{d.seconds:.0f} s)", flush=True)  # fmt: skip
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer machine changes in part 2")
@@ -183,6 +238,7 @@ def main() -> None:
     t = time.perf_counter()
     p = part1(args.quick)
     part2(p, args.quick)
+    part3(p, args.quick)
     print(f"\ntotal {time.perf_counter() - t:.0f} s")
 
 

@@ -1,0 +1,669 @@
+"""Convex design on the Youla parameter: limits of performance, and controllers that reach them.
+
+Every controller that stabilizes the loop can be written around one stabilizing
+``K0`` as (Boyd & Barratt, *Linear Controller Design: Limits of Performance*,
+1991, ch. 7; Zhou, Doyle & Glover 1996, ch. 12)::
+
+    K = K0 + Q (I - H Q)^-1,     H = S0 G = G (I + K0 G)^-1   (stable),   Q stable,
+
+and then every closed-loop map is AFFINE in Q (loop e = r - y, u = K e, y = G u,
+an input force d at the plant input, z = Gz (u + d) a performance output)::
+
+    S   = (I + G K)^-1         = S0 - H Q S0                  (n_y, n_y)
+    T_dz = Gz (I + K G)^-1     = Gz Si0 - Gz Si0 Q H          (n_z, n_u)
+
+(S0, Si0 the output / input sensitivities with K0). Bounds on |S_ii(f)| and
+peaks of |T_dz(f)| are then second-order cone constraints in the parameters of
+Q: the best achievable figure over ALL stabilizing controllers is a convex
+program, and its solution is a controller. Q is a finite expansion
+
+    Q(z) = Theta_0 + sum_k Theta_k phi_k(z),    phi_k  Laguerre functions with pole ``pole``
+    (``pole = 0``: phi_k = z^-k, an FIR Q),
+
+so each solve gives an achievable design (a lower bound on the optimum, up to
+the frequency grid), which rises to the optimum as the number of basis functions
+grows: a study reports it for several sizes and calls the figure a limit when it
+has stopped moving. Constraints hold on the frequency grid only; every result is
+re-checked by :func:`workbench.loop.analyze_loop` on its own dense grid.
+
+Two designs::
+
+    maps = youla_maps(G, K0, f)                 # G discrete (incl. ZOH and loop delay)
+    d = max_bandwidth(maps, ms_max=2.0)         # largest -3 dB sensitivity bandwidth
+    d = min_band_peak(maps, band_hz, ms_max=2.0)  # smallest peak of |T_dz| in a band
+    d.controller                                # StateSpaceController e -> u (K0's names)
+
+Units: Hz, the plant's units; dt = 1/fs of G and K0.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from controllers.protocol import StateSpaceController
+from workbench.core.errors import InputError
+
+__all__ = [
+    "YoulaMaps",
+    "YoulaDesign",
+    "laguerre_basis",
+    "youla_maps",
+    "youla_controller",
+    "max_bandwidth",
+    "min_band_peak",
+    "min_mixed_sensitivity",
+]
+
+
+def laguerre_basis(n: int, pole: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(A, B, M): n discrete Laguerre functions as one state-space chain.
+
+    x+ = A x + B e,  s = M x  with  s_k = phi_k(z) e,
+    phi_k(z) = sqrt(1 - a^2) / (z - a) * ((1 - a z) / (z - a))^k,  a = ``pole``;
+    orthonormal on the unit circle; a = 0 gives the delays z^-(k+1).
+    Shapes (n, n), (n,), (n, n).
+    """
+    if not (isinstance(n, (int, np.integer)) and n >= 1):
+        raise InputError(f"n_basis: expected an integer >= 1, got {n!r}")
+    if not -1 < pole < 1:
+        raise InputError(f"pole: expected -1 < pole < 1 (a stable Laguerre pole), got {pole}")
+    a = float(pole)
+    M = np.zeros((n, n))
+    M[0, 0] = np.sqrt(1 - a * a)
+    for k in range(1, n):  # s_k = -a s_{k-1} + (1 - a^2) x_k (the all-pass section)
+        M[k] = -a * M[k - 1]
+        M[k, k] = 1 - a * a
+    A = a * np.eye(n)
+    A[1:] += M[:-1]  # x_k+ = a x_k + s_{k-1}
+    B = np.zeros(n)
+    B[0] = 1.0
+    return A, B, M
+
+
+def _basis_frf(n: int, pole: float, f: np.ndarray, fs: float) -> np.ndarray:
+    """(n_f, n + 1) complex: [1, phi_0, ..., phi_{n-1}] at ``f`` (closed form)."""
+    z = np.exp(2j * np.pi * np.asarray(f, float) / fs)
+    first = np.sqrt(1 - pole * pole) / (z - pole)
+    allpass = (1 - pole * z) / (z - pole)
+    k = np.arange(n)
+    return np.column_stack([np.ones_like(z), first[:, None] * allpass[:, None] ** k[None, :]])
+
+
+@dataclass(frozen=True)
+class YoulaMaps:
+    """The affine closed-loop maps of one loop on a frequency grid.
+
+    Attributes
+    ----------
+    f : (n_f,) Hz;  fs : Hz
+    phi : (n_f, n_b) complex, the basis responses (column 0 the constant term)
+    S0 : (n_f, n_y, n_y);  H : (n_f, n_y, n_u) = S0 G;  Si0 : (n_f, n_u, n_u)
+    GzSi0 : (n_f, n_z, n_u) or None, the performance map with K0
+    n_basis, pole : the Laguerre basis of Q (n_b = n_basis + 1)
+    G, K0 : the discrete plant (control.StateSpace) and the initial controller
+    """
+
+    f: np.ndarray
+    fs: float
+    phi: np.ndarray
+    S0: np.ndarray
+    H: np.ndarray
+    Si0: np.ndarray
+    GzSi0: np.ndarray | None
+    n_basis: int
+    pole: float
+    G: object = field(repr=False)
+    K0: StateSpaceController = field(repr=False)
+    Gz: object = field(default=None, repr=False)
+    diagonal: bool = False
+
+    @property
+    def shape_q(self) -> tuple[int, int, int]:
+        """(n_b, n_u, n_y): Theta's shape."""
+        return self.phi.shape[1], self.H.shape[2], self.H.shape[1]
+
+    @property
+    def free(self) -> np.ndarray:
+        """(n_b, n_u, n_y) bool: the entries of Theta that are parameters."""
+        n_b, nu, ny = self.shape_q
+        mask = np.eye(nu, ny, dtype=bool) if self.diagonal else np.ones((nu, ny), bool)
+        return np.broadcast_to(mask, (n_b, nu, ny))
+
+    @property
+    def theta_size(self) -> int:
+        """Number of real parameters of Q."""
+        return int(self.free.sum())
+
+    def theta_full(self, theta: np.ndarray) -> np.ndarray:
+        """Theta (n_b, n_u, n_y) from the parameter vector (zeros off the structure)."""
+        th = np.zeros(self.shape_q)
+        th[self.free] = np.asarray(theta, float)
+        return th
+
+    def q_frf(self, theta: np.ndarray) -> np.ndarray:
+        """Q on the grid, (n_f, n_u, n_y)."""
+        return np.einsum("fk,kab->fab", self.phi, self.theta_full(theta))
+
+    def sensitivity(self, theta: np.ndarray) -> np.ndarray:
+        """S = S0 - H Q S0 on the grid, (n_f, n_y, n_y)."""
+        return self.S0 - self.H @ self.q_frf(theta) @ self.S0
+
+    def z_response(self, theta: np.ndarray) -> np.ndarray:
+        """T_dz = Gz Si0 - Gz Si0 Q H on the grid, (n_f, n_z, n_u)."""
+        if self.GzSi0 is None:
+            raise InputError("z_response: expected maps built with Gz, got none")
+        return self.GzSi0 - self.GzSi0 @ self.q_frf(theta) @ self.H
+
+    def sensitivity_affine(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """(c0 (n_f,), C (n_f, n_theta)) with S_ii = c0 + C theta."""
+        C = -np.einsum("fk,fa,fb->fkab", self.phi, self.H[:, i, :], self.S0[:, :, i])
+        return self.S0[:, i, i], C[:, self.free]
+
+    def z_affine(self, j: int) -> tuple[np.ndarray, np.ndarray]:
+        """(c0 (n_f, n_u), C (n_f, n_u, n_theta)) with T_dz[j, :] = c0 + C theta."""
+        G = self.GzSi0[:, j, :]
+        C = -np.einsum("fk,fa,fbu->fukab", self.phi, G, self.H)
+        return G, C[:, :, self.free]
+
+
+@dataclass(frozen=True)
+class YoulaDesign:
+    """A solved design: the controller, Q's coefficients and the figure on the grid.
+
+    ``value`` is the optimized figure (the bandwidth, Hz, of :func:`max_bandwidth`;
+    the peak of :func:`min_band_peak`; gamma of :func:`min_mixed_sensitivity`);
+    ``solves`` the number of convex programs, ``seconds`` their wall time.
+    """
+
+    controller: StateSpaceController
+    theta: np.ndarray
+    value: float
+    maps: YoulaMaps = field(repr=False)
+    solves: int = 1
+    seconds: float = 0.0
+    status: str = "optimal"
+
+
+def _as_controller(K0) -> StateSpaceController:
+    """K0 as a StateSpaceController (a Controller, a design holding one, a discrete StateSpace)."""
+    import control
+
+    from workbench.loop import _controller_ss
+
+    if isinstance(K0, StateSpaceController):
+        return K0
+    ctrl = getattr(K0, "controller", K0)
+    if not (hasattr(ctrl, "step") or isinstance(ctrl, control.StateSpace)):
+        raise InputError(f"K0: expected a discrete controller, got {type(K0).__name__}")
+    ss = _controller_ss(ctrl)
+    return StateSpaceController(
+        ss.A, ss.B, ss.C, ss.D, 1.0 / float(ss.dt),
+        tuple(getattr(ctrl, "input_names", ()) or ()),
+        tuple(getattr(ctrl, "output_names", ()) or ()),
+        int(getattr(ctrl, "delay_samples", 0) or 0),
+    )  # fmt: skip
+
+
+def youla_maps(
+    G, K0, f, *, Gz=None, n_basis: int = 40, pole: float = 0.0, diagonal: bool = False
+) -> YoulaMaps:
+    """The affine maps of the loop (G, K0) on the grid ``f`` (Hz).
+
+    Parameters
+    ----------
+    G : discrete control.StateSpace u (n_u) -> y (n_y), with the ZOH and the loop
+        delay (e.g. :func:`workbench.loop.discrete_plant`); dt = 1/fs.
+    K0 : a stabilizing discrete controller e (n_y) -> u (n_u) at the same dt.
+    f : (n_f,) Hz, 0 < f <= fs/2.
+    Gz : discrete control.StateSpace u -> z (performance outputs), same dt, or None.
+    n_basis, pole : Q's Laguerre basis.
+    diagonal : Q diagonal (n_u = n_y): one parameter set per loop; K is still
+        MIMO (H couples the loops) and every map keeps the couplings.
+    """
+    from workbench.core.lti import frf
+    from workbench.sim import closed_loop_matrices
+
+    Kc = _as_controller(K0)
+    Ks = Kc.statespace()
+    if not G.dt or not np.isclose(G.dt, Ks.dt, rtol=1e-9):
+        raise InputError(f"G: expected a discrete plant with dt = {Ks.dt:g} s (K0's), got {G.dt}")
+    if Ks.ninputs != G.noutputs or Ks.noutputs != G.ninputs:
+        raise InputError(
+            f"K0: expected {G.noutputs} inputs and {G.ninputs} outputs (the plant's), "
+            f"got {Ks.ninputs} and {Ks.noutputs}"
+        )
+    fs = 1.0 / float(G.dt)
+    f = np.asarray(f, float)
+    if f.ndim != 1 or f.size < 2 or f.min() <= 0 or f.max() > fs / 2 * (1 + 1e-12):
+        raise InputError(f"f: expected a 1-D grid in (0, fs/2 = {fs / 2:g}] Hz, got {f.shape}")
+    Acl = closed_loop_matrices((G.A, G.B, G.C, G.D), (Ks.A, Ks.B, Ks.C, Ks.D))[0]
+    if Acl.size and np.max(np.abs(np.linalg.eigvals(Acl))) >= 1.0:
+        raise InputError("K0: expected a controller that stabilizes G, got an unstable loop")
+    Gf, Kf = frf(G, f), frf(Ks, f)
+    ny, nu = Gf.shape[1], Gf.shape[2]
+    if diagonal and nu != ny:
+        raise InputError(f"diagonal: expected a square plant, got {ny} outputs and {nu} inputs")
+    S0 = np.linalg.inv(np.eye(ny) + Gf @ Kf)
+    Si0 = np.linalg.inv(np.eye(nu) + Kf @ Gf)
+    GzSi0 = None
+    if Gz is not None:
+        if not np.isclose(Gz.dt, G.dt, rtol=1e-9) or Gz.ninputs != nu:
+            raise InputError(f"Gz: expected {nu} inputs at dt = {G.dt:g}, got {Gz.ninputs}")
+        GzSi0 = frf(Gz, f) @ Si0
+    return YoulaMaps(
+        f=f, fs=fs, phi=_basis_frf(n_basis, pole, f, fs), S0=S0, H=S0 @ Gf, Si0=Si0,
+        GzSi0=GzSi0, n_basis=int(n_basis), pole=float(pole), G=G, K0=Kc, Gz=Gz,
+        diagonal=bool(diagonal),
+    )  # fmt: skip
+
+
+def youla_controller(maps: YoulaMaps, theta: np.ndarray) -> StateSpaceController:
+    """K = K0 + Q (I - H Q)^-1 as a StateSpaceController (K0's names and delay).
+
+    Order n(K0) + n(H) + n_y n_basis with H = S0 G realized as
+    ``control.feedback(G, K0)``; H is strictly proper (G is, behind a ZOH), so the
+    inner loop has no algebraic loop.
+    """
+    import control
+
+    n_b, nu, ny = maps.shape_q
+    Th = maps.theta_full(theta)
+    A, B, M = laguerre_basis(maps.n_basis, maps.pole)
+    Aq = np.kron(np.eye(ny), A)
+    Bq = np.kron(np.eye(ny), B[:, None])
+    # q = Theta_0 e + sum_j sum_k Theta_k[:, j] s_{j,k},  s_j = M x_j
+    Cq = np.hstack([Th[1:, :, j].T @ M for j in range(ny)])
+    dt = float(maps.G.dt)
+    Q = control.ss(Aq, Bq, Cq, Th[0], dt)
+    K0 = maps.K0.statespace()
+    H = control.feedback(maps.G, K0)  # G (I + K0 G)^-1 = S0 G
+    K = control.parallel(K0, control.feedback(Q, H, sign=1))
+    return StateSpaceController(
+        K.A, K.B, K.C, K.D, maps.fs, maps.K0.input_names, maps.K0.output_names,
+        maps.K0.delay_samples,
+    )  # fmt: skip
+
+
+# ------------------------------------------------------------------ the programs
+def _soc_abs(c0, C, theta):
+    """Rows [Re; Im] of c0 + C theta (complex affine) for cvxpy's SOC, shape (2, n)."""
+    import cvxpy as cp
+
+    re = np.real(C) @ theta + np.real(c0)
+    im = np.imag(C) @ theta + np.imag(c0)
+    return cp.vstack([re, im])
+
+
+def _s_constraints(maps: YoulaMaps, theta, bound, loops):
+    """|S_ii(f)| <= bound_i(f) for the loops as SOC constraints (bound (n_loops, n_f))."""
+    import cvxpy as cp
+
+    cons = []
+    for r, i in enumerate(loops):
+        c0, C = maps.sensitivity_affine(i)
+        cons.append(cp.SOC(bound[r], _soc_abs(c0, C, theta), axis=0))
+    return cons
+
+
+def _solve(problem) -> str:
+    import cvxpy as cp
+
+    try:
+        problem.solve(solver="CLARABEL")
+    except cp.SolverError:
+        problem.solve(solver="SCS", eps=1e-7, max_iters=20000)
+    return str(problem.status)
+
+
+def _worst_lines(maps: YoulaMaps, theta, loops, ms_max: float, dense: int) -> np.ndarray:
+    """Frequencies (Hz) between the grid's lines where |S_ii| exceeds ms_max (local peaks).
+
+    The programs hold |S_ii| <= ms_max on the grid only; a lightly damped
+    feature of Q or of the plant can peak between two lines. The check runs on
+    ``dense`` times the grid's lines (log-spaced over its span, plus midpoints).
+    """
+    f = maps.f
+    fd = np.geomspace(f[0], f[-1], dense * len(f))
+    fd = np.setdiff1d(np.union1d(fd, np.sqrt(f[1:] * f[:-1])), f)
+    probe = youla_maps(maps.G, maps.K0, fd, n_basis=maps.n_basis, pole=maps.pole,
+                       diagonal=maps.diagonal)  # fmt: skip
+    S = np.abs(np.diagonal(probe.sensitivity(theta), axis1=1, axis2=2))[:, loops]
+    a = np.max(S, axis=1)
+    peak = (a > ms_max) & (a >= np.r_[0, a[:-1]]) & (a >= np.r_[a[1:], 0])
+    return fd[peak]
+
+
+def _with_lines(maps: YoulaMaps, extra: np.ndarray) -> YoulaMaps:
+    return youla_maps(maps.G, maps.K0, np.union1d(maps.f, extra), Gz=maps.Gz,
+                      n_basis=maps.n_basis, pole=maps.pole, diagonal=maps.diagonal)  # fmt: skip
+
+
+def _loops(maps: YoulaMaps, loops) -> list[int]:
+    ny = maps.S0.shape[1]
+    loops = list(range(ny)) if loops is None else [int(i) for i in loops]
+    if not loops or any(not 0 <= i < ny for i in loops):
+        raise InputError(f"loops: expected indices in 0..{ny - 1}, got {loops}")
+    return loops
+
+
+def max_bandwidth(
+    maps: YoulaMaps,
+    *,
+    ms_max: float = 2.0,
+    loops=None,
+    target: int | None = None,
+    level: float = 1 / np.sqrt(2),
+    slope: float = 0.0,
+    ratios=None,
+    fb_range: tuple[float, float] | None = None,
+    rel_tol: float = 0.01,
+    refine: int = 4,
+) -> YoulaDesign:
+    """Largest fb of the template |S_tt(f)| <= level (f/fb)^slope, f <= fb, at |S_ii| <= ms_max.
+
+    ``slope = 0`` (the default, level 1/sqrt 2) is the -3 dB sensitivity
+    bandwidth; ``slope = 2, level = 1`` the disturbance-rejection template of a
+    double-integrator loop with crossover ~fb (|S| ~ (f/fc)^2 below it), the
+    convex stand-in for the crossover, which is not convex in Q.
+    Bisection on fb (a quasi-convex figure): feasible when some Q meets the
+    template on loop ``target`` and |S_ii(f)| <= ms_max everywhere on the grid
+    (every loop of ``loops``, default all). Every loop of ``loops`` gets the
+    template when ``target`` is None, loop ``i`` at ``fb * ratios[i]`` when
+    ``ratios`` (one per loop of ``loops``, <= 1) is given. Returns the design at
+    the largest feasible fb (``value``, Hz, to ``rel_tol``, searched in
+    ``fb_range``, default the grid's span). The grid is refined (``refine``
+    rounds) where the design's |S_ii| peaks above ms_max between its lines.
+    """
+    loops = _loops(maps, loops)
+    targets = loops if target is None else [int(target)]
+    r = np.ones(len(loops)) if ratios is None else np.asarray(ratios, float)
+    if r.shape != (len(loops),) or not np.all((r > 0) & (r <= 1)):
+        raise InputError(f"ratios: expected {len(loops)} values in (0, 1], got {ratios}")
+    span = (maps.f[0], maps.f[-1]) if fb_range is None else tuple(float(x) for x in fb_range)
+    return _refined(
+        lambda m: _max_bandwidth(m, ms_max, loops, targets, level, slope, rel_tol, r, span),
+        maps, loops, ms_max, refine,
+    )  # fmt: skip
+
+
+def _refined(solve, maps: YoulaMaps, loops, ms_max: float, rounds: int) -> YoulaDesign:
+    """solve(maps) -> (theta, value, solves, status), re-solved on a grid with the
+    lines where the last design peaks above ms_max, until none or ``rounds``."""
+    t0, solves = time.perf_counter(), 0
+    for _ in range(int(rounds) + 1):
+        theta, value, n, status = solve(maps)
+        solves += n
+        extra = _worst_lines(maps, theta, loops, ms_max, dense=8)
+        if not extra.size:
+            break
+        maps = _with_lines(maps, extra)
+    return YoulaDesign(youla_controller(maps, theta), theta, float(value), maps, solves,
+                       time.perf_counter() - t0, status)  # fmt: skip
+
+
+def _column_scale(blocks) -> np.ndarray:
+    """Per-parameter scale: the largest |coefficient| of each column over the blocks.
+
+    Q's coefficients span many decades (a rigid-body loop at 5 kHz needs
+    Theta ~ 1e6 where the basis meets small S0 H); the programs solve for
+    theta * scale, whose columns are O(1), or the interior-point iterations stall.
+    """
+    m = np.zeros(blocks[0].shape[-1])
+    for C in blocks:
+        m = np.maximum(m, np.max(np.abs(C.reshape(-1, C.shape[-1])), axis=0))
+    return np.where(m > 0, m, 1.0)
+
+
+def _max_bandwidth(maps, ms_max, loops, targets, level, slope, rel_tol, ratios, span):
+    """Bisection on fb; each step solves min s: |S_tt| <= template s, |S_ii| <= ms_max s.
+
+    The scaled form is always feasible (Q = 0 gives a finite s), so the solver
+    returns an optimum rather than having to certify infeasibility near the
+    boundary, which interior-point codes do poorly; fb is feasible iff s <= 1.
+    Each row is divided by its bound (the template falls to (f/fb)^2 ~ 1e-5).
+    """
+    import cvxpy as cp
+
+    f = maps.f
+    aff = [maps.sensitivity_affine(i) for i in loops]
+    scale = _column_scale([C for _, C in aff])
+
+    def scaled(fb):
+        theta, s = cp.Variable(maps.theta_size), cp.Variable()
+        cons = []
+        for (c0, C), i, ratio in zip(aff, loops, ratios):
+            b = np.full(len(f), float(ms_max))
+            if i in targets:
+                fbi = fb * ratio
+                low = f <= fbi
+                b[low] = np.minimum(level * (f[low] / fbi) ** slope, ms_max)
+            rows = _soc_abs(c0 / b, C / (b[:, None] * scale), theta)
+            cons.append(cp.SOC(s * np.ones(len(f)), rows, axis=0))
+        prob = cp.Problem(cp.Minimize(s), cons)
+        _solve(prob)
+        if s.value is None:
+            return np.inf, None
+        return float(s.value), np.array(theta.value) / scale
+
+    (lo, hi), best, n = span, None, 0
+    value, theta = scaled(lo)  # the low end must hold, or nothing does
+    if value <= 1.0 + 1e-7:
+        best, n = theta, 1
+    else:
+        hi = lo
+    while hi / lo > 1 + rel_tol:
+        mid = np.sqrt(lo * hi)
+        n += 1
+        value, theta = scaled(mid)
+        if value <= 1.0 + 1e-7:
+            lo, best = mid, theta
+        else:
+            hi = mid
+    if best is None:
+        raise InputError(
+            f"max_bandwidth: no Q meets |S| <= {ms_max} with a bandwidth of {span[0]:g} Hz "
+            "on this grid"
+        )
+    return best, float(lo), n, "optimal"
+
+
+def min_band_peak(
+    maps: YoulaMaps,
+    band_hz: tuple[float, float],
+    *,
+    ms_max: float = 2.0,
+    loops=None,
+    z: int = 0,
+    refine: int = 4,
+) -> YoulaDesign:
+    """Smallest max over ``band_hz`` of ||T_dz[z, :](f)||_2 at |S_ii| <= ms_max on every loop.
+
+    The norm is over the plant inputs (the response of z to a unit force at each
+    actuator); ``value`` is that peak in the units of Gz / G's inputs, on the
+    grid's lines in the band. The grid is refined as in :func:`max_bandwidth`.
+    """
+    if maps.GzSi0 is None:
+        raise InputError("min_band_peak: expected maps built with Gz, got none")
+    loops = _loops(maps, loops)
+    lo, hi = (float(b) for b in band_hz)
+    if int(((maps.f >= lo) & (maps.f <= hi)).sum()) < 2:
+        raise InputError(
+            f"band_hz: expected >= 2 grid lines in {band_hz}, got "
+            f"{int(((maps.f >= lo) & (maps.f <= hi)).sum())}"
+        )
+    return _refined(lambda m: _min_band_peak(m, lo, hi, ms_max, loops, z), maps, loops,
+                    ms_max, refine)  # fmt: skip
+
+
+def _min_band_peak(maps, lo, hi, ms_max, loops, z):
+    import cvxpy as cp
+
+    sel = (maps.f >= lo) & (maps.f <= hi)
+    c0, C = maps.z_affine(z)
+    scale = float(np.max(np.abs(c0[sel]))) or 1.0  # solver numerics: O(1) figures
+    theta = cp.Variable(maps.theta_size)
+    t = cp.Variable()
+    bound = np.full((len(loops), len(maps.f)), float(ms_max))
+    cons = _s_constraints(maps, theta, bound, loops)
+    c0s, Cs = c0[sel] / scale, C[sel] / scale  # (n_band, n_u), (n_band, n_u, n_theta)
+    nb, nu = c0s.shape
+    re = np.real(Cs).reshape(nb * nu, -1) @ theta + np.real(c0s).ravel()
+    im = np.imag(Cs).reshape(nb * nu, -1) @ theta + np.imag(c0s).ravel()
+    X = cp.vstack([cp.reshape(re, (nb, nu), order="C").T, cp.reshape(im, (nb, nu), order="C").T])
+    cons.append(cp.SOC(cp.hstack([t] * nb), X, axis=0))
+    prob = cp.Problem(cp.Minimize(t), cons)
+    st = _solve(prob)
+    if theta.value is None:
+        raise InputError(f"min_band_peak: the program is {st} (no Q meets |S| <= {ms_max})")
+    th = np.array(theta.value)
+    peak = float(np.max(np.linalg.norm(maps.z_response(th)[sel][:, z, :], axis=1)))
+    return th, peak, 1, st
+
+
+def min_mixed_sensitivity(maps: YoulaMaps, W1f: np.ndarray, W3f: np.ndarray) -> YoulaDesign:
+    """min over Q of max_f sqrt(|W1 S|^2 + |W3 T|^2) for a SISO loop (T = 1 - S).
+
+    The H-inf mixed-sensitivity problem restricted to the basis and the grid:
+    ``value`` approaches the H-inf optimum gamma from above as the basis grows
+    (the cross-check of :func:`controllers.hinf.hinf_riccati` in the tests).
+    W1f, W3f : (n_f,) complex weight responses on ``maps.f``.
+    """
+    import cvxpy as cp
+
+    if maps.S0.shape[1:] != (1, 1):
+        raise InputError(f"min_mixed_sensitivity: expected a SISO loop, got {maps.S0.shape[1:]}")
+    c0, C = maps.sensitivity_affine(0)
+    theta = cp.Variable(C.shape[1])
+    t = cp.Variable()
+    w1, w3 = np.asarray(W1f)[:, None], np.asarray(W3f)[:, None]
+    X = cp.vstack([
+        _soc_abs(w1[:, 0] * c0, w1 * C, theta),
+        _soc_abs(w3[:, 0] * (1 - c0), -w3 * C, theta),
+    ])  # fmt: skip
+    prob = cp.Problem(cp.Minimize(t), [cp.SOC(cp.hstack([t] * len(maps.f)), X, axis=0)])
+    t0 = time.perf_counter()
+    st = _solve(prob)
+    if theta.value is None:
+        raise InputError(f"min_mixed_sensitivity: the program is {st}")
+    th = np.array(theta.value)
+    return YoulaDesign(youla_controller(maps, th), th, float(t.value), maps, 1,
+                       time.perf_counter() - t0, st)  # fmt: skip
+
+
+# ------------------------------------------------------------------ per-DOF design
+@dataclass(frozen=True)
+class YoulaTuneReport:
+    """Per DOF: the template bandwidth fb (Hz, the convex figure), the crossover and
+    max |S| of the channel loop on the design model, and the programs' cost."""
+
+    template_hz: tuple[float, ...]
+    crossover_hz: tuple[float, ...]
+    s_peak: tuple[float, ...]
+    solves: int
+    seconds: float
+    n_basis: int
+    pole: float
+
+
+@dataclass(frozen=True)
+class YoulaTuneDesign:
+    controller: StateSpaceController
+    report: YoulaTuneReport
+
+
+def _design_grid(modal, i: int, fs: float) -> np.ndarray:
+    """Log grid fs/5000..fs/2 plus 80 lines within +-15 % of every mode the channel shows."""
+    f = [np.geomspace(fs / 5000, fs / 2, 600)]
+    for md in modal.modes:
+        if md.kind == "flexible" and abs(md.b[i] * md.c[i]) > 0 and md.freq_hz < fs / 2:
+            f.append(np.linspace(0.85 * md.freq_hz, min(1.15 * md.freq_hz, fs / 2), 80))
+    return np.unique(np.concatenate(f))
+
+
+def tune_youla(
+    model,
+    *,
+    ms_max: float = 2.0,
+    loop_delay_samples: int = 0,
+    fs: float | None = None,
+    K0=None,
+    structure: str = "coupled",
+    n_basis: int = 40,
+    pole: float = 0.75,
+    margin: float = 0.97,
+    progress=None,
+) -> YoulaTuneDesign:
+    """Youla design per DOF for the widest crossover template at |S_ii| <= margin * ms_max.
+
+    First every diagonal channel u_i -> y_i of the modal model
+    (:func:`controllers.hinf.channel_plant`: its modes, its delay and the loop's)
+    gets :func:`max_bandwidth` with the double-integrator template (slope 2,
+    level 1) around its loop of :func:`controllers.pid_notch.tune_pid_notch`:
+    the decoupled optimum fb_i of each DOF. Then
+
+    * ``structure="decentralized"``: those SISO designs, block-diagonal;
+    * ``structure="coupled"`` (default): one program on the whole MIMO loop
+      around ``K0`` (default the pid-notch design; e.g. a modal-sf design),
+      a diagonal Q, every |S_ii| of the coupled loop bounded, the templates at
+      alpha * fb_i with alpha bisected in [0.3, 1]: the loops' interaction
+      through the plant's flexible modes is in the program, not left to a check.
+
+    ``margin`` keeps the design below the bound on the model, for what the
+    model lacks. The result's report has per DOF the template fb actually
+    imposed, and the crossover and |S_ii| of the MIMO loop on the model.
+    """
+    import control
+
+    from controllers.hinf import channel_plant
+    from controllers.modal_sf import _as_modal
+    from controllers.pid_notch import tune_pid_notch
+    from workbench.core.model import as_model
+    from workbench.loop import discrete_plant, screen_loops
+
+    if structure not in ("coupled", "decentralized"):
+        raise InputError(f"structure: expected 'coupled' or 'decentralized', got {structure!r}")
+    modal = _as_modal(model)
+    plant = as_model(modal.to_lti())
+    if plant.n_u != plant.n_y:
+        raise InputError(f"model: expected a square model, got {plant.n_u} x {plant.n_y}")
+    if fs is None:
+        raise InputError("fs: expected the controller rate in Hz, got None")
+    fs = float(fs)
+    m = int(loop_delay_samples)
+    pid, _ = tune_pid_notch(plant, fs, ms_max=ms_max, loop_delay_samples=m)
+    n_steps = len(pid.channels) + (structure == "coupled")
+    say = progress or (lambda _i, _n: None)
+    blocks, fb, solves, t0 = [], [], 0, time.perf_counter()
+    for i, ch in enumerate(pid.channels):
+        A, B, C, D = ch.discrete_ss(fs)
+        d = max_bandwidth(
+            youla_maps(channel_plant(modal, i, fs, m), StateSpaceController(A, B, C, D, fs),
+                       _design_grid(modal, i, fs), n_basis=n_basis, pole=pole),
+            ms_max=margin * ms_max, slope=2.0, level=1.0,
+        )  # fmt: skip
+        blocks.append(d.controller.statespace())
+        fb.append(d.value)
+        solves += d.solves
+        say(i + 1, n_steps)
+    if structure == "decentralized":
+        K = control.append(*blocks)
+        ctrl = StateSpaceController(K.A, K.B, K.C, K.D, fs, pid.input_names, pid.output_names, m)
+    else:
+        f = np.unique(np.concatenate([_design_grid(modal, i, fs) for i in range(plant.n_u)]))
+        maps = youla_maps(discrete_plant(plant, fs, m), pid if K0 is None else K0, f,
+                          n_basis=n_basis, pole=pole, diagonal=True)  # fmt: skip
+        top = max(fb)
+        d = max_bandwidth(maps, ms_max=margin * ms_max, slope=2.0, level=1.0,
+                          ratios=np.array(fb) / top, fb_range=(0.3 * top, top))  # fmt: skip
+        solves += d.solves
+        fb = [d.value * x / top for x in fb]
+        ctrl = d.controller
+        say(n_steps, n_steps)
+    _, peak, cross = screen_loops(plant, ctrl)
+    rep = YoulaTuneReport(tuple(fb), tuple(float(x) for x in cross),
+                          tuple(float(x) for x in peak), solves, time.perf_counter() - t0,
+                          int(n_basis), float(pole))  # fmt: skip
+    return YoulaTuneDesign(ctrl, rep)
