@@ -105,28 +105,37 @@ def part1(quick: bool):
     h = tune_hinf(nominal, ms_max=2.0, loop_delay_samples=m, fs=fs)
     t_hinf = time.perf_counter() - t
     a_hinf = analyze_loop(truth, h.controller)
+    from controllers.youla import tune_youla
+
+    t = time.perf_counter()
+    y = tune_youla(nominal, ms_max=2.0, loop_delay_samples=m, fs=fs, n_basis=20 if quick else 40)
+    t_youla = time.perf_counter() - t
+    a_youla = analyze_loop(truth, y.controller)
     ref_lead = rigid_reference(fs, p.delay_s)
     ref = rigid_reference(fs, p.delay_s, hinf=True)
     print(f"Part 1: wafer stage, fs {fs:g} Hz, delay {p.delay_s * 1e6:.0f} us ({m} sample), "
           "designs on the nominal model, figures on the TRUE stage")  # fmt: skip
-    print(f"  design time: pid-notch {t_pid:.1f} s, modal-sf {t_msf:.1f} s, hinf {t_hinf:.1f} s "
-          f"(modal-sf kept {d.report.settings})")  # fmt: skip
+    print(f"  design time: pid-notch {t_pid:.1f} s, modal-sf {t_msf:.1f} s, hinf {t_hinf:.1f} s, "
+          f"youla {t_youla:.0f} s (modal-sf kept {d.report.settings}; youla n {y.report.n_basis}, "
+          f"{y.report.solves} programs)")  # fmt: skip
     print(
         "  delay-limited reference (rigid body only, same delay): lead+PI scan / PID "
         f"{ref_lead:.1f} Hz; best with tune_hinf {ref:.1f} Hz (the ref of the ratios)"
     )
     print(f"  {'DOF':>4} {'pid fc':>8} {'|S|':>5} {'msf fc':>8} {'|S|':>5} {'hinf fc':>8} "
           f"{'|S|':>5} {'msf/pid':>8} {'hinf/pid':>8} {'pid/ref':>8} {'msf/ref':>8} "
-          f"{'hinf/ref':>8}")  # fmt: skip
-    for lp, lm, lh in zip(a_pid.loops, a_msf.loops, a_hinf.loops):
+          f"{'hinf/ref':>8} {'youla fc':>8} {'|S|':>5} {'yla/pid':>8}")  # fmt: skip
+    for lp, lm, lh, ly in zip(a_pid.loops, a_msf.loops, a_hinf.loops, a_youla.loops):
         print(f"  {lp.name:>4} {lp.crossover_hz:8.1f} {lp.s_peak:5.2f} {lm.crossover_hz:8.1f} "
               f"{lm.s_peak:5.2f} {lh.crossover_hz:8.1f} {lh.s_peak:5.2f} "
               f"{lm.crossover_hz / lp.crossover_hz:8.2f} {lh.crossover_hz / lp.crossover_hz:8.2f} "
               f"{lp.crossover_hz / ref:8.2f} {lm.crossover_hz / ref:8.2f} "
-              f"{lh.crossover_hz / ref:8.2f}")  # fmt: skip
-    print(f"  stable: pid {a_pid.stable}, modal-sf {a_msf.stable}, hinf {a_hinf.stable}; "
-          f"MIMO max sigma(S): pid {a_pid.sigma_max_S_inf:.2f}, modal-sf "
-          f"{a_msf.sigma_max_S_inf:.2f}, hinf {a_hinf.sigma_max_S_inf:.2f}")  # fmt: skip
+              f"{lh.crossover_hz / ref:8.2f} {ly.crossover_hz:8.1f} {ly.s_peak:5.2f} "
+              f"{ly.crossover_hz / lp.crossover_hz:8.2f}")  # fmt: skip
+    print(f"  stable: pid {a_pid.stable}, modal-sf {a_msf.stable}, hinf {a_hinf.stable}, "
+          f"youla {a_youla.stable}; MIMO max sigma(S): pid {a_pid.sigma_max_S_inf:.2f}, "
+          f"modal-sf {a_msf.sigma_max_S_inf:.2f}, hinf {a_hinf.sigma_max_S_inf:.2f}, "
+          f"youla {a_youla.sigma_max_S_inf:.2f}")  # fmt: skip
     return p
 
 

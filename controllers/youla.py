@@ -634,7 +634,7 @@ def tune_youla(
     fs = float(fs)
     m = int(loop_delay_samples)
     pid, _ = tune_pid_notch(plant, fs, ms_max=ms_max, loop_delay_samples=m)
-    n_steps = len(pid.channels) + (structure == "coupled")
+    n_steps = len(pid.channels) + (structure == "coupled" and plant.n_u > 1)
     say = progress or (lambda _i, _n: None)
     blocks, fb, solves, t0 = [], [], 0, time.perf_counter()
     for i, ch in enumerate(pid.channels):
@@ -648,7 +648,7 @@ def tune_youla(
         fb.append(d.value)
         solves += d.solves
         say(i + 1, n_steps)
-    if structure == "decentralized":
+    if structure == "decentralized" or plant.n_u == 1:
         K = control.append(*blocks)
         ctrl = StateSpaceController(K.A, K.B, K.C, K.D, fs, pid.input_names, pid.output_names, m)
     else:

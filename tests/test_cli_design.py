@@ -214,3 +214,24 @@ def test_hinf_infeasible_bound_refused_in_one_line(stage_like_file, tmp_path, ca
     line = one_line(capsys.readouterr().err)
     assert "hinf" in line and "1.01" in line
     assert not out.exists() and not list(tmp_path.glob(".K.*"))
+
+
+# ------------------------------------------------------------------ youla
+def test_youla_design_round_trip_beats_the_baseline(model_file, designs, tmp_path):
+    """--method youla: the written controller is tune_youla's, stable, |S| <= 2 on the
+    model, and its crossover above the pid-notch design it starts from."""
+    from controllers.youla import tune_youla
+
+    out, rep = tmp_path / "K_youla.npz", tmp_path / "youla.json"
+    argv = ["design", "--model", str(model_file), "--method", "youla", "--fs", str(FS)]
+    argv += ["--loop-delay-samples", "1", "--out", str(out), "--json", str(rep)]
+    assert main(argv) == 0
+    report = json.loads(rep.read_text())
+    K = StateSpaceController.read(out)
+    ref = tune_youla(mass_flex(), ms_max=2.0, loop_delay_samples=1, fs=FS).controller
+    assert np.array_equal(K.A, ref.A) and np.array_equal(K.D, ref.D)
+    a = analyze_loop(read_model(model_file), K, loop_delay_samples=1)
+    assert a.stable and a.loops[0].s_peak <= 2.0
+    pid = designs["pid-notch"][1]
+    assert a.loops[0].crossover_hz > 1.2 * pid["analysis"]["loops"][0]["crossover_hz"]
+    assert report["settings"]["template_hz"][0] > 0

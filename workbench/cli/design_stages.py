@@ -49,7 +49,9 @@ from workbench.core.errors import InputError
 from workbench.io.scenario import refuse_leftovers, take
 
 #: design methods the [design] stage offers (one module of controllers/ each)
-METHODS = ("pid-notch", "modal-sf", "hinf")
+METHODS = ("pid-notch", "modal-sf", "hinf", "youla")
+#: the methods of a [design] table without ``methods`` (youla takes minutes on the stage)
+DEFAULT_METHODS = ("pid-notch", "modal-sf", "hinf")
 
 __all__ = ["Design", "METHODS", "stage_design", "stage_evaluate"]
 
@@ -87,6 +89,16 @@ def _tune(method: str, model, fs: float, ms_max: float, m: int):
             "crossover_hz": d.crossover_hz,
             "gamma": d.gamma,
         }
+    if method == "youla":
+        from controllers.youla import tune_youla
+
+        d = tune_youla(model, ms_max=ms_max, loop_delay_samples=m, fs=fs)
+        return d.controller, {
+            "template_hz": d.report.template_hz,
+            "crossover_hz": d.report.crossover_hz,
+            "n_basis": d.report.n_basis,
+            "programs": d.report.solves,
+        }
     raise InputError(
         f"[design] key 'methods': expected some of {', '.join(METHODS)}, got {method!r}"
     )
@@ -108,7 +120,7 @@ def stage_design(st: RunState, table: dict) -> None:
     if files is not None:
         _load_designs(st, files, table)
         return
-    methods = take(table, "methods", list(METHODS), where="design", kind=list)
+    methods = take(table, "methods", list(DEFAULT_METHODS), where="design", kind=list)
     ms_max = float(take(table, "ms_max", 2.0, where="design", kind=(int, float)))
     m = take(table, "loop_delay_samples", 0, where="design", kind=int)
     refuse_leftovers(table, where="design")

@@ -1,4 +1,4 @@
-"""``workbench design --model MODEL --method {pid-notch,modal-sf,hinf} [--out K.npz]``.
+"""``workbench design --model MODEL --method {pid-notch,modal-sf,hinf,youla} [--out K.npz]``.
 
 Designs a controller on a model file and writes it as a spec-5 controller file
 (e = r - y -> u, ``role = "controller"``, ``delay_samples`` = the loop delay the
@@ -24,7 +24,7 @@ from workbench.cli.commands import check_model_quality
 from workbench.core.atomic import check_output, write_text
 from workbench.core.errors import InputError
 
-METHODS = ("pid-notch", "modal-sf", "hinf")
+METHODS = ("pid-notch", "modal-sf", "hinf", "youla")
 
 
 def register(subparsers) -> argparse.ArgumentParser:
@@ -33,8 +33,9 @@ def register(subparsers) -> argparse.ArgumentParser:
         help="design a controller on a model file and write it (spec-5 controller file)",
         description=(
             "Design a decentralized PID + notch (pid-notch), a modal state feedback with "
-            "observer (modal-sf) or per-DOF mixed-sensitivity H-infinity controllers (hinf) on "
-            "MODEL for the highest crossover at |S| <= --ms-max, print "
+            "observer (modal-sf), per-DOF mixed-sensitivity H-infinity controllers (hinf) or "
+            "a convex Youla-parameter design around the pid-notch loops (youla; minutes on a "
+            "6-DOF model) on MODEL for the highest crossover at |S| <= --ms-max, print "
             "the per-DOF loop table on the model and write the controller e = r - y -> u."
         ),
     )
@@ -114,6 +115,13 @@ def run(args) -> int:
         design = tune_hinf(model, ms_max=ms_max, loop_delay_samples=m, fs=fs)
         controller = design.controller
         settings = {"target_hz": list(design.target_hz), "gamma": list(design.gamma)}
+    elif args.method == "youla":
+        from controllers.youla import tune_youla
+
+        design = tune_youla(model, ms_max=ms_max, loop_delay_samples=m, fs=fs)
+        controller = design.controller
+        settings = {"template_hz": list(design.report.template_hz),
+                    "programs": design.report.solves}  # fmt: skip
     else:
         from controllers.modal_sf import tune_modal_sf
 
