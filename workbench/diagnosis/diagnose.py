@@ -20,7 +20,10 @@ within noise, or the bands that still fail; 'none' is reported only when
 compare finds the model within noise (or, without a noise reference, when no
 effect lowers the error). A nonlinearity is a finding only with a fitted port
 element (friction, cubic spring, saturation) whose nonlinear simulation model
-lowers the error (:func:`workbench.diagnosis.nonlinear.fit_port_element`).
+lowers the error (:func:`workbench.diagnosis.nonlinear.fit_port_element`); on a
+model that is not square no element can be fitted, and only distortion on the
+lines the excitation leaves empty makes it one (a periodic residual the linear
+search left is what a linear effect it missed leaves too).
 """
 
 from __future__ import annotations
@@ -755,16 +758,20 @@ def _above_band(params: dict, problem) -> bool:
 def _nonlinearity_finding(nl, data, err, linear: list, cur_err: float, *, direct: bool):
     """The nonlinearity finding with its fitted port element, or (None, alternative).
 
-    ``linear``: the linear models (ModalModel) the element may sit on; the one whose
-    nonlinear simulation model reproduces the record best is kept. Without a square
-    model (ports collocated with the inputs) no element can be fitted: the finding
-    carries the distortion level only and the error of the linear model.
+    ``err`` is the error of the model as given, ``cur_err`` that of the final linear
+    model ``linear[0]``. ``linear``: the linear models (ModalModel) the element may sit
+    on; the one whose nonlinear simulation model reproduces the record best is kept.
+    Without a square model (ports collocated with the inputs) no element can be fitted:
+    the finding carries the distortion level only and the error of the linear model,
+    ``cur_err`` (it adds nothing to that model, so it cannot lower the error), and only
+    ``direct`` evidence (distortion on unexcited lines) makes it a finding: a residual
+    the linear search merely left is what any linear effect it missed leaves too.
     """
     from workbench.diagnosis.nonlinear import fit_port_element
 
     params: dict[str, Any] = {"level": nl.level, "f_stat": nl.f_stat}
     ins, outs = tuple(range(data.n_u)), tuple(range(data.n_y))
-    error_after, model, note = err, None, ""
+    error_after, model, note = cur_err, None, ""
     if isinstance(data, TimeData) and data.n_u == data.n_y:
         fits = [(fit_port_element(m.to_lti(), data.u, data.y, data.fs), m) for m in linear]
         ef, model = min(fits, key=lambda t: t[0].error_after)
@@ -793,6 +800,19 @@ def _nonlinearity_finding(nl, data, err, linear: list, cur_err: float, *, direct
             f"(workbench.diagnosis.nonlinear) brings the error from {ef.error_before:.4g} "
             f"to {ef.error_after:.4g}."
         )
+    elif not direct:
+        alt = {
+            "effect": "nonlinearity",
+            "error_before": float(cur_err),
+            "error_after": float(cur_err),
+            "parameters": jsonable(params),
+            "rejected": (
+                "a periodic residual that no linear effect removed, without distortion on the "
+                "unexcited lines, and no port element to explain it (that needs a time record "
+                "and a square model): not evidence of a nonlinearity"
+            ),
+        }
+        return None, alt
     else:
         note = " No port element fitted: that needs a time record and a square model."
     ev = dict(

@@ -174,6 +174,19 @@ class ModalMismatch:
     effect: str = "modal_mismatch"
     theta_names: tuple[str, ...] = ("log_freq_hz", "log_damping")
 
+    def _range(self, problem, base) -> tuple[float, float]:
+        """Lowest and highest frequency (Hz) the mode may move to.
+
+        A factor 2 either way of the model's frequency, and anywhere in the band
+        (as :class:`MissingMode`): a model can place a mode far from where the data
+        show it (a wrong section or length; the modes' order mixed up), and the
+        mode with its residue at the data's resonance explains both the misfit
+        at its model frequency and the unexplained peak with two parameters.
+        """
+        f = base.modes[self.index].freq_hz
+        f_lo, f_hi = problem.band_hz
+        return min(0.5 * f, 0.7 * f_lo), max(2.0 * f, 1.3 * f_hi)
+
     def grid(self, problem, base):
         t = base.modes[self.index]
         z0 = max(t.damping, 1e-3)
@@ -181,15 +194,14 @@ class ModalMismatch:
         fine = 1 + np.arange(-0.08, 0.0801, max(z0 / 2, 1e-3))
         factors = np.concatenate([np.geomspace(0.7, 1.43, 25), fine])
         freqs = [t.freq_hz * a for a in factors]
-        lo, hi = 0.5 * t.freq_hz, 2.0 * t.freq_hz
+        # far from the model frequency the valley is found only where the data peak
+        lo, hi = self._range(problem, base)
         freqs += [f for f in problem.residual_peaks(base) if lo < f < hi]
         return [np.log([f, z0 * b]) for f in freqs for b in (0.5, 1.0, 2.0)]
 
     def bounds(self, problem, base):
-        t = base.modes[self.index]
-        return np.array([np.log(0.5 * t.freq_hz), _LOG_Z[0]]), np.array(
-            [np.log(2.0 * t.freq_hz), _LOG_Z[1]]
-        )
+        lo, hi = self._range(problem, base)
+        return np.array([np.log(lo), _LOG_Z[0]]), np.array([np.log(hi), _LOG_Z[1]])
 
     def build(self, theta, problem, base):
         modes = list(base.modes)
@@ -625,16 +637,29 @@ class _Lag:
     def _scale(self, problem) -> float:
         return 2 * np.pi * problem.band_hz[1]
 
+    def levels(self, problem) -> np.ndarray:
+        """Grid levels of theta = f_hi / cutoff: half-decade steps over the whole bounded range.
+
+        From 0.03 (a cutoff 33x above the band: a small phase lag) to the upper bound
+        3 f_hi / f_lo (a cutoff below the lowest line). A grid that stops short of the
+        bound never starts the fit near a cutoff low in the band (a slow sensor on one
+        output), and the lag is then screened out for another effect.
+        """
+        f_lo, f_hi = problem.band_hz
+        # 0.03, 0.1, 0.3, 1, 3, 10, ...: the points the grid had, continued to the bound
+        levels = np.array([m * 10.0**e for e in range(-2, 9) for m in (1.0, 3.0)])[1:]
+        return levels[levels <= 3 * f_hi / f_lo]
+
     def grid(self, problem, base):
         n = self._n(base)
-        levels = (0.03, 0.1, 0.3, 1.0, 3.0)
-        points = [np.full(n, a) for a in (0.0,) + levels]
+        levels = self.levels(problem)
+        points = [np.full(n, a) for a in (0.0,) + tuple(levels)]
         # lags on some channels only: the best level per channel alone, then combined
         best = np.zeros(n)
         cost0 = problem.cost(base)
         for j in range(n):
             costs = []
-            for a in levels[:4]:
+            for a in levels:
                 th = np.zeros(n)
                 th[j] = a
                 costs.append(problem.cost(self.build(th, problem, base).model))

@@ -216,11 +216,22 @@ class FrfProblem:
 
 
 def _peaks(freq: np.ndarray, power: np.ndarray, n: int) -> list[float]:
-    """Up to n local maxima of ``power``, largest first, at least 3 % apart in frequency."""
+    """Up to n local maxima of ``power``, largest first, at least 3 % apart in frequency.
+
+    ``freq`` (n_f,) Hz, ascending; ``power`` (n_f,). Only lines at least as high as both
+    neighbours count: the flank of one broad misfit (a model mode far from its place,
+    lines a few % apart) would otherwise fill all n places and hide a second resonance.
+    """
+    power = np.asarray(power, float)
+    left = np.concatenate([[-np.inf], power[:-1]])
+    right = np.concatenate([power[1:], [-np.inf]])
+    local = (power >= left) & (power >= right)
     out: list[float] = []
     for k in np.argsort(power)[::-1]:
         if power[k] <= 0:
             break
+        if not local[k]:
+            continue
         f = float(freq[k])
         if all(abs(f / g - 1) > 0.03 for g in out):
             out.append(f)
