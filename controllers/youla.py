@@ -477,13 +477,17 @@ def min_band_peak(
     ms_max: float = 2.0,
     loops=None,
     z: int = 0,
+    elsewhere: float | None = None,
     refine: int = 4,
 ) -> YoulaDesign:
     """Smallest max over ``band_hz`` of ||T_dz[z, :](f)||_2 at |S_ii| <= ms_max on every loop.
 
     The norm is over the plant inputs (the response of z to a unit force at each
     actuator); ``value`` is that peak in the units of Gz / G's inputs, on the
-    grid's lines in the band. The grid is refined as in :func:`max_bandwidth`.
+    grid's lines in the band. With ``elsewhere`` = e, outside the band
+    ||T_dz(f)|| <= e ||T_dz(f) with K0|| on every line: the gain in the band is
+    not bought with amplification elsewhere (the waterbed moved onto z).
+    The grid is refined as in :func:`max_bandwidth`.
     """
     if maps.GzSi0 is None:
         raise InputError("min_band_peak: expected maps built with Gz, got none")
@@ -494,31 +498,48 @@ def min_band_peak(
             f"band_hz: expected >= 2 grid lines in {band_hz}, got "
             f"{int(((maps.f >= lo) & (maps.f <= hi)).sum())}"
         )
-    return _refined(lambda m: _min_band_peak(m, lo, hi, ms_max, loops, z), maps, loops,
-                    ms_max, refine)  # fmt: skip
+    if elsewhere is not None and not elsewhere >= 1.0:
+        raise InputError(f"elsewhere: expected a factor >= 1 (K0 itself meets 1), got {elsewhere}")
+    return _refined(lambda m: _min_band_peak(m, lo, hi, ms_max, loops, z, elsewhere), maps,
+                    loops, ms_max, refine)  # fmt: skip
 
 
-def _min_band_peak(maps, lo, hi, ms_max, loops, z):
+def _row_norm_soc(c0, C, theta, rhs):
+    """SOC ||c0[l] + C[l] theta||_2 <= rhs[l] per line l; c0 (n, n_u), C (n, n_u, n_theta)."""
+    import cvxpy as cp
+
+    n, nu = c0.shape
+    re = np.real(C).reshape(n * nu, -1) @ theta + np.real(c0).ravel()
+    im = np.imag(C).reshape(n * nu, -1) @ theta + np.imag(c0).ravel()
+    X = cp.vstack([cp.reshape(re, (n, nu), order="C").T, cp.reshape(im, (n, nu), order="C").T])
+    return cp.SOC(rhs, X, axis=0)
+
+
+def _min_band_peak(maps, lo, hi, ms_max, loops, z, elsewhere):
     import cvxpy as cp
 
     sel = (maps.f >= lo) & (maps.f <= hi)
     c0, C = maps.z_affine(z)
+    aff = [maps.sensitivity_affine(i) for i in loops]
+    cscale = _column_scale([Ci for _, Ci in aff] + [C])
+    C = C / cscale
     scale = float(np.max(np.abs(c0[sel]))) or 1.0  # solver numerics: O(1) figures
-    theta = cp.Variable(maps.theta_size)
-    t = cp.Variable()
-    bound = np.full((len(loops), len(maps.f)), float(ms_max))
-    cons = _s_constraints(maps, theta, bound, loops)
-    c0s, Cs = c0[sel] / scale, C[sel] / scale  # (n_band, n_u), (n_band, n_u, n_theta)
-    nb, nu = c0s.shape
-    re = np.real(Cs).reshape(nb * nu, -1) @ theta + np.real(c0s).ravel()
-    im = np.imag(Cs).reshape(nb * nu, -1) @ theta + np.imag(c0s).ravel()
-    X = cp.vstack([cp.reshape(re, (nb, nu), order="C").T, cp.reshape(im, (nb, nu), order="C").T])
-    cons.append(cp.SOC(cp.hstack([t] * nb), X, axis=0))
+    theta, t = cp.Variable(maps.theta_size), cp.Variable()
+    cons = [cp.SOC(np.full(len(maps.f), float(ms_max)), _soc_abs(c0i, Ci / cscale, theta), axis=0)
+            for c0i, Ci in aff]  # fmt: skip
+    nb = int(sel.sum())
+    cons.append(_row_norm_soc(c0[sel] / scale, C[sel] / scale, theta, cp.hstack([t] * nb)))
+    if elsewhere is not None:
+        out = ~sel
+        rhs = np.linalg.norm(c0[out], axis=1)  # K0's ||T_dz||, each row scaled to 1
+        rhs = np.where(rhs > 0, rhs, 1.0)
+        cons.append(_row_norm_soc(c0[out] / rhs[:, None], C[out] / rhs[:, None, None], theta,
+                                  np.full(int(out.sum()), float(elsewhere))))  # fmt: skip
     prob = cp.Problem(cp.Minimize(t), cons)
     st = _solve(prob)
     if theta.value is None:
         raise InputError(f"min_band_peak: the program is {st} (no Q meets |S| <= {ms_max})")
-    th = np.array(theta.value)
+    th = np.array(theta.value) / cscale
     peak = float(np.max(np.linalg.norm(maps.z_response(th)[sel][:, z, :], axis=1)))
     return th, peak, 1, st
 

@@ -160,6 +160,14 @@ def test_min_band_peak_lowers_the_peak_within_the_bound():
     assert d.value < 0.5 * peak0
     stable, peak, _ = screen_loops(G, d.controller, freq_hz=np.geomspace(0.5, FS / 2, 4000))
     assert stable and np.max(peak) <= 2.0 * 1.02
+    # never worse than K0 outside the band: costs some of the gain in it, holds on the grid
+    e = min_band_peak(maps, band, ms_max=2.0, elsewhere=1.0)
+    assert d.value * (1 - 1e-6) <= e.value < peak0
+    Kf, Gf = frf(e.controller.statespace(), f), frf(G, f)
+    T = np.linalg.norm((frf(Gz, f) @ np.linalg.inv(np.eye(2) + Kf @ Gf))[:, 0], axis=1)
+    T0 = np.linalg.norm(maps.z_response(np.zeros(maps.theta_size))[:, 0], axis=1)
+    out = (f < band[0]) | (f > band[1])
+    assert np.all(T[out] <= T0[out] * (1 + 1e-5))
 
 
 def test_refusals_are_one_line():
