@@ -20,7 +20,19 @@ delay 1, 0.5, 0.25 samples, and the flexible modes at 1x / 0.5x / 0.3x their
 frequency. Designs and analysis on that exact model (the design is told the delay).
 It shows where the baseline becomes mode-limited and what modal-sf reaches there.
 
-Run: ``OMP_NUM_THREADS=1 python benchmarks/bench_bandwidth.py [--quick]`` (~2 min).
+Part 1 also designs ``controllers.youla.tune_youla`` (coupled, Q on 40 Laguerre functions
+around the pid-notch loops). Part 3 - limits of performance on the Ry loop: the widest
+template |S| <= (f/fb)^2 at |S| <= 2 over all stabilizing controllers (Youla), growing
+with the basis, with and without the flexible modes, against the designs' own templates.
+
+Measured (session 20, loaded machine): part 1 youla on the TRUE stage x 382.4, y 370.4,
+z 370.1, Rx 338.2, Ry 301.2, Rz 368.5 Hz = 1.57-1.74x pid-notch, |S_ii| <= 1.91, stable,
+MIMO max sigma(S) 34.8 (pid 13.2), 200 s; part 3 with the modes n 20 / 40: fb 198 / 236 Hz,
+crossover 283 / 346 Hz (pid-notch 209.9); rigid body alone n 40: fb 251, fc 389.5 Hz, above
+tune_hinf's 372.6 Hz: the "reference" of part 1 is the best design known, not a limit.
+
+Run: ``OMP_NUM_THREADS=1 python benchmarks/bench_bandwidth.py [--quick]`` (~8 min; youla
+takes most of it).
 """
 
 from __future__ import annotations
