@@ -25,11 +25,15 @@ around the pid-notch loops). Part 3 - limits of performance on the Ry loop: the 
 template |S| <= (f/fb)^2 at |S| <= 2 over all stabilizing controllers (Youla), growing
 with the basis, with and without the flexible modes, against the designs' own templates.
 
-Measured (session 20, loaded machine): part 1 youla on the TRUE stage x 382.4, y 370.4,
-z 370.1, Rx 338.2, Ry 301.2, Rz 368.5 Hz = 1.57-1.74x pid-notch, |S_ii| <= 1.91, stable,
-MIMO max sigma(S) 34.8 (pid 13.2), 200 s; part 3 with the modes n 20 / 40: fb 198 / 236 Hz,
-crossover 283 / 346 Hz (pid-notch 209.9); rigid body alone n 40: fb 251, fc 389.5 Hz, above
-tune_hinf's 372.6 Hz: the "reference" of part 1 is the best design known, not a limit.
+Measured (session 20, loaded machine; part 1's truth now with the modes above Nyquist,
+residual_max_hz = 5 kHz as in the scenario; before, the plant default left them out):
+pid-notch x 220.0 / |S| 2.01 ... Ry 191.7 / 1.94, modal-sf 218-228.7, hinf 131-372.6 (as
+before to 0.5 %); youla (designed on the nominal model) UNSTABLE on that truth: z |S| 7.86,
+sigma(S) 79 (crossovers 301.6-381.8 Hz = 1.57-1.74x pid-notch; without the residual modes
+it was stable, |S_ii| <= 1.91: the design is not robust to them). Part 3 with the modes,
+n 20 / 40: fb 198 / 236 Hz, crossover 283 / 346 Hz (pid-notch 209.9); rigid body alone
+n 40: fb 251, fc 389.5 Hz, above tune_hinf's 372.6 Hz: the "reference" of part 1 is the
+best design known, not a limit.
 
 Run: ``OMP_NUM_THREADS=1 python benchmarks/bench_bandwidth.py [--quick]`` (~8 min; youla
 takes most of it).
@@ -105,7 +109,11 @@ def part1(quick: bool):
 
     p = plants.get_plant("wafer_stage")
     fs = p.fs
-    truth = LTIModel.from_statespace(p.linear_model(), delay_s=float(p.delay_s))
+    # the truth of scenarios/wafer_stage_bandwidth.toml: the stage's modes above Nyquist
+    # (to 5 kHz) are in it; the plant's default (residual_max_hz = 0) leaves them out, and
+    # a design that is fine without them can be unstable with them (youla, session 20)
+    true_plant = p.with_effects(residual_max_hz=5000.0)
+    truth = LTIModel.from_statespace(true_plant.linear_model(), delay_s=float(true_plant.delay_s))
     m = int(round(p.delay_s * fs))
     nominal = p.nominal_modal_model()
     a_pid, a_msf, d, t_pid, t_msf = _designs(nominal, fs, m, truth, 0,

@@ -635,6 +635,13 @@ def tune_youla(
     ``margin`` keeps the design below the bound on the model, for what the
     model lacks. The result's report has per DOF the template fb actually
     imposed, and the crossover and |S_ii| of the MIMO loop on the model.
+
+    Not robust yet: nothing in the programs bounds the loop's sensitivity to
+    what the model lacks. On the wafer stage (designs on the nominal model)
+    the coupled design is stable with |S_ii| <= 1.91 on the true stage without
+    its modes above Nyquist, and UNSTABLE with them (z loop |S| 7.9); a bound on
+    |T_ii| (an uncertainty weight) or a design on several models is the next
+    step. Judge a design on the true plant and on a sweep before using it.
     """
     import control
 
