@@ -359,6 +359,7 @@ def max_bandwidth(
     slope: float = 0.0,
     ratios=None,
     fb_range: tuple[float, float] | None = None,
+    t_bound: tuple[float, float] | None = None,
     rel_tol: float = 0.01,
     refine: int = 4,
 ) -> YoulaDesign:
@@ -374,8 +375,11 @@ def max_bandwidth(
     template when ``target`` is None, loop ``i`` at ``fb * ratios[i]`` when
     ``ratios`` (one per loop of ``loops``, <= 1) is given. Returns the design at
     the largest feasible fb (``value``, Hz, to ``rel_tol``, searched in
-    ``fb_range``, default the grid's span). The grid is refined (``refine``
-    rounds) where the design's |S_ii| peaks above ms_max between its lines.
+    ``fb_range``, default the grid's span). ``t_bound = (f_from_hz, t_max)``
+    adds |T_ii(f)| = |1 - S_ii(f)| <= t_max for f >= f_from_hz on every loop: a
+    robustness bound where the model is not trusted (aliased modes above
+    Nyquist). The grid is refined (``refine`` rounds) where the design's
+    |S_ii| peaks above ms_max between its lines.
     """
     loops = _loops(maps, loops)
     targets = loops if target is None else [int(target)]
@@ -384,7 +388,8 @@ def max_bandwidth(
         raise InputError(f"ratios: expected {len(loops)} values in (0, 1], got {ratios}")
     span = (maps.f[0], maps.f[-1]) if fb_range is None else tuple(float(x) for x in fb_range)
     return _refined(
-        lambda m: _max_bandwidth(m, ms_max, loops, targets, level, slope, rel_tol, r, span),
+        lambda m: _max_bandwidth(m, ms_max, loops, targets, level, slope, rel_tol, r, span,
+                                 t_bound),
         maps, loops, ms_max, refine,
     )  # fmt: skip
 
@@ -417,7 +422,7 @@ def _column_scale(blocks) -> np.ndarray:
     return np.where(m > 0, m, 1.0)
 
 
-def _max_bandwidth(maps, ms_max, loops, targets, level, slope, rel_tol, ratios, span):
+def _max_bandwidth(maps, ms_max, loops, targets, level, slope, rel_tol, ratios, span, t_bound):
     """Bisection on fb; each step solves min s: |S_tt| <= template s, |S_ii| <= ms_max s.
 
     The scaled form is always feasible (Q = 0 gives a finite s), so the solver
@@ -442,6 +447,11 @@ def _max_bandwidth(maps, ms_max, loops, targets, level, slope, rel_tol, ratios, 
                 b[low] = np.minimum(level * (f[low] / fbi) ** slope, ms_max)
             rows = _soc_abs(c0 / b, C / (b[:, None] * scale), theta)
             cons.append(cp.SOC(s * np.ones(len(f)), rows, axis=0))
+            if t_bound is not None:  # T_ii = 1 - S_ii, scaled by its bound like S
+                hi_f = f >= float(t_bound[0])
+                tb = float(t_bound[1])
+                rows = _soc_abs((1 - c0[hi_f]) / tb, -C[hi_f] / (tb * scale), theta)
+                cons.append(cp.SOC(s * np.ones(int(hi_f.sum())), rows, axis=0))
         prob = cp.Problem(cp.Minimize(s), cons)
         _solve(prob)
         if s.value is None:
@@ -615,6 +625,7 @@ def tune_youla(
     n_basis: int = 40,
     pole: float = 0.75,
     margin: float = 0.97,
+    t_bound: tuple[float, float] | None = None,
     progress=None,
 ) -> YoulaTuneDesign:
     """Youla design per DOF for the widest crossover template at |S_ii| <= margin * ms_max.
@@ -670,7 +681,7 @@ def tune_youla(
         d = max_bandwidth(
             youla_maps(channel_plant(modal, i, fs, m), StateSpaceController(A, B, C, D, fs),
                        _design_grid(modal, i, fs), n_basis=n_basis, pole=pole),
-            ms_max=margin * ms_max, slope=2.0, level=1.0,
+            ms_max=margin * ms_max, slope=2.0, level=1.0, t_bound=t_bound,
         )  # fmt: skip
         blocks.append(d.controller.statespace())
         fb.append(d.value)
@@ -684,7 +695,7 @@ def tune_youla(
         maps = youla_maps(discrete_plant(plant, fs, m), pid if K0 is None else K0, f,
                           n_basis=n_basis, pole=pole, diagonal=True)  # fmt: skip
         top = max(fb)
-        d = max_bandwidth(maps, ms_max=margin * ms_max, slope=2.0, level=1.0,
+        d = max_bandwidth(maps, ms_max=margin * ms_max, slope=2.0, level=1.0, t_bound=t_bound,
                           ratios=np.array(fb) / top, fb_range=(0.3 * top, top))  # fmt: skip
         solves += d.solves
         fb = [d.value * x / top for x in fb]

@@ -185,3 +185,19 @@ def test_refusals_are_one_line():
         with pytest.raises(InputError, match=match) as exc:
             call()
         assert "\n" not in str(exc.value)
+
+
+def test_t_bound_holds_where_the_model_is_not_trusted():
+    """|T_ii| = |1 - S_ii| <= t_max above f_from: costs template bandwidth, holds on the grid."""
+    G = _mimo_rigid()
+    K0 = _pd(G)
+    f = np.geomspace(0.5, FS / 2, 100)
+    maps = youla_maps(G, K0, f, n_basis=6, pole=0.6)
+    free = max_bandwidth(maps, ms_max=2.0, slope=2.0, level=1.0, target=0)
+    d = max_bandwidth(maps, ms_max=2.0, slope=2.0, level=1.0, target=0, t_bound=(150.0, 0.3))
+    assert d.value <= free.value * (1 + 1e-9)
+    _, L = loop_frf(G, d.controller, f)
+    T = np.eye(2) - np.linalg.inv(np.eye(2) + L)
+    hi = f >= 150.0
+    for i in range(2):
+        assert np.all(np.abs(T[hi, i, i]) <= 0.3 * (1 + 1e-4))
