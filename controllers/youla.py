@@ -269,7 +269,7 @@ def youla_controller(maps: YoulaMaps, theta: np.ndarray) -> StateSpaceController
     """
     import control
 
-    n_b, nu, ny = maps.shape_q
+    ny = maps.shape_q[2]
     Th = maps.theta_full(theta)
     A, B, M = laguerre_basis(maps.n_basis, maps.pole)
     Aq = np.kron(np.eye(ny), A)
@@ -297,17 +297,6 @@ def _soc_abs(c0, C, theta):
     return cp.vstack([re, im])
 
 
-def _s_constraints(maps: YoulaMaps, theta, bound, loops):
-    """|S_ii(f)| <= bound_i(f) for the loops as SOC constraints (bound (n_loops, n_f))."""
-    import cvxpy as cp
-
-    cons = []
-    for r, i in enumerate(loops):
-        c0, C = maps.sensitivity_affine(i)
-        cons.append(cp.SOC(bound[r], _soc_abs(c0, C, theta), axis=0))
-    return cons
-
-
 def _solve(problem) -> str:
     import cvxpy as cp
 
@@ -328,16 +317,16 @@ def _worst_lines(maps: YoulaMaps, theta, loops, ms_max: float, dense: int) -> np
     f = maps.f
     fd = np.geomspace(f[0], f[-1], dense * len(f))
     fd = np.setdiff1d(np.union1d(fd, np.sqrt(f[1:] * f[:-1])), f)
-    probe = youla_maps(maps.G, maps.K0, fd, n_basis=maps.n_basis, pole=maps.pole,
-                       diagonal=maps.diagonal)  # fmt: skip
-    S = np.abs(np.diagonal(probe.sensitivity(theta), axis1=1, axis2=2))[:, loops]
+    S = _regrid(maps, fd, with_z=False).sensitivity(theta)
+    S = np.abs(np.diagonal(S, axis1=1, axis2=2))[:, loops]
     a = np.max(S, axis=1)
     peak = (a > ms_max) & (a >= np.r_[0, a[:-1]]) & (a >= np.r_[a[1:], 0])
     return fd[peak]
 
 
-def _with_lines(maps: YoulaMaps, extra: np.ndarray) -> YoulaMaps:
-    return youla_maps(maps.G, maps.K0, np.union1d(maps.f, extra), Gz=maps.Gz,
+def _regrid(maps: YoulaMaps, f: np.ndarray, *, with_z: bool = True) -> YoulaMaps:
+    """The same loop and basis on the lines ``f`` (Hz); without Gz when only S is needed."""
+    return youla_maps(maps.G, maps.K0, f, Gz=maps.Gz if with_z else None,
                       n_basis=maps.n_basis, pole=maps.pole, diagonal=maps.diagonal)  # fmt: skip
 
 
@@ -404,7 +393,7 @@ def _refined(solve, maps: YoulaMaps, loops, ms_max: float, rounds: int) -> Youla
         extra = _worst_lines(maps, theta, loops, ms_max, dense=8)
         if not extra.size:
             break
-        maps = _with_lines(maps, extra)
+        maps = _regrid(maps, np.union1d(maps.f, extra))
     return YoulaDesign(youla_controller(maps, theta), theta, float(value), maps, solves,
                        time.perf_counter() - t0, status)  # fmt: skip
 
@@ -503,11 +492,9 @@ def min_band_peak(
         raise InputError("min_band_peak: expected maps built with Gz, got none")
     loops = _loops(maps, loops)
     lo, hi = (float(b) for b in band_hz)
-    if int(((maps.f >= lo) & (maps.f <= hi)).sum()) < 2:
-        raise InputError(
-            f"band_hz: expected >= 2 grid lines in {band_hz}, got "
-            f"{int(((maps.f >= lo) & (maps.f <= hi)).sum())}"
-        )
+    n_band = int(((maps.f >= lo) & (maps.f <= hi)).sum())
+    if n_band < 2:
+        raise InputError(f"band_hz: expected >= 2 grid lines in {band_hz}, got {n_band}")
     if elsewhere is not None and not elsewhere >= 1.0:
         raise InputError(f"elsewhere: expected a factor >= 1 (K0 itself meets 1), got {elsewhere}")
     return _refined(lambda m: _min_band_peak(m, lo, hi, ms_max, loops, z, elsewhere), maps,
