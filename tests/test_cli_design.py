@@ -160,6 +160,9 @@ def test_refusals_are_one_line_exit_2(designs, model_file, tmp_path, capsys, mon
     # the output over the input
     assert main(base + ["--model", str(model_file), "--out", str(model_file)]) == 2
     assert "over an input" in one_line(capsys.readouterr().err)
+    # a measured FRF is for youla's robust design only
+    assert main(base + ["--model", str(model_file), "--frf", str(model_file)]) == 2
+    assert "youla only" in one_line(capsys.readouterr().err)
     # loop: a 1x1 controller on a plant with other channel counts
     path, _ = designs["pid-notch"]
     assert main(["loop", "--plant", "beam", "--controller", str(path)]) == 2

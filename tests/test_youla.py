@@ -12,15 +12,18 @@ from controllers.hinf import design_hinf_mixed, weight
 from controllers.protocol import StateSpaceController
 from controllers.youla import (
     _basis_frf,
+    interaction_bound,
     laguerre_basis,
     max_bandwidth,
     min_band_peak,
     min_mixed_sensitivity,
+    model_error,
     youla_controller,
     youla_maps,
 )
 from workbench.core.errors import InputError
-from workbench.core.lti import frf
+from workbench.core.lti import frf, zoh_frf
+from workbench.io.formats import FrfData
 from workbench.loop import loop_frf, screen_loops
 from workbench.sim import closed_loop_matrices
 
@@ -201,3 +204,82 @@ def test_t_bound_holds_where_the_model_is_not_trusted():
     hi = f >= 150.0
     for i in range(2):
         assert np.all(np.abs(T[hi, i, i]) <= 0.3 * (1 + 1e-4))
+
+
+def _mimo_rigid_with_mode(f_mode=620.0, zeta=0.01, gain=0.3):
+    """_mimo_rigid plus a mode the model lacks, above Nyquist (aliased to 380 Hz), coupling both."""
+    Gc = control.ss(np.kron(np.eye(2), [[0, 1], [0, 0]]),
+                    np.array([[0, 0], [1.0, 0.3], [0, 0], [0.2, 0.5]]),
+                    np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]]), np.zeros((2, 2)))  # fmt: skip
+    w = 2 * np.pi * f_mode
+    mode = control.ss([[0, 1], [-(w**2), -2 * zeta * w]], [[0, 0], [gain, 0.5 * gain]],
+                      [[1.0, 0], [0.8, 0]], np.zeros((2, 2)))  # fmt: skip
+    delay = control.ss(np.zeros((2, 2)), np.eye(2), np.eye(2), np.zeros((2, 2)), DT)
+    return control.sample_system(control.parallel(Gc, mode), DT, "zoh") * delay
+
+
+def test_model_error_keeps_the_bounds_on_the_measured_plant():
+    """Designed on a model without the mode: unstable on the plant; with the model error
+    (the plant known exactly, or as a ZOH-compensated FRF): stable, |S_ii| <= 2 on it."""
+    G, Gt = _mimo_rigid(), _mimo_rigid_with_mode()
+    K0 = _pd(G)
+    f = np.geomspace(0.5, FS / 2, 120)
+    fd = np.geomspace(0.5, FS / 2, 4000)
+    assert screen_loops(Gt, K0, freq_hz=fd)[0]  # K0 itself is robust
+    plain = max_bandwidth(youla_maps(G, K0, f, n_basis=6, pole=0.6), ms_max=2.0, slope=2.0,
+                          level=1.0, target=0)  # fmt: skip
+    assert not screen_loops(Gt, plain.controller, freq_hz=fd)[0]
+    exact = model_error(Gt, G)
+    d = max_bandwidth(youla_maps(G, K0, f, n_basis=6, pole=0.6, error=exact), ms_max=2.0,
+                      slope=2.0, level=1.0, target=0)  # fmt: skip
+    stable, peak, _ = screen_loops(Gt, d.controller, freq_hz=fd)
+    assert stable and np.max(peak) <= 2.0 * 1.02
+    assert d.value > 1.5 * _template_fb(f, np.linalg.inv(np.eye(2) + loop_frf(G, K0, f)[1])
+                                        [:, 0, 0], 2.0)  # fmt: skip
+    # the same error from a measured FRF: the spec's FRF has the hold divided out
+    fl = np.arange(1.0, FS / 2, 1.0)
+    meas = FrfData(fl, frf(Gt, fl) / zoh_frf(fl, FS)[:, None, None], fs=FS,
+                   G_var=np.full((fl.size, 2, 2), 1e-12))  # fmt: skip
+    e = model_error(meas, G, k_std=3.0)
+    d_exact, _ = exact.at(fl)
+    assert np.allclose(e.delta, d_exact, rtol=1e-9, atol=1e-15)
+    assert np.allclose(e.spread, 3 * np.sqrt(4e-12) * np.abs(zoh_frf(fl, FS)))
+    # one-sample-shifted: an FRF from the plant input lacks the loop delay G holds
+    e1 = model_error(FrfData(fl, meas.G * np.exp(2j * np.pi * fl / FS)[:, None, None], fs=FS),
+                     G, loop_delay_samples=1)  # fmt: skip
+    assert np.allclose(e1.delta, d_exact, rtol=1e-9, atol=1e-15)
+    with pytest.raises(InputError, match="expected an FRF of shape") as exc:
+        model_error(FrfData(fl, meas.G[:, :1]), G)
+    assert "\n" not in str(exc.value)
+
+
+def test_interaction_bound_keeps_the_decentralized_loop_stable():
+    """t(f) = gamma / rho(|E|): for 2 x 2, rho(|E|) = sqrt|G12 G21 / (G11 G22)| (closed form);
+    two SISO designs, each on its channel with its error and |T_ii| <= t, make a stable
+    MIMO loop on the measured plant, |S_ii| near the channels' bound (this plant's
+    interaction is mild: the stage's, where it matters, is in benchmarks/bench_bandwidth)."""
+    G, Gt = _mimo_rigid(), _mimo_rigid_with_mode()
+    err = model_error(Gt, G)
+    f = np.geomspace(0.5, FS / 2, 120)
+    Ft = frf(Gt, f)
+    rho = np.sqrt(np.abs(Ft[:, 0, 1] * Ft[:, 1, 0] / (Ft[:, 0, 0] * Ft[:, 1, 1])))
+    t = interaction_bound(err, gamma=0.7)
+    assert np.allclose(t(f), 0.7 / rho, rtol=1e-9)
+    K0 = _pd(G).statespace()
+    fd = np.geomspace(0.5, FS / 2, 4000)
+
+    def decentralized(t_bound):
+        blocks = []
+        for i in range(2):
+            Gi = control.minreal(G[i, i], verbose=False)
+            Ki = StateSpaceController(*control.ssdata(K0[i, i]), FS)
+            maps = youla_maps(Gi, Ki, f, n_basis=6, pole=0.6, error=err.channel(i))
+            d = max_bandwidth(maps, ms_max=2.0, slope=2.0, level=1.0, t_bound=t_bound)
+            blocks.append(d.controller.statespace())
+        K = control.append(*blocks)
+        return StateSpaceController(K.A, K.B, K.C, K.D, FS)
+
+    stable, peak, _ = screen_loops(Gt, decentralized(t), freq_hz=fd)
+    assert stable and np.max(peak) <= 2.0 * 1.25  # the interaction moves |S_ii| a little
+    with pytest.raises(InputError, match="gamma"):
+        interaction_bound(err, gamma=1.0)

@@ -66,8 +66,12 @@ class Design:
     settings: dict = field(default_factory=dict)
 
 
-def _tune(method: str, model, fs: float, ms_max: float, m: int):
-    """(controller, settings) of ``method`` on ``model``; InputError when it cannot."""
+def _tune(method: str, model, fs: float, ms_max: float, m: int, measured=None):
+    """(controller, settings) of ``method`` on ``model``; InputError when it cannot.
+
+    ``measured`` (the [frf] stage's FRF, or None) is used by youla only: its programs
+    then hold |S| on the measured loop (robust to what the model lacks and the FRF shows).
+    """
     if method == "pid-notch":
         from controllers.pid_notch import tune_pid_notch
 
@@ -92,8 +96,9 @@ def _tune(method: str, model, fs: float, ms_max: float, m: int):
     if method == "youla":
         from controllers.youla import tune_youla
 
-        d = tune_youla(model, ms_max=ms_max, loop_delay_samples=m, fs=fs)
+        d = tune_youla(model, ms_max=ms_max, loop_delay_samples=m, fs=fs, measured=measured)
         return d.controller, {
+            "measured": "none" if measured is None else f"frf ({len(measured.freq)} lines)",
             "template_hz": d.report.template_hz,
             "crossover_hz": d.report.crossover_hz,
             "n_basis": d.report.n_basis,
@@ -152,7 +157,7 @@ def stage_design(st: RunState, table: dict) -> None:
     }
     for method in methods:
         try:
-            controller, settings = _tune(method, model, fs, ms_max, m)
+            controller, settings = _tune(method, model, fs, ms_max, m, st.frf)
         except InputError as exc:
             out["designs"][method] = {"status": "refused", "reason": str(exc)}
             continue

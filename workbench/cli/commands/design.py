@@ -48,6 +48,12 @@ def register(subparsers) -> argparse.ArgumentParser:
     p.add_argument(
         "--fs", type=float, help="controller sampling frequency, Hz (default: 1/dt of MODEL)"
     )
+    p.add_argument(
+        "--frf",
+        metavar="FRF.npz",
+        help="youla only: the plant's measured FRF (spec 1b, from the same input as MODEL); "
+        "the design then holds |S| on the measured loop, robust to what MODEL lacks",
+    )
     p.add_argument("--out", metavar="K.npz", help="write the controller (spec-5 file)")
     p.add_argument("--json", metavar="REPORT.json", help="write the design report as JSON")
     return p
@@ -88,7 +94,9 @@ def run(args) -> int:
     from workbench.io.formats import read_model, save_controller
     from workbench.loop import analyze_loop
 
-    check_outputs((args.out, args.json), [args.model])
+    check_outputs((args.out, args.json), [args.model] + ([args.frf] if args.frf else []))
+    if args.frf and args.method != "youla":
+        raise InputError(f"--frf: used by --method youla only, got --method {args.method}")
     ms_max = float(args.ms_max)
     if not np.isfinite(ms_max) or ms_max <= 1.0:
         raise InputError(f"--ms-max: expected a bound > 1 on |S|, got {args.ms_max}")
@@ -118,10 +126,17 @@ def run(args) -> int:
     elif args.method == "youla":
         from controllers.youla import tune_youla
 
-        design = tune_youla(model, ms_max=ms_max, loop_delay_samples=m, fs=fs)
+        measured = None
+        if args.frf:
+            from workbench.io.formats import load_measurement
+
+            measured = load_measurement(args.frf)
+            if measured.kind != "frf":
+                raise InputError(f"{args.frf}: expected an FRF measurement, got {measured.kind}")
+        design = tune_youla(model, ms_max=ms_max, loop_delay_samples=m, fs=fs, measured=measured)
         controller = design.controller
         settings = {"template_hz": list(design.report.template_hz),
-                    "programs": design.report.solves}  # fmt: skip
+                    "programs": design.report.solves, "measured": args.frf}  # fmt: skip
     else:
         from controllers.modal_sf import tune_modal_sf
 
