@@ -101,8 +101,8 @@ class ModelError:
 
     Both sides discrete (ZOH, delays and aliasing in), u -> y as the design plant.
     ``freq`` (n_f,) Hz, ``delta`` (n_f, n_y, n_u) on those lines; ``spread``
-    (n_f,) a bound on the error of ``delta`` itself (k standard deviations of the
-    measurement, Frobenius norm over the channels), zero for an exact error.
+    (n_f, n_y, n_u) a bound on the error of each element of ``delta`` itself
+    (k standard deviations of the measurement), zero for an exact error.
     ``exact`` = (G_meas, G) discrete StateSpaces evaluates Delta at any
     frequency (studies on a known truth); otherwise :meth:`at` interpolates
     linearly between the measured lines and holds the end values outside them.
@@ -123,17 +123,23 @@ class ModelError:
         return frf(self.model, np.asarray(f, float)) + self.at(f)[0]
 
     def at(self, f) -> tuple[np.ndarray, np.ndarray]:
-        """(Delta (n_f, n_y, n_u) complex, spread (n_f,)) at the lines ``f`` (Hz)."""
+        """(Delta (n_f, n_y, n_u) complex, spread (n_f, n_u)) at the lines ``f`` (Hz).
+
+        The spread per input column a is ||spread[:, a]||: what the measurement
+        does not know of Delta's column a, in that column's units.
+        """
         from workbench.core.lti import frf
 
         f = np.asarray(f, float)
         if self.exact is not None:
-            return frf(self.exact[0], f) - frf(self.exact[1], f), np.zeros(f.size)
+            d = frf(self.exact[0], f) - frf(self.exact[1], f)
+            return d, np.zeros((f.size, d.shape[2]))
         flat = self.delta.reshape(len(self.freq), -1)
         cols = [np.interp(f, self.freq, flat[:, j].real) + 1j * np.interp(f, self.freq,
                 flat[:, j].imag) for j in range(flat.shape[1])]  # fmt: skip
         d = np.stack(cols, axis=1).reshape(f.size, *self.delta.shape[1:])
-        return d, np.interp(f, self.freq, self.spread)
+        col = np.linalg.norm(self.spread, axis=1)  # (n_f, n_u)
+        return d, np.stack([np.interp(f, self.freq, c) for c in col.T], axis=1)
 
     def channel(self, i: int, j: int | None = None) -> ModelError:
         """The SISO error of output i from input j (default i)."""
@@ -141,7 +147,7 @@ class ModelError:
         ex = None if self.exact is None else (self.exact[0][i, j], self.exact[1][i, j])
         sub = self.delta[:, i : i + 1, j : j + 1]
         model = None if self.model is None else self.model[i, j]
-        return ModelError(self.freq, sub, self.spread, ex, model)
+        return ModelError(self.freq, sub, self.spread[:, i : i + 1, j : j + 1], ex, model)
 
 
 def model_error(measured, G, *, loop_delay_samples: int = 0, k_std: float = 3.0) -> ModelError:
@@ -175,8 +181,8 @@ def model_error(measured, G, *, loop_delay_samples: int = 0, k_std: float = 3.0)
             raise InputError(f"measured: expected {G.noutputs} x {G.ninputs} (G's), got "
                              f"{measured.noutputs} x {measured.ninputs}")  # fmt: skip
         f = np.array([0.5 / G.dt])
-        return ModelError(f, np.zeros((1, G.noutputs, G.ninputs), complex), np.zeros(1),
-                          (measured, G))  # fmt: skip
+        zero = np.zeros((1, G.noutputs, G.ninputs))
+        return ModelError(f, zero.astype(complex), zero, (measured, G))
     freq = np.asarray(getattr(measured, "freq", None), float)
     Gm = np.asarray(getattr(measured, "G", None))
     if Gm.ndim != 3 or Gm.shape[1:] != (G.noutputs, G.ninputs) or freq.shape != Gm.shape[:1]:
@@ -193,10 +199,10 @@ def model_error(measured, G, *, loop_delay_samples: int = 0, k_std: float = 3.0)
     hold = zoh_frf(freq, fs) * np.exp(-2j * np.pi * freq * int(loop_delay_samples) / fs)
     delta = Gm * hold[:, None, None] - frf(G, freq)
     var = getattr(measured, "G_var", None)
-    spread = np.zeros(freq.size)
+    spread = np.zeros(delta.shape)
     if var is not None:
-        spread = float(k_std) * np.sqrt(np.sum(np.asarray(var)[keep], axis=(1, 2)))
-        spread = spread * np.abs(zoh_frf(freq, fs))
+        spread = float(k_std) * np.sqrt(np.asarray(var, float)[keep])
+        spread = spread * np.abs(zoh_frf(freq, fs))[:, None, None]
     return ModelError(freq, delta, spread, model=G)
 
 
@@ -235,7 +241,8 @@ class YoulaMaps:
     S0 : (n_f, n_y, n_y);  H : (n_f, n_y, n_u) = S0 G;  Si0 : (n_f, n_u, n_u)
     KS0 : (n_f, n_u, n_y), K0 S0 (the controller's output per output disturbance)
     GzSi0 : (n_f, n_z, n_u) or None, the performance map with K0
-    delta, spread : the model error on the grid (:class:`ModelError`), or None
+    delta, spread : the model error (n_f, n_y, n_u) and its spread per input
+        (n_f, n_u) on the grid (:class:`ModelError`), or None
     n_basis, pole : the Laguerre basis of Q (n_b = n_basis + 1)
     G, K0 : the discrete plant (control.StateSpace) and the initial controller
     """
@@ -609,7 +616,7 @@ def _column_scale(blocks) -> np.ndarray:
     return np.where(m > 0, m, 1.0)
 
 
-#: lines where K0's ||Delta K0 S0|| + spread ||K0 S0|| is below this keep the nominal rows:
+#: lines where K0's ||Delta K0 S0|| + its spread term is below this keep the nominal rows:
 #: the model error moves |S| there by that fraction (x the design's gain over K0's), and
 #: the dense check on the measured loop (:func:`_worst_lines`) covers the rest
 _ERROR_NEGLIGIBLE = 1e-3
@@ -619,7 +626,7 @@ class _MeasuredLoop:
     """The robust rows of the programs: on the measured plant G + Delta, per loop i and line,
 
         ||S[i, :]|| / b_i + r <= s,   ||(I - S + M)[i, :]|| / t + r <= s  (where T is bounded),
-        r = ||M||_F + spread ||K S||_F,   M = Delta K S.
+        r = ||M||_F + sum_a spread_a ||(K S)[a, :]||,   M = Delta K S
 
     The measured loop has S_true = S (I + M)^-1 and T_true = (T + M)(I + M)^-1, so
     for ||M|| < 1 (the measured loop is then stable: the small-gain argument on
@@ -641,7 +648,11 @@ class _MeasuredLoop:
             (np.eye(ny)[i] - r0 + e0[:, i * ny : (i + 1) * ny], -R + E[:, i * ny : (i + 1) * ny])
             for i, (r0, R) in zip(loops, self.rows)
         ]
-        self.ks = maps.ks_affine() if np.any(maps.spread > 0) else None
+        self.ks = None
+        if np.any(maps.spread > 0):  # K S rows per input a: (n_f, n_u, n_y[, n_theta])
+            k0, K = maps.ks_affine()
+            nu, ny = maps.KS0.shape[1:]
+            self.ks = k0.reshape(-1, nu, ny), K.reshape(-1, nu, ny, K.shape[-1])
 
     def figure(self, theta, bounds, t) -> np.ndarray:
         """(n_f,) the largest left-hand side over the loops (0 off ``self.on``)."""
@@ -649,7 +660,8 @@ class _MeasuredLoop:
         r = np.linalg.norm(self.err[0][idx] + self.err[1][idx] @ theta, axis=1)
         if self.ks is not None:
             k0, K = self.ks
-            r = r + self.maps.spread[idx] * np.linalg.norm(k0[idx] + K[idx] @ theta, axis=1)
+            ks = np.linalg.norm(k0[idx] + K[idx] @ theta, axis=2)  # (n, n_u)
+            r = r + np.sum(self.maps.spread[idx] * ks, axis=1)
         out = np.zeros(len(self.on))
         for (r0, R), (t0, Tr), b in zip(self.rows, self.trows, bounds):
             u = np.linalg.norm(r0[idx] + R[idx] @ theta, axis=1) / b[idx]
@@ -668,12 +680,18 @@ class _MeasuredLoop:
         cons = [_row_norm_soc(self.err[0][idx], self.err[1][idx] / scale, theta, v)]
         r = v
         if self.ks is not None:
-            e = self.maps.spread[idx]
             k0, K = self.ks
-            w = cp.Variable(idx.size)
-            cons.append(_row_norm_soc(e[:, None] * k0[idx], e[:, None, None] * K[idx] / scale,
-                                      theta, w))  # fmt: skip
-            r = v + w
+            for a in range(k0.shape[1]):
+                e = self.maps.spread[idx, a]
+                if not np.any(e > 0):
+                    continue
+                w = cp.Variable(idx.size)
+                cons.append(
+                    _row_norm_soc(
+                        e[:, None] * k0[idx, a], e[:, None, None] * K[idx, a] / scale, theta, w
+                    )
+                )
+                r = r + w  # fmt: skip
         tl = idx[np.isfinite(t[idx])]
         for (r0, R), (t0, Tr), b in zip(self.rows, self.trows, bounds):
             u = cp.Variable(idx.size)
@@ -692,7 +710,7 @@ class _MeasuredLoop:
 def _robust_lines(maps: YoulaMaps) -> np.ndarray:
     """(n_f,) bool: the lines where the model error is not negligible."""
     r = np.linalg.norm(maps.delta @ maps.KS0, axis=(1, 2))
-    r = r + maps.spread * np.linalg.norm(maps.KS0, axis=(1, 2))
+    r = r + np.sum(maps.spread * np.linalg.norm(maps.KS0, axis=2), axis=1)
     return r >= _ERROR_NEGLIGIBLE
 
 

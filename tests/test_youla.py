@@ -243,7 +243,9 @@ def test_model_error_keeps_the_bounds_on_the_measured_plant():
     e = model_error(meas, G, k_std=3.0)
     d_exact, _ = exact.at(fl)
     assert np.allclose(e.delta, d_exact, rtol=1e-9, atol=1e-15)
-    assert np.allclose(e.spread, 3 * np.sqrt(4e-12) * np.abs(zoh_frf(fl, FS)))
+    assert np.allclose(e.spread, 3e-6 * np.abs(zoh_frf(fl, FS))[:, None, None])
+    _, col = e.at(fl)  # per input column: ||spread[:, a]|| over the outputs
+    assert np.allclose(col, 3e-6 * np.sqrt(2) * np.abs(zoh_frf(fl, FS))[:, None])
     # one-sample-shifted: an FRF from the plant input lacks the loop delay G holds
     e1 = model_error(FrfData(fl, meas.G * np.exp(2j * np.pi * fl / FS)[:, None, None], fs=FS),
                      G, loop_delay_samples=1)  # fmt: skip
