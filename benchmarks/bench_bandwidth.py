@@ -35,7 +35,15 @@ n 20 / 40: fb 198 / 236 Hz, crossover 283 / 346 Hz (pid-notch 209.9); rigid body
 n 40: fb 251, fc 389.5 Hz, above tune_hinf's 372.6 Hz: the "reference" of part 1 is the
 best design known, not a limit.
 
-Run: ``OMP_NUM_THREADS=1 python benchmarks/bench_bandwidth.py [--quick]`` (~8 min; youla
+Session 21: youla told the model's error by a measurement of the true stage
+(``tune_youla(measured=...)``: decentralized, each channel's bounds held on the measured
+loop, |T_ii| under the measured interaction bound), on the truth WITH the modes above
+Nyquist, stable, |S_ii| <= 1.93: exact measurement x 353.3 (1.61x), y 332.6 (1.52x),
+z 304.7 (1.39x), Rx 259.0 (1.20x), Ry 288.4 (1.50x), Rz 354.1 (1.61x); an FRF on 2.5 Hz
+lines with 1 % noise: 347.7 / 325.0 / 293.9 / 269.0 / 279.0 / 346.2 Hz (1.58 / 1.49 / 1.35 /
+1.25 / 1.46 / 1.58x), |S_ii| <= 1.92, sigma(S) 42.8; ~170 s a design, loaded machine.
+
+Run: ``OMP_NUM_THREADS=1 python benchmarks/bench_bandwidth.py [--quick] [--parts 1]`` (~8 min; youla
 takes most of it).
 """
 
