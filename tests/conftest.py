@@ -8,6 +8,12 @@ One rule for tests that read shared files: call :func:`require_shared` first. Wh
 is absent the test is skipped on a developer's machine (a checkout elsewhere) and FAILS under CI
 (``CI`` set), where shared/ always sits beside the checkout: a wrong path can never pass as a
 skip there.
+
+Under pytest-xdist (pyproject's addopts run the suite on 2 workers) each worker's BLAS runs on
+one thread: two workers with a thread per core each would oversubscribe the cores (small dense
+linear algebra gets slower, not faster). An explicit ``OPENBLAS_NUM_THREADS`` /
+``OMP_NUM_THREADS`` / ``MKL_NUM_THREADS`` in the environment is kept; a serial run (``-n 0``)
+is left alone.
 """
 
 import os
@@ -15,6 +21,10 @@ import sys
 from pathlib import Path
 
 import pytest
+
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(_var, "1")  # before numpy loads BLAS; subprocesses inherit it
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
