@@ -338,13 +338,18 @@ class YoulaMaps:
         C = self._coef(self.delta @ self.Si0, self.S0)
         return (self.delta @ self.KS0).reshape(n_f, -1), C.reshape(n_f, -1, C.shape[-1])
 
+    def measured_coupling(self, theta: np.ndarray) -> np.ndarray:
+        """M = Delta K S on the grid, (n_f, n_y, n_y) (maps built with a model error)."""
+        if self.delta is None:
+            raise InputError("measured_coupling: expected maps built with a model error, got none")
+        return self.delta @ (self.KS0 + self.Si0 @ self.q_frf(theta) @ self.S0)
+
     def true_sensitivity(self, theta: np.ndarray) -> np.ndarray:
         """S (I + Delta K S)^-1 on the grid: the loop on the measured plant, (n_f, n_y, n_y)."""
         S = self.sensitivity(theta)
         if self.delta is None:
             return S
-        KS = self.KS0 + self.Si0 @ self.q_frf(theta) @ self.S0
-        return S @ np.linalg.inv(np.eye(S.shape[1]) + self.delta @ KS)
+        return S @ np.linalg.inv(np.eye(S.shape[1]) + self.measured_coupling(theta))
 
     def z_affine(self, j: int) -> tuple[np.ndarray, np.ndarray]:
         """(c0 (n_f, n_u), C (n_f, n_u, n_theta)) with T_dz[j, :] = c0 + C theta."""
@@ -509,9 +514,10 @@ def _worst_lines(maps: YoulaMaps, theta, loops, ms_max: float, dense: int) -> np
     """Frequencies (Hz) between the grid's lines where |S_ii| exceeds ms_max (local peaks).
 
     On the measured loop when the maps hold a model error (and where its
-    ||Delta K S|| reaches 1). The programs hold |S_ii| <= ms_max on the grid only; a lightly damped
-    feature of Q or of the plant can peak between two lines. The check runs on
-    ``dense`` times the grid's lines (log-spaced over its span, plus midpoints).
+    ||Delta K S|| reaches 1). The programs hold |S_ii| <= ms_max on the grid
+    only; a lightly damped feature of Q or of the plant can peak between two
+    lines. The check runs on ``dense`` times the grid's lines (log-spaced over
+    its span, plus midpoints).
     """
     f = maps.f
     fd = np.geomspace(f[0], f[-1], dense * len(f))
@@ -520,8 +526,7 @@ def _worst_lines(maps: YoulaMaps, theta, loops, ms_max: float, dense: int) -> np
     S = np.abs(np.diagonal(dense.true_sensitivity(theta), axis1=1, axis2=2))[:, loops]
     a = np.max(S, axis=1) / ms_max
     if dense.delta is not None:  # the small-gain figure ||Delta K S|| must stay below 1
-        c0, C = dense.error_affine()
-        a = np.maximum(a, np.linalg.norm(c0 + C @ theta, axis=1))
+        a = np.maximum(a, np.linalg.norm(dense.measured_coupling(theta), axis=(1, 2)))
     peak = (a > 1) & (a >= np.r_[0, a[:-1]]) & (a >= np.r_[a[1:], 0])
     return fd[peak]
 
@@ -636,9 +641,8 @@ class _MeasuredLoop:
     on the lines where the error is not negligible (:func:`_robust_lines`).
     """
 
-    def __init__(self, maps: YoulaMaps, loops):
-        self.maps, self.loops = maps, loops
-        self.on = _robust_lines(maps)
+    def __init__(self, maps: YoulaMaps, loops, on: np.ndarray):
+        self.maps, self.on = maps, on
         ny = maps.S0.shape[1]
         self.rows = [maps.sensitivity_row_affine(i) for i in loops]
         self.err = maps.error_affine()
@@ -691,7 +695,7 @@ class _MeasuredLoop:
                         e[:, None] * k0[idx, a], e[:, None, None] * K[idx, a] / scale, theta, w
                     )
                 )
-                r = r + w  # fmt: skip
+                r = r + w
         tl = idx[np.isfinite(t[idx])]
         for (r0, R), (t0, Tr), b in zip(self.rows, self.trows, bounds):
             u = cp.Variable(idx.size)
@@ -760,13 +764,14 @@ def _max_bandwidth(maps, ms_max, loops, targets, level, slope, rel_tol, ratios, 
     aff = [maps.sensitivity_affine(i) for i in loops]
     scale = _column_scale([C for _, C in aff])
     measured = None
-    if maps.delta is not None and _robust_lines(maps).any():
-        measured = _MeasuredLoop(maps, loops)
+    if maps.delta is not None and (on := _robust_lines(maps)).any():
+        measured = _MeasuredLoop(maps, loops, on)
     t = _t_lines(t_bound, f)
     bounded = np.isfinite(t)
     active = np.zeros(len(f), bool)
     active[::6] = True
     active[-1] = True
+    programs = 0
 
     def figure(th, bounds) -> np.ndarray:
         g = np.zeros(len(f))
@@ -779,6 +784,7 @@ def _max_bandwidth(maps, ms_max, loops, targets, level, slope, rel_tol, ratios, 
         return g
 
     def scaled(fb):
+        nonlocal programs
         bounds = []
         for i, ratio in zip(loops, ratios):
             b = np.full(len(f), float(ms_max))
@@ -801,6 +807,7 @@ def _max_bandwidth(maps, ms_max, loops, targets, level, slope, rel_tol, ratios, 
             if measured is not None:
                 cons += measured.constraints(th_s, s, bounds, t, scale, lines)
             _solve(cp.Problem(cp.Minimize(s), cons))
+            programs += 1
             if s.value is None:
                 return np.inf, None
             th = np.array(th_s.value) / scale
@@ -808,15 +815,14 @@ def _max_bandwidth(maps, ms_max, loops, targets, level, slope, rel_tol, ratios, 
             if not _grow(active, g, float(s.value)):
                 return float(np.max(g)), th
 
-    (lo, hi), best, n = span, None, 0
+    (lo, hi), best = span, None
     value, theta = scaled(lo)  # the low end must hold, or nothing does
     if value <= 1.0 + 1e-7:
-        best, n = theta, 1
+        best = theta
     else:
         hi = lo
     while hi / lo > 1 + rel_tol:
         mid = np.sqrt(lo * hi)
-        n += 1
         value, theta = scaled(mid)
         if value <= 1.0 + 1e-7:
             lo, best = mid, theta
@@ -828,7 +834,7 @@ def _max_bandwidth(maps, ms_max, loops, targets, level, slope, rel_tol, ratios, 
             f"max_bandwidth: no Q meets |S| <= {ms_max}{where} with a bandwidth of "
             f"{span[0]:g} Hz on this grid"
         )
-    return best, float(lo), n, "optimal"
+    return best, float(lo), programs, "optimal"
 
 
 def min_band_peak(
