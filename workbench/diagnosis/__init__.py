@@ -14,7 +14,9 @@ Data flow::
                       │
                       ▼
     nonlinearity: a port element (friction, cubic spring, saturation) fitted and simulated
-    (nonlinear.fit_port_element), a finding only when it lowers the error
+    (nonlinear.fit_port_element; ports: a square model's outputs, or the mode shapes a
+    collocated sensor fixes), a finding only when it lowers the error; tried on the model
+    as given as soon as a modal mismatch or suspension (its linearization) is accepted
                       │
                       ▼
     Diagnosis(error_before, findings[effect, inputs, outputs, band_hz, parameters ± std,

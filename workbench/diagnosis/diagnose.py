@@ -20,10 +20,18 @@ within noise, or the bands that still fail; 'none' is reported only when
 compare finds the model within noise (or, without a noise reference, when no
 effect lowers the error). A nonlinearity is a finding only with a fitted port
 element (friction, cubic spring, saturation) whose nonlinear simulation model
-lowers the error (:func:`workbench.diagnosis.nonlinear.fit_port_element`); on a
-model that is not square no element can be fitted, and only distortion on the
-lines the excitation leaves empty makes it one (a periodic residual the linear
-search left is what a linear effect it missed leaves too).
+lowers the error (:func:`workbench.diagnosis.nonlinear.fit_port_element`). The
+ports are the outputs of a square model; on a model that is not square, a
+sensor collocated with an input fixes the mode shapes at every input
+(:func:`workbench.diagnosis.nonlinear.with_ports`, the extended modal model), and
+each pair that may be collocated is a hypothesis the record decides. Without
+ports no element can be fitted, and only distortion on the lines the excitation
+leaves empty makes it one (a periodic residual the linear search left is what a
+linear effect it missed leaves too). A modal mismatch or a suspension may be
+only what a port element linearizes to (friction's equivalent damping, a
+spring's equivalent stiffness): when the search accepts one on a time record,
+the element on the model as given is tried at once, and it replaces the linear
+finding when it explains the record better by the factor a finding must.
 """
 
 from __future__ import annotations
@@ -75,6 +83,10 @@ PERIODIC_NL = 2.5
 NL_STATIONARY = (0.5, 1.2)
 #: candidates refitted jointly with the earlier findings each round
 JOINT_CANDIDATES = 3
+#: linear effects a port element's describing function is: friction's equivalent viscous
+#: damping (4 F_c / (pi omega A)) and the equivalent stiffness of stiction or a hardening
+#: spring move the modes their port moves (a modal mismatch) or suspend a rigid body
+LINEARIZED_ELEMENT = ("modal_mismatch", "suspension_stiffness")
 
 
 @dataclass(frozen=True)
@@ -328,6 +340,7 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Dia
             nl_first = nl0
             max_effects = min(max_effects, 1)
             n_full_fits = 2 if n_full_fits is None else n_full_fits
+    F_given, nl_early, early_tried = None, None, False
     for round_ in range(max_effects):
         if per_round_verdict:
             # the loop ends where compare says the model is right within noise
@@ -337,6 +350,8 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Dia
             break
         if isinstance(data, TimeData):
             F = detect.periodic_misfit(data, problem.predict(current))
+            if round_ == 0:
+                F_given = F
             if F is not None and F < PERIODIC_F:
                 break
         structures = candidate_structures(current, problem, exclude=exclude)
@@ -458,11 +473,46 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Dia
                 found[-1] = replace(found[-1], model=current, error_after=cur_err)
         if last.effect != "missing_mode":
             exclude.add(last.effect)
+        if (
+            isinstance(data, TimeData)
+            and nl_first is None
+            and not early_tried
+            and last.effect in LINEARIZED_ELEMENT
+        ):
+            # a modal mismatch or a suspension may be only a port element's linearization:
+            # the element on the model as given is the other explanation of the same misfit,
+            # judged as a finding is (it must lower the error below the linear finding's by
+            # ERROR_RATIO, and the linear finding must not lower the element's by as much).
+            # Tested here, not after the search: its period-synchronous test may pass (a
+            # lightly damped mode's transient misfit counts as noise there), and further
+            # rounds would only fit what the linear finding left of the element's signature
+            early_tried = True
+            ev = detect.NonlinearityEvidence(
+                level=float(min(cur_err**2, 1.0)),
+                f_stat=float(F_given) if F_given is not None else 0.0,
+                n_lines=0,
+                band_hz=problem.band_hz,
+            )
+            finding, _ = _nonlinearity_finding(
+                ev, data, error_before, [current, base], cur_err, direct=False
+            )
+            if finding is not None and finding.model is base:
+                notes.append(
+                    f"round {round_ + 1}: {last.effect} (error {cur_err:.4g}) is what the "
+                    f"nonlinear element linearizes to: {finding.parameters['element']} on the "
+                    f"model as given reaches {finding.error_after:.4g}; the linear search stops"
+                )
+                nl_early = finding
+                break
     found = _merge_compliance(found)
-    nl = detect.nonlinearity(data, problem.predict(current)) if isinstance(data, TimeData) else None
+    if nl_early is not None:
+        found, current = [nl_early], base
+        cur_err = problem.error(base)
+    timed = isinstance(data, TimeData) and nl_early is None
+    nl = detect.nonlinearity(data, problem.predict(current)) if timed else None
     F_end = (
         detect.periodic_misfit(data, problem.predict(current))
-        if isinstance(data, TimeData) and nl_first is None
+        if timed and nl_first is None
         else None
     )
     # a nonlinearity is a finding only when a fitted port element (friction, cubic spring,
@@ -487,14 +537,13 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Dia
         # carries a share of the output power comparable with the linear misfit.
         nl_ev, nl_first_rank = nl, nl.level >= 0.5 * error_before**2
     if nl_ev is not None:
-        # the element is fitted on the final linear model and, when the linear findings may
-        # only absorb what the nonlinearity does (a drift), on the model as given
-        # (a suspension found by the linear search is what a hardening spring or friction
-        # linearizes to: the element is then tried on the model as given too)
-        absorbs = nl_first_rank or (
-            bool(found) and all(f.effect == "suspension_stiffness" for f in found)
-        )
-        linear = [current] + ([base] if absorbs and current is not base else [])
+        # the element is fitted on the final linear model and on the model as given: what
+        # the linear search found may be only what the element linearizes to (a port
+        # element's describing function is linear: friction adds damping to the modes its
+        # port moves, stiction or a hardening spring adds stiffness - a modal mismatch, a
+        # suspension - and both leave a drift), and then the element on the model as
+        # given explains the record as well with fewer parameters
+        linear = [current] + ([base] if current is not base else [])
         finding, alt = _nonlinearity_finding(
             nl_ev, data, error_before, linear, cur_err, direct=nl_ev.n_lines > 0
         )
@@ -760,23 +809,23 @@ def _nonlinearity_finding(nl, data, err, linear: list, cur_err: float, *, direct
 
     ``err`` is the error of the model as given, ``cur_err`` that of the final linear
     model ``linear[0]``. ``linear``: the linear models (ModalModel) the element may sit
-    on; the one whose nonlinear simulation model reproduces the record best is kept.
-    Without a square model (ports collocated with the inputs) no element can be fitted:
+    on (:func:`_fit_element` chooses). Without ports (a square model, whose outputs are
+    collocated with the inputs, or a sensor collocated with an input) no element can be fitted:
     the finding carries the distortion level only and the error of the linear model,
     ``cur_err`` (it adds nothing to that model, so it cannot lower the error), and only
     ``direct`` evidence (distortion on unexcited lines) makes it a finding: a residual
     the linear search merely left is what any linear effect it missed leaves too.
     """
-    from workbench.diagnosis.nonlinear import fit_port_element
-
     params: dict[str, Any] = {"level": nl.level, "f_stat": nl.f_stat}
     ins, outs = tuple(range(data.n_u)), tuple(range(data.n_y))
     error_after, model, note = cur_err, None, ""
-    if isinstance(data, TimeData) and data.n_u == data.n_y:
-        fits = [(fit_port_element(m.to_lti(), data.u, data.y, data.fs), m) for m in linear]
-        ef, model = min(fits, key=lambda t: t[0].error_after)
+    fitted = _fit_element(data, linear) if isinstance(data, TimeData) else None
+    if fitted is not None:
+        ef, model, pair = fitted
         params.update(element=ef.element, ports=list(ef.ports), **ef.parameters)
         params["element_errors"] = ef.candidates
+        if pair is not None:
+            params["collocated"] = list(pair)
         error_after = ef.error_after
         # distortion on unexcited lines is direct evidence: the element must only lower the
         # error; a residual that is merely not explained needs the element to explain it
@@ -794,12 +843,20 @@ def _nonlinearity_finding(nl, data, err, linear: list, cur_err: float, *, direct
             }
             return None, alt
         ins = outs = tuple(ef.ports)
+        if pair is not None:
+            outs = tuple(range(data.n_y))
         note = (
             f" Fitted element: {ef.element.replace('_', ' ')} at port(s) "
             f"{', '.join(str(j) for j in ef.ports)}; the nonlinear simulation model "
             f"(workbench.diagnosis.nonlinear) brings the error from {ef.error_before:.4g} "
             f"to {ef.error_after:.4g}."
         )
+        if pair is not None:
+            note += (
+                f" The ports' motion comes from the model's mode shapes, mass-normalized at "
+                f"output {pair[0]} taken as collocated with input {pair[1]} (every mode's "
+                "driving-point residue is positive there)."
+            )
     elif not direct:
         alt = {
             "effect": "nonlinearity",
@@ -809,12 +866,15 @@ def _nonlinearity_finding(nl, data, err, linear: list, cur_err: float, *, direct
             "rejected": (
                 "a periodic residual that no linear effect removed, without distortion on the "
                 "unexcited lines, and no port element to explain it (that needs a time record "
-                "and a square model): not evidence of a nonlinearity"
+                "and a square model or a collocated sensor): not evidence of a nonlinearity"
             ),
         }
         return None, alt
     else:
-        note = " No port element fitted: that needs a time record and a square model."
+        note = (
+            " No port element fitted: that needs a time record and a square model or a "
+            "collocated sensor."
+        )
     ev = dict(
         parameters={"level": nl.level},
         band_hz=nl.band_hz,
@@ -840,6 +900,72 @@ def _nonlinearity_finding(nl, data, err, linear: list, cur_err: float, *, direct
         model=model,
     )
     return finding, None
+
+
+def _fit_element(data: TimeData, linear: list):
+    """The port element that explains the record best: (ElementFit, linear model, pair) or None.
+
+    ``linear``: the final linear model first, then the model as given. The ports are the
+    outputs of a square model; on another, every pair (output, input) that may be collocated
+    (:func:`~workbench.diagnosis.nonlinear.collocated_pairs`) is a hypothesis of where the
+    ports are, and the record decides. Each element is fitted on each linear model; the
+    element on the model as given wins unless the linear findings below it lower its error
+    by the factor a finding must (``ERROR_RATIO``): they may be only the element's
+    linearization. None when no port can be located.
+    """
+    from workbench.diagnosis.nonlinear import collocated_pairs, fit_port_element, with_ports
+
+    n_y, n_u = data.n_y, data.n_u
+    if n_y == n_u:
+        pairs: list = [None]
+    else:
+        pairs = collocated_pairs(linear[-1])
+    if not pairs:
+        return None
+    ports = list(range(n_y, n_y + n_u))
+    hyps = []  # (linear model index, sys, port outputs, pair, motion)
+    for pair in pairs:
+        motion = None
+        if pair is not None:
+            # the port motion of the model closest to the record (the final linear model)
+            first = with_ports(linear[0], pair)
+            if first is None:
+                continue
+            motion = simulate_zoh(first.to_lti(), data.u, data.fs)[:, ports]
+        for i, m in enumerate(linear):
+            if pair is None:
+                hyps.append((i, m.to_lti(), None, pair, None))
+                continue
+            aug = with_ports(m, pair)
+            if aug is not None:
+                hyps.append((i, aug.to_lti(), ports, pair, motion))
+    if not hyps:
+        return None
+
+    def fit_one(h, refine):
+        _, sys, port_outputs, _, motion = h
+        return fit_port_element(
+            sys, data.u, data.y, data.fs, port_outputs=port_outputs, motion=motion, refine=refine
+        )
+
+    # the hypotheses compared cheaply, then the best on each linear model refined (the
+    # refinement acts only where the port motion is estimated, not measured)
+    several = len(hyps) > 1
+    best: dict[int, tuple] = {}
+    for h in hyps:
+        ef = fit_one(h, not several)
+        if h[0] not in best or ef.error_after < best[h[0]][0].error_after:
+            best[h[0]] = (ef, h)
+    chosen = {
+        i: (fit_one(h, True) if several and h[3] is not None else ef, h)
+        for i, (ef, h) in best.items()
+    }
+    i_pick = max(chosen)  # the model as given (last), unless the linear findings are needed
+    if 0 in chosen and i_pick != 0:
+        if chosen[0][0].error_after <= ERROR_RATIO * chosen[i_pick][0].error_after:
+            i_pick = 0
+    ef, h = chosen[i_pick]
+    return ef, linear[h[0]], h[3]
 
 
 def _none_finding(problem, model, data, cur_err, error_before, floor, alternatives) -> Finding:

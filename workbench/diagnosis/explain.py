@@ -103,6 +103,15 @@ def explain(effect: str, ev: dict) -> str:
             f"on {where}; "
             f"{fall}{tail}"
         )
+    if effect == "nonlinearity" and not ev["n_lines"]:
+        # no distortion measured on unexcited lines: the evidence is the residual no linear
+        # effect removes, and the fitted element (its numbers follow in the finding's note)
+        return (
+            f"a period-synchronous residual {ev['f_stat']:.3g} times its noise for the model as "
+            "given, which no linear effect of the vocabulary explains as well as a port "
+            "nonlinearity: the response is not linear in the input; about "
+            f"{100 * p['level']:.3g} % of the output power is not explained by a linear model."
+        )
     if effect == "nonlinearity":
         return (
             f"periodic output power on {ev['n_lines']} lines the multisine leaves empty, "

@@ -14,6 +14,17 @@ Over each of ``substeps`` substeps per sample the linear part is propagated
 exactly (zero-order hold) and the port force is held (explicit, first order
 in the substep): :func:`workbench.sim.substep_zoh`, the propagation the plants
 use too; this module supplies the port law (with its friction clamp).
+
+A model that is not square has no output at most ports. With one sensor i
+collocated with actuator j (methods.md section 4, the extended modal model),
+the residue row of that sensor fixes each mode's mass-normalized shape at
+every actuator: ``R_k = phi_k(sensors) phi_k(actuators)^T`` and ``phi_k(s_i) =
+phi_k(a_j)`` give ``phi_k(a) phi_k(a)^T = R_k[i, :]^T R_k[i, :] / R_k[i, j]``, the
+port-displacement residue of mode k. :func:`with_ports` appends these port
+displacements to the model's outputs (``port_outputs`` of
+:func:`simulate_nonlinear` and :func:`fit_port_element`);
+:func:`collocated_pairs` lists the pairs a model allows (every mode's
+driving-point residue positive, as a collocated pair's is).
 """
 
 from __future__ import annotations
@@ -30,6 +41,8 @@ from workbench.core.errors import InputError
 __all__ = [
     "PortNonlinearity",
     "simulate_nonlinear",
+    "collocated_pairs",
+    "with_ports",
     "fit_friction",
     "fit_port_element",
     "ElementFit",
@@ -63,20 +76,124 @@ class PortNonlinearity:
     notes: tuple[str, ...] = field(default=())
 
 
-def _ports(sys):
+def _ports(sys, port_outputs=None):
+    """(A, B, C, D, Cp, measured): the measured outputs' C, D, the ports' Cp and their indices."""
     A, B, C, D, dt = lti.as_matrices(sys)
     if dt:
         raise InputError("nonlinear simulation: expected a continuous model (dt = 0)")
-    if C.shape[0] != B.shape[1]:
+    n_y, n_u = C.shape[0], B.shape[1]
+    if port_outputs is None:
+        if n_y != n_u:
+            raise InputError(
+                "nonlinear simulation: expected a square model (ports collocated with the "
+                f"inputs), got {n_y} outputs and {n_u} inputs; a model with a collocated "
+                "sensor gets its ports from with_ports"
+            )
+        return A, B, C, D, C, np.arange(n_y)
+    ports = np.asarray(port_outputs, int).ravel()
+    if ports.size != n_u or np.any((ports < 0) | (ports >= n_y)) or np.unique(ports).size != n_u:
         raise InputError(
-            f"nonlinear simulation: expected a square model (ports collocated with the inputs), "
-            f"got {C.shape[0]} outputs and {B.shape[1]} inputs"
+            f"nonlinear simulation: expected port_outputs, {n_u} distinct outputs of the "
+            f"{n_y}, one per input, got {ports.tolist()}"
         )
-    return A, B, C, D
+    measured = np.setdiff1d(np.arange(n_y), ports)
+    return A, B, C[measured], D[measured], C[ports], measured
+
+
+def collocated_pairs(model, *, max_pairs: int = 3) -> list[tuple[int, int]]:
+    """(sensor, actuator) pairs that may be collocated: every mode's driving-point residue > 0.
+
+    A displacement sensor at a force actuator sees every mode with the residue
+    ``phi_k(a)^2 > 0`` (a collocated transfer function alternates poles and zeros); a
+    sensor elsewhere sees some mode with the opposite sign (a node between them). The
+    test is necessary, not sufficient (two close points pass it too): the pairs are
+    hypotheses, ranked by their smallest relative driving-point residue, at most
+    ``max_pairs``. Real poles are no structural modes and are not tested.
+
+    Parameters
+    ----------
+    model : workbench.modal.model.ModalModel
+    """
+    R = [m.numerator()[0] for m in model.modes if m.kind != "real"]
+    if not R:
+        return []
+    R = np.array(R)  # (n_m, n_y, n_u)
+    scale = np.maximum(np.abs(R).reshape(len(R), -1).max(axis=1), 1e-300)
+    margin = (R / scale[:, None, None]).min(axis=0)
+    pairs = [(int(i), int(j)) for i, j in np.argwhere(margin > 1e-9)]
+    pairs.sort(key=lambda p: -margin[p])
+    return pairs[:max_pairs]
+
+
+def with_ports(model, pair: tuple[int, int]):
+    """The modal model with the port displacements of its inputs appended to its outputs.
+
+    Parameters
+    ----------
+    model : workbench.modal.model.ModalModel
+    pair : (int, int)
+        Sensor (output) i collocated with actuator (input) j.
+
+    Returns
+    -------
+    ModalModel or None
+        ``n_y + n_u`` outputs, the last ``n_u`` the port displacements (mode k
+        contributes ``R_k[i, :]^T R_k[i, :] / R_k[i, j]``, the mass-normalized
+        ``phi_k(a) phi_k(a)^T``; a mode with no positive driving-point residue, whose
+        shape at the ports the pair cannot fix, none). Outside the mechanics: no
+        feedthrough, no sensor lag or output coupling on the ports (input lags and
+        coupling act on the port forces as on the inputs). None when a rigid-body
+        cluster holds several rigid modes (their shapes are not fixed by one row).
+    """
+    from dataclasses import replace
+
+    import scipy.linalg
+
+    i, j = pair
+    n_u = model.n_u
+    modes = []
+    for m in model.modes:
+        N0, N1 = m.numerator()
+        row = N0[i]
+        r = row[j]
+        P = np.zeros((n_u, n_u))
+        if m.kind != "real" and r > 1e-9 * max(np.abs(N0).max(), 1e-300):
+            if m.kind == "rigid":
+                sv = np.linalg.svd(np.vstack([N0, N1]), compute_uv=False)
+                if sv.size > 1 and sv[1] > 1e-9 * sv[0]:
+                    return None
+            P = np.outer(row, row) / r
+        c_port = m.b * (m.c[i] / m.b[j]) if m.b[j] != 0 else np.zeros(n_u)
+        modes.append(
+            replace(
+                m,
+                c=np.concatenate([m.c, c_port]),
+                N0=np.vstack([N0, P]),
+                N1=np.vstack([N1, np.zeros((n_u, n_u))]),
+            )
+        )
+    tau_out = None if model.tau_out is None else np.concatenate([model.tau_out, np.zeros(n_u)])
+    T_out = None if model.T_out is None else scipy.linalg.block_diag(model.T_out, np.eye(n_u))
+    names = tuple(model.output_names) + tuple(f"port {name}" for name in model.input_names)
+    return replace(
+        model,
+        modes=tuple(modes),
+        D=np.vstack([model.D, np.zeros((n_u, n_u))]),
+        transform=None,
+        output_names=names,
+        tau_out=tau_out,
+        T_out=T_out,
+    )
 
 
 def simulate_nonlinear(
-    sys, u: np.ndarray, fs: float, nl: PortNonlinearity, *, delay_s: float = 0.0
+    sys,
+    u: np.ndarray,
+    fs: float,
+    nl: PortNonlinearity,
+    *,
+    delay_s: float = 0.0,
+    port_outputs=None,
 ) -> np.ndarray:
     """Response to the recorded input ``u`` (N, n_u), from rest; (N, n_y) outputs.
 
@@ -84,9 +201,16 @@ def simulate_nonlinear(
     ``LTIModel``'s own delay is applied and ``delay_s`` (s) adds to it, as in
     :func:`workbench.sim.simulate_zoh`; the total is rounded to whole samples.
     Without any nonlinearity this equals :func:`workbench.core.sim.simulate_zoh`
-    for integer-sample delays.
+    for integer-sample delays. ``port_outputs``: the outputs of ``sys`` that are the
+    port displacements, one per input (a model from :func:`with_ports`); they are
+    left out of the returned outputs. Default: output j is the port of input j.
     """
-    A, B, C, D = _ports(sys)
+    return _simulate(sys, u, fs, nl, delay_s, port_outputs)[0]
+
+
+def _simulate(sys, u, fs, nl, delay_s=0.0, port_outputs=None):
+    """(y, p): :func:`simulate_nonlinear`'s measured outputs and the port displacements."""
+    A, B, C, D, Cp, _ = _ports(sys, port_outputs)
     delay_s = float(delay_s) + float(getattr(sys, "delay_s", 0.0))  # the model's delay travels
     n = A.shape[0]
     # the held input enters at the ports like the port forces: one force input
@@ -107,25 +231,35 @@ def simulate_nonlinear(
         if nl.cubic_stiffness is None
         else np.broadcast_to(np.asarray(nl.cubic_stiffness, float), (n_u,))
     )
-    CA = C @ A
+    CA = Cp @ A
     v0 = nl.friction_velocity
     # velocity change of each port per unit force held over one substep: friction is
     # limited to the force that stops the port within the substep, so the explicit
     # scheme cannot make friction reverse the motion (stable for any F_c and v0)
     mobility = np.maximum(np.abs(np.diag(CA @ Bd)), 1e-300)
-    empty = np.zeros(0)
-    x = np.zeros(n)
     y = np.empty((N, C.shape[0]))
-    for k in range(N):
-        y[k] = C @ x + D @ ud[k]
+    p = np.empty((N, Cp.shape[0]))
+    # the substep loop x <- Phi x + Gp f(x) of prop.advance, with the port law above, compiled
+    from workbench.diagnosis._port_kernel import port_loop
 
-        def force(x, uk=ud[k]):
-            v = CA @ x
-            friction = np.minimum(Fc * np.abs(np.tanh(v / v0)), np.abs(v) / mobility)
-            return uk - np.sign(v) * friction - k3 * (C @ x) ** 3
-
-        x = prop.advance(x, empty, empty, force)
-    return y
+    c = np.ascontiguousarray
+    port_loop(
+        c(prop.Phi),
+        c(Bd),
+        c(C),
+        c(D),
+        c(Cp),
+        c(CA),
+        c(ud),
+        c(Fc, dtype=float),
+        c(k3, dtype=float),
+        float(v0),
+        mobility,
+        int(nl.substeps),
+        y,
+        p,
+    )
+    return y, p
 
 
 def fit_friction(
@@ -191,6 +325,10 @@ def fit_friction(
 
 #: the port elements :func:`fit_port_element` tries
 ELEMENTS = ("coulomb_friction", "cubic_stiffness", "saturation")
+#: regressions of an element on the motion its own simulation model gives (estimated ports)
+MOTION_ITERATIONS = 4
+#: Gauss-Newton steps on the levels through the simulation model itself (estimated ports)
+REFINE_ITERATIONS = 2
 
 
 @dataclass(frozen=True)
@@ -224,7 +362,15 @@ class ElementFit:
 
 
 def fit_port_element(
-    sys, u: np.ndarray, y: np.ndarray, fs: float, *, substeps: int = 4
+    sys,
+    u: np.ndarray,
+    y: np.ndarray,
+    fs: float,
+    *,
+    substeps: int = 4,
+    port_outputs=None,
+    motion: np.ndarray | None = None,
+    refine: bool = True,
 ) -> ElementFit:
     """Which port nonlinearity explains the record: Coulomb friction, a cubic spring or saturation.
 
@@ -232,75 +378,151 @@ def fit_port_element(
     ----------
     sys : LTIModel or control.StateSpace
         The linear model (continuous, square: output j measures the displacement where
-        input j pushes); an LTIModel's delay is part of it.
+        input j pushes; or with its port displacements as extra outputs, ``port_outputs``);
+        an LTIModel's delay is part of it.
     u, y : (N, n_u), (N, n_y) arrays
         Recorded input and output.
     fs : float
         Sampling frequency, Hz.
     substeps : int
         Substeps per sample of the final nonlinear simulation.
+    port_outputs : sequence of int, optional
+        The outputs of ``sys`` that are the port displacements (:func:`with_ports`); the
+        others are the measured ones, ``y``.
+    motion : (N, n_u) array, optional
+        Port displacements to regress on. Default: the measured output (square model),
+        else the linear model's simulated ports (a linear model closer to the record,
+        e.g. one with the linear effects a diagnosis found, gives a better estimate).
+    refine : bool
+        With estimated ports: refine the levels by Gauss-Newton through the simulation
+        model (a few simulations more; False to compare hypotheses cheaply).
 
     Notes
     -----
     Friction and the cubic spring are forces at the ports that depend on the port
     motion, ``-F_j tanh(v_j / v0)`` and ``-k_j p_j^3``: with the motion taken from the
-    measured output, the output they add is linear in ``F_j`` / ``k_j`` (the linear
-    model driven by the signal at port j), so each is a least-squares regression of
-    the linear model's residual (equation error in the nonlinearity, output error in
-    the dynamics). Saturation is scanned over levels of |u| (the linear model driven
-    by the clipped input). The best element is then simulated with
-    :func:`simulate_nonlinear` and its error is the one reported.
+    measured output (or its estimate, ``motion``), the output they add is linear in
+    ``F_j`` / ``k_j`` (the linear model driven by the signal at port j), so each is a
+    least-squares regression of the linear model's residual (equation error in the
+    nonlinearity, output error in the dynamics). Saturation is scanned over levels of
+    |u| (the linear model driven by the clipped input). The best element is then
+    simulated with :func:`simulate_nonlinear` and its error is the one reported.
+    When the port motion is not measured (``port_outputs``, no ``motion`` given, or an
+    estimate), the regression is repeated on the motion that the element's own simulation
+    model gives (at the true level that is the true motion: a consistent fixed point), and
+    the levels are then refined on the simulation model's output error (``refine``).
     """
     from workbench.core.model import as_model
 
     lin = as_model(sys)
-    _ports(lin)
+    _, _, _, _, _, meas = _ports(lin, port_outputs)
     u = np.asarray(u, float)
     y = np.asarray(y, float)
     n_u = u.shape[1]
-    y_lin = sim.simulate_zoh(lin, u, fs)
+    y_all = sim.simulate_zoh(lin, u, fs)
+    y_lin = y_all[:, meas]
     before = lti.relative_error_time(y, y_lin)
-    e = y - y_lin
+    e = (y - y_lin).ravel()
     port = lin.without_delay()  # port forces act directly, not through the input delay
-    v = np.gradient(y, 1.0 / fs, axis=0)
-    v0 = 1e-3 * float(np.sqrt(np.mean(v**2))) or 1e-12
-    signals = {"coulomb_friction": np.tanh(v / v0), "cubic_stiffness": y**3}
-    trials: list[tuple[str, PortNonlinearity, dict]] = []
-    for name, phi in signals.items():
+    measured_ports = port_outputs is None and motion is None
+    if motion is None:
+        motion = y if port_outputs is None else y_all[:, np.asarray(port_outputs, int)]
+    motion = np.asarray(motion, float)
+    v0 = 1e-3 * float(np.sqrt(np.mean(np.gradient(motion, 1.0 / fs, axis=0) ** 2))) or 1e-12
+
+    def law(name, p):
+        if name == "coulomb_friction":
+            return np.tanh(np.gradient(p, 1.0 / fs, axis=0) / v0)
+        return p**3
+
+    def regress(name, common, p):
+        """Levels (n_u,) >= 0 of element ``name`` by least squares, the motion ``p`` given."""
+        phi = law(name, p)
         # regressor j: the output of a unit force law at port j, with the minus sign of a
         # resisting force
         X = np.stack(
-            [-sim.simulate_zoh(port, np.eye(n_u)[j] * phi[:, [j]], fs).ravel() for j in range(n_u)],
+            [
+                -sim.simulate_zoh(port, np.eye(n_u)[j] * phi[:, [j]], fs)[:, meas].ravel()
+                for j in range(n_u)
+            ],
             -1,
         )
-        for common in (False, True):  # one level per port, or one level for all
-            Xc = X.sum(axis=1, keepdims=True) if common else X
-            scale = np.linalg.norm(Xc, axis=0)
-            ok = scale > 0
-            c = np.zeros(Xc.shape[1])
-            if ok.any():
-                c[ok] = np.linalg.lstsq(Xc[:, ok] / scale[ok], e.ravel(), rcond=None)[0]
-                c[ok] /= scale[ok]
-            # a friction level or a hardening spring is >= 0
-            c = np.broadcast_to(np.maximum(c, 0.0), (n_u,)).copy()
-            if not c.max() > 0:
-                continue
-            c[c < 0.05 * c.max()] = 0.0
-            if name == "coulomb_friction":
-                nl = PortNonlinearity(friction_force=c, friction_velocity=v0, substeps=substeps)
-                params = {"friction_force": [float(x) for x in c], "friction_velocity": v0}
+        Xc = X.sum(axis=1, keepdims=True) if common else X
+        scale = np.linalg.norm(Xc, axis=0)
+        ok = scale > 0
+        c = np.zeros(Xc.shape[1])
+        if ok.any():
+            c[ok] = np.linalg.lstsq(Xc[:, ok] / scale[ok], e, rcond=None)[0]
+            c[ok] /= scale[ok]
+        # a friction level or a hardening spring is >= 0
+        c = np.broadcast_to(np.maximum(c, 0.0), (n_u,)).copy()
+        c[c < 0.05 * c.max()] = 0.0
+        return c
+
+    def make_element(name, c):
+        if name == "coulomb_friction":
+            nl = PortNonlinearity(friction_force=c, friction_velocity=v0, substeps=substeps)
+            return nl, {"friction_force": [float(x) for x in c], "friction_velocity": v0}
+        nl = PortNonlinearity(friction_force=np.zeros(n_u), cubic_stiffness=c, substeps=substeps)
+        return nl, {"cubic_stiffness": [float(x) for x in c]}
+
+    def simulated(nl, *, residual=False):
+        """(error, simulated port motion) of the nonlinear simulation model (or its residual)."""
+        with np.errstate(over="ignore", invalid="ignore"):  # a diverging trial scores inf
+            y_nl, p_nl = _simulate(lin, u, fs, nl, 0.0, port_outputs)
+        if not np.all(np.isfinite(y_nl)):
+            return np.inf, None
+        if residual:
+            return (y_nl - y).ravel() / np.linalg.norm(y), p_nl
+        return float(lti.relative_error_time(y, y_nl)), p_nl
+
+    def refine_levels(name, c):
+        """Gauss-Newton on the log levels of the active ports, through the simulation model."""
+        active = np.flatnonzero(c > 0)
+        out = []
+
+        def resid(theta):
+            levels = np.zeros(n_u)
+            levels[active] = np.exp(theta)
+            return simulated(make_element(name, levels)[0], residual=True)[0]
+
+        theta = np.log(c[active])
+        r0 = resid(theta)
+        if not np.all(np.isfinite(r0)):
+            return out
+        h = 0.02
+        for _ in range(REFINE_ITERATIONS):
+            J = np.empty((r0.size, active.size))
+            for n in range(active.size):
+                r = resid(theta + h * np.eye(active.size)[n])
+                if not np.all(np.isfinite(r)):
+                    return out
+                J[:, n] = (r - r0) / h
+            step = np.linalg.lstsq(J, -r0, rcond=None)[0]
+            step *= min(1.0, 0.5 / max(np.max(np.abs(step)), 1e-300))  # a trust region
+            cost0 = float(r0 @ r0)
+            for shrink in (1.0, 0.5):
+                r = resid(theta + shrink * step)
+                if np.all(np.isfinite(r)) and float(r @ r) < cost0:
+                    theta, r0 = theta + shrink * step, r
+                    break
             else:
-                nl = PortNonlinearity(
-                    friction_force=np.zeros(n_u), cubic_stiffness=c, substeps=substeps
-                )
-                params = {"cubic_stiffness": [float(x) for x in c]}
-            trials.append((name, nl, params))
+                break
+            levels = np.zeros(n_u)
+            levels[active] = np.exp(theta)
+            nl, params = make_element(name, levels)
+            out.append((float(np.sqrt(r0 @ r0)), name, nl, params))
+            if np.max(np.abs(step)) < 0.005:
+                break
+        return out
+
     # saturation: the linear response to the clipped input, over levels of |u|
     amp = np.abs(u)
     best_sat, best_err = None, np.inf
     for q in (0.5, 0.7, 0.8, 0.9, 0.95, 0.98, 0.99, 0.995, 0.999):
         level = np.quantile(amp, q, axis=0)
-        err = lti.relative_error_time(y, sim.simulate_zoh(lin, np.clip(u, -level, level), fs))
+        y_sat = sim.simulate_zoh(lin, np.clip(u, -level, level), fs)[:, meas]
+        err = lti.relative_error_time(y, y_sat)
         if err < best_err:
             best_sat, best_err = level, err
     scored = [
@@ -312,13 +534,41 @@ def fit_port_element(
         )
     ]
     # friction and the spring: judged by the nonlinear simulation itself (the regression's
-    # motion is the measured one; a from-rest simulation of a rigid body is far more
-    # sensitive), so what is reported is what the simulation model reproduces
-    for name, nl, params in trials:
-        with np.errstate(over="ignore", invalid="ignore"):  # a diverging trial scores inf
-            y_nl = simulate_nonlinear(lin, u, fs, nl)
-        err = lti.relative_error_time(y, y_nl) if np.all(np.isfinite(y_nl)) else np.inf
-        scored.append((float(err), name, nl, params))
+    # motion is the measured or estimated one; a from-rest simulation of a rigid body is far
+    # more sensitive), so what is reported is what the simulation model reproduces
+    best = None  # (error, name, common, levels, port motion)
+    for name in ("coulomb_friction", "cubic_stiffness"):
+        for common in (False, True):  # one level per port, or one level for all
+            c = regress(name, common, motion)
+            if not c.max() > 0:
+                continue
+            nl, params = make_element(name, c)
+            err, p_nl = simulated(nl)
+            scored.append((err, name, nl, params))
+            if p_nl is not None and (best is None or err < best[0]):
+                best = (err, name, common, c, p_nl)
+    if best is not None and not measured_ports:
+        # the motion was an estimate (a linear model's ports): the element changes it. Regress
+        # again on the motion the nonlinear simulation model itself gives, while the error falls
+        # (at the true level the simulated motion is the true one: a consistent fixed point)
+        err, name, common, c, p_nl = best
+        for _ in range(MOTION_ITERATIONS):
+            c_new = regress(name, common, p_nl)
+            if not c_new.max() > 0:
+                break
+            nl, params = make_element(name, c_new)
+            err_new, p_new = simulated(nl)
+            if not err_new < err:
+                break
+            scored.append((err_new, name, nl, params))
+            step = np.max(np.abs(c_new - c)) / c.max()
+            err, c, p_nl = err_new, c_new, p_new
+            if step < 0.01:
+                break
+        # the regression is an equation error (sampled velocity, the force held per sample):
+        # its fixed point is close to, not at, the simulation model's best levels
+        if refine:
+            scored += refine_levels(name, c)
     after, element, nl, params = min(scored, key=lambda t: t[0])
     preds: dict[str, float] = {}
     for err, name, _, _ in scored:
