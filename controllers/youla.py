@@ -943,7 +943,8 @@ def min_mixed_sensitivity(maps: YoulaMaps, W1f: np.ndarray, W3f: np.ndarray) -> 
 @dataclass(frozen=True)
 class YoulaTuneReport:
     """Per DOF: the template bandwidth fb (Hz, the convex figure), the crossover and
-    max |S| of the channel loop on the design model, and the programs' cost."""
+    max |S| of the channel loop on the design model, and the programs' cost;
+    ``orders``: each loop controller's order (decentralized designs)."""
 
     template_hz: tuple[float, ...]
     crossover_hz: tuple[float, ...]
@@ -952,6 +953,7 @@ class YoulaTuneReport:
     seconds: float
     n_basis: int
     pole: float
+    orders: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -1017,6 +1019,40 @@ def closed_loop_error(error: ModelError, i: int, blocks, f) -> ModelError:
     return ModelError(f, delta, spread, model=G_ii)
 
 
+def reduce_loop(block, g: np.ndarray, f: np.ndarray, ms_max: float, *, orders=None):
+    """The lowest-order balanced truncation of a SISO loop controller that keeps |S| <= ms_max.
+
+    ``block``: discrete SISO controller (control.StateSpace) e -> u; ``g`` (n_f,)
+    the plant it sees (measured, the other loops closed: :func:`closed_loop_error`)
+    on the lines ``f`` (Hz). Square-root balanced truncation of the stable part
+    (SLICOT AB09MD, discrete; poles on or outside the unit circle, such as an
+    integrator, are kept exactly). A truncation K_r is accepted when the small-gain
+    certificate holds on the lines: a = |(K_r - K) g S| < 1, S = 1 / (1 + K g) the
+    full design's sensitivity; then the loop with K_r is stable (K_r - K is
+    stable) and |S_r| = |S| / |1 + (K_r - K) g S| <= |S| / (1 - a) <= ms_max.
+    ``orders``: the orders tried, lowest first (default 2, 4, ... up to the
+    block's). Returns (controller, order); the block itself when none passes.
+    """
+    import control
+    import slycot
+
+    from workbench.core.lti import frf
+
+    n = block.nstates
+    k = frf(block, f)[:, 0, 0]
+    S = 1.0 / (1.0 + k * g)
+    for r in range(2, n, 2) if orders is None else orders:
+        if r >= n:
+            break
+        nr, Ar, Br, Cr, _, _ = slycot.ab09md("D", "B", "N", n, 1, 1, block.A, block.B, block.C,
+                                             alpha=1.0, nr=int(r))  # fmt: skip
+        Kr = control.ss(Ar[:nr, :nr], Br[:nr], Cr[:, :nr], block.D, block.dt)
+        a = np.abs((frf(Kr, f)[:, 0, 0] - k) * g * S)
+        if np.max(a) < 1 and np.max(np.abs(S) / (1 - a)) <= ms_max:
+            return Kr, int(nr)
+    return block, int(n)
+
+
 def _design_grid(modal, i: int, fs: float) -> np.ndarray:
     """Log grid fs/5000..fs/2 plus 80 lines within +-15 % of every mode the channel shows."""
     f = [np.geomspace(fs / 5000, fs / 2, 600)]
@@ -1041,6 +1077,7 @@ def tune_youla(
     measured=None,
     k_std: float = 3.0,
     sequential_rounds: int = 2,
+    reduce: bool = True,
     progress=None,
 ) -> YoulaTuneDesign:
     """Youla design per DOF for the widest crossover template at |S_ii| <= margin * ms_max.
@@ -1059,7 +1096,9 @@ def tune_youla(
       (:func:`closed_loop_error`, sequential loop closing), without that bound:
       the interaction is then in each loop's error, not bounded for the worst
       case; the loops whose |S_ii| on the measured plant still exceed ms_max
-      are re-designed again, up to ``sequential_rounds`` passes;
+      are re-designed again, up to ``sequential_rounds`` passes; with
+      ``reduce``, each loop's controller is then cut to the lowest order whose
+      measured loop keeps the bound (:func:`reduce_loop`);
     * ``structure="coupled"`` (default without ``measured``): one program on the MIMO loop
       around ``K0`` (default the pid-notch design; e.g. a modal-sf design),
       a diagonal Q, every |S_ii| of the coupled loop bounded, the templates at
@@ -1086,6 +1125,7 @@ def tune_youla(
     from controllers.hinf import channel_plant
     from controllers.modal_sf import _as_modal
     from controllers.pid_notch import tune_pid_notch
+    from workbench.core.lti import frf
     from workbench.core.model import as_model
     from workbench.loop import discrete_plant, screen_loops
 
@@ -1129,6 +1169,9 @@ def tune_youla(
         solves += d.solves
         return d.controller.statespace(), d.value
 
+    # the measured loop's lines: every channel's design grid and a dense log grid
+    f_all = np.unique(np.concatenate([_design_grid(modal, i, fs) for i in range(n_loops)]))
+    f_meas = np.union1d(f_all, np.geomspace(f_all[0], f_all[-1], 4000))
     blocks, fb = [], []
     for i in range(len(pid.channels)):
         b, v = channel(i)
@@ -1142,16 +1185,26 @@ def tune_youla(
         # closing: each loop re-designed on what it sees with the others closed, the
         # interaction in its error (exact for that loop, the others fixed), until every
         # |S_ii| on the measured plant holds ms_max
-        f_all = np.unique(np.concatenate([_design_grid(modal, i, fs) for i in range(n_loops)]))
-        f_eff = np.union1d(f_all, np.geomspace(f_all[0], f_all[-1], 4000))
         todo = list(range(n_loops))
         for _ in range(sequential_rounds):
             for i in todo:
-                blocks[i], fb[i] = channel(i, closed_loop_error(error, i, blocks, f_eff), None)
+                blocks[i], fb[i] = channel(i, closed_loop_error(error, i, blocks, f_meas), None)
             peak = _measured_peaks(error, blocks, modal, fs)
             todo = [int(i) for i in np.flatnonzero(peak > ms_max)]
             if not todo:
                 break
+    if reduce and error is not None and structure == "decentralized":
+        # each loop's controller cut to the lowest order the measured loop allows, in turn
+        # (the others closed, already cut): a design's order is n(K0) + n(G_ii) + n(K0) + n_basis
+        # (the certificate of each holds for the loops as they are when it is cut: the
+        # final check on the measured plant keeps the full designs if a cut moved another)
+        cut = list(blocks)
+        for i in range(n_loops):
+            ce = closed_loop_error(error, i, cut, f_meas)
+            g = frf(ce.model, f_meas)[:, 0, 0] + ce.delta[:, 0, 0]
+            cut[i], _ = reduce_loop(cut[i], g, f_meas, ms_max)
+        if np.all(_measured_peaks(error, cut, modal, fs) <= ms_max):
+            blocks = cut
     if structure == "decentralized" or plant.n_u == 1:
         K = control.append(*blocks)
         ctrl = StateSpaceController(K.A, K.B, K.C, K.D, fs, pid.input_names, pid.output_names, m)
@@ -1167,7 +1220,8 @@ def tune_youla(
         ctrl = d.controller
         say(n_steps, n_steps)
     _, peak, cross = screen_loops(plant, ctrl)
+    orders = tuple(int(b.nstates) for b in blocks) if structure == "decentralized" else ()
     rep = YoulaTuneReport(tuple(fb), tuple(float(x) for x in cross),
                           tuple(float(x) for x in peak), solves, time.perf_counter() - t0,
-                          int(n_basis), float(pole))  # fmt: skip
+                          int(n_basis), float(pole), orders)  # fmt: skip
     return YoulaTuneDesign(ctrl, rep)

@@ -103,6 +103,7 @@ def _tune(method: str, model, fs: float, ms_max: float, m: int, measured=None):
             "crossover_hz": d.report.crossover_hz,
             "n_basis": d.report.n_basis,
             "programs": d.report.solves,
+            "orders": d.report.orders,
         }
     raise InputError(
         f"[design] key 'methods': expected some of {', '.join(METHODS)}, got {method!r}"

@@ -136,7 +136,8 @@ def run(args) -> int:
         design = tune_youla(model, ms_max=ms_max, loop_delay_samples=m, fs=fs, measured=measured)
         controller = design.controller
         settings = {"template_hz": list(design.report.template_hz),
-                    "programs": design.report.solves, "measured": args.frf}  # fmt: skip
+                    "programs": design.report.solves, "measured": args.frf,
+                    "orders": list(design.report.orders)}  # fmt: skip
     else:
         from controllers.modal_sf import tune_modal_sf
 
