@@ -43,8 +43,19 @@ z 304.7 (1.39x), Rx 259.0 (1.20x), Ry 288.4 (1.50x), Rz 354.1 (1.61x); an FRF on
 lines with 1 % noise: 347.7 / 325.0 / 293.9 / 269.0 / 279.0 / 346.2 Hz (1.58 / 1.49 / 1.35 /
 1.25 / 1.46 / 1.58x), |S_ii| <= 1.92, sigma(S) 42.8; ~170 s a design, loaded machine.
 
-Run: ``OMP_NUM_THREADS=1 python benchmarks/bench_bandwidth.py [--quick] [--parts 1]`` (~8 min; youla
-takes most of it).
+Session 22: after that interaction-bound round, sequential loop closing (each loop
+re-designed on what it sees of the measured plant with the others closed,
+``closed_loop_error``) and each loop controller cut by balanced truncation under a
+small-gain certificate on the measured loop (``reduce_loop``); n_basis 60. On the truth
+WITH the modes above Nyquist, stable: exact measurement x 394.4 / 1.94 (1.79x), y 384.7 /
+1.95 (1.76x), z 327.6 / 1.94 (1.50x), Rx 328.5 / 1.94 (1.53x), Ry 314.5 / 1.95 (1.64x), Rz
+399.5 / 1.94 (1.82x), sigma(S) 129.7, 512 s; the 1 % FRF: 378.6 / 365.5 / 311.7 / 314.4 /
+303.2 / 386.3 Hz (1.72 / 1.67 / 1.43 / 1.46 / 1.58 / 1.76x), |S_ii| <= 1.92, sigma(S) 107.2,
+528 s (loaded machine). Same run: pid-notch, modal-sf, hinf as before to 0.5 %; the
+coupled youla on the model alone still unstable (z |S| 7.70).
+
+Run: ``OMP_NUM_THREADS=1 python benchmarks/bench_bandwidth.py [--quick] [--parts 1]``
+(~25 min on a loaded machine; youla takes most of it).
 """
 
 from __future__ import annotations
@@ -160,7 +171,11 @@ def part1(quick: bool):
         t = time.perf_counter()
         yr = tune_youla(nominal, ms_max=2.0, loop_delay_samples=m, fs=fs,
                         n_basis=20 if quick else 60, measured=measured)  # fmt: skip
-        robust[label] = (analyze_loop(truth, yr.controller), time.perf_counter() - t)
+        robust[label] = (
+            analyze_loop(truth, yr.controller),
+            time.perf_counter() - t,
+            yr.report.orders,
+        )
     ref_lead = rigid_reference(fs, p.delay_s)
     ref = rigid_reference(fs, p.delay_s, hinf=True)
     print(f"Part 1: wafer stage, fs {fs:g} Hz, delay {p.delay_s * 1e6:.0f} us ({m} sample), "
@@ -189,12 +204,12 @@ def part1(quick: bool):
     print("  youla told the model's error by a measurement of the true stage (measured=..., "
           "decentralized, |T_ii| <= interaction bound, then sequential loop closing on the "
           f"measured plant; n {20 if quick else 60}): fc / |S| / x pid-notch")  # fmt: skip
-    for label, (a, dt) in robust.items():
+    for label, (a, dt, orders) in robust.items():
         cells = "  ".join(f"{ly.name} {ly.crossover_hz:.1f}/{ly.s_peak:.2f}/"
                           f"{ly.crossover_hz / lp.crossover_hz:.2f}x"
                           for ly, lp in zip(a.loops, a_pid.loops))  # fmt: skip
         print(f"    {label:>5}: stable {a.stable}, sigma(S) {a.sigma_max_S_inf:.2f}, "
-              f"{dt:.0f} s: {cells}")  # fmt: skip
+              f"{dt:.0f} s, loop orders {list(orders)}: {cells}")  # fmt: skip
     return p
 
 
