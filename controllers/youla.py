@@ -39,12 +39,13 @@ Units: Hz, the plant's units; dt = 1/fs of G and K0.
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from controllers.protocol import StateSpaceController
-from workbench.core.errors import InputError
+from workbench.core.errors import DataWarning, InputError
 
 __all__ = [
     "ModelError",
@@ -1053,6 +1054,29 @@ def reduce_loop(block, g: np.ndarray, f: np.ndarray, ms_max: float, *, orders=No
     return block, int(n)
 
 
+def unmeasured_bound(t_bound, G, K0, f_top: float):
+    """``t_bound`` and, above the measured band (f > ``f_top`` Hz), |T| <= |T0| of K0's loop.
+
+    Where the FRF has no line the model's error is unknown (:class:`ModelError` only
+    holds its last value there): a design may then be no more exposed to an additive
+    error than the baseline, |K S| = |T / G| <= |K0 S0|, i.e. |T| <= |T0| on the model
+    (SISO ``G``, ``K0`` a StateSpaceController). A stand-in, not a certificate: K0 was
+    stable on the machine, and the design keeps at most K0's gain to the unknown.
+    """
+    from workbench.core.lti import frf
+
+    def t(f):
+        f = np.asarray(f, float)
+        out = np.array(_t_lines(t_bound, f), float)
+        hi = f > f_top * (1 + 1e-9)
+        if hi.any():
+            L0 = frf(G, f[hi])[:, 0, 0] * frf(K0.statespace(), f[hi])[:, 0, 0]
+            out[hi] = np.minimum(out[hi], np.maximum(np.abs(L0 / (1 + L0)), 1e-12))
+        return out
+
+    return t
+
+
 def _design_grid(modal, i: int, fs: float) -> np.ndarray:
     """Log grid fs/5000..fs/2 plus 80 lines within +-15 % of every mode the channel shows."""
     f = [np.geomspace(fs / 5000, fs / 2, 600)]
@@ -1156,14 +1180,26 @@ def tune_youla(
     solves, t0 = 0, time.perf_counter()
     n_loops = len(pid.channels)
 
+    # an FRF that stops short of Nyquist says nothing of the plant above its last line
+    # (where a stage's folded modes above Nyquist sit): there the loops are held to the
+    # baseline's exposure (unmeasured_bound)
+    f_top = None
+    if error is not None and error.exact is None and error.freq[-1] < 0.99 * fs / 2:
+        f_top = float(error.freq[-1])
+        warnings.warn(f"measured: the FRF ends at {f_top:g} Hz, below Nyquist ({fs / 2:g} Hz); "
+                      "above it the loops keep |T_ii| <= the baseline's", DataWarning,
+                      stacklevel=2)  # fmt: skip
+
     def channel(i, err=None, t=t_channel):
         nonlocal solves
         if err is None and error is not None:
             err = error.channel(i)
         A, B, C, D = pid.channels[i].discrete_ss(fs)
+        Gi, k0 = channel_plant(modal, i, fs, m), StateSpaceController(A, B, C, D, fs)
+        if f_top is not None:
+            t = unmeasured_bound(t, Gi, k0, f_top)
         d = max_bandwidth(
-            youla_maps(channel_plant(modal, i, fs, m), StateSpaceController(A, B, C, D, fs),
-                       _design_grid(modal, i, fs), n_basis=n_basis, pole=pole, error=err),
+            youla_maps(Gi, k0, _design_grid(modal, i, fs), n_basis=n_basis, pole=pole, error=err),
             ms_max=margin * ms_max, slope=2.0, level=1.0, t_bound=t,
         )  # fmt: skip
         solves += d.solves

@@ -20,6 +20,7 @@ from controllers.youla import (
     min_mixed_sensitivity,
     model_error,
     reduce_loop,
+    unmeasured_bound,
     youla_controller,
     youla_maps,
 )
@@ -347,3 +348,19 @@ def test_reduce_loop_keeps_the_measured_bound_at_a_lower_order():
     full_peak = screen_loops(Gt, d.controller, freq_hz=fd)[1][0]
     same, n = reduce_loop(K, frf(Gt, fl)[:, 0, 0], fl, 0.99 * full_peak)
     assert same is K and n == K.nstates
+
+
+def test_unmeasured_bound_holds_the_baseline_above_the_measured_band():
+    """Above the FRF's last line |T| <= |T0| (K0's loop on the model, computed here from the
+    loop gain directly); below it the given bound is untouched (here: none, and (f, t))."""
+    G = control.minreal(_mimo_rigid()[0, 0], verbose=False)
+    K0 = _pd(_mimo_rigid()).statespace()
+    k0 = StateSpaceController(*control.ssdata(control.minreal(K0[0, 0], verbose=False)), FS)
+    f = np.geomspace(1.0, FS / 2, 500)
+    L0 = frf(G, f)[:, 0, 0] * frf(k0.statespace(), f)[:, 0, 0]
+    T0 = np.abs(L0 / (1 + L0))
+    hi = f > 300.0
+    t = unmeasured_bound(None, G, k0, 300.0)(f)
+    assert np.all(np.isinf(t[~hi])) and np.allclose(t[hi], T0[hi], rtol=1e-9)
+    t = unmeasured_bound((100.0, 0.5), G, k0, 300.0)(f)
+    assert np.allclose(t[hi], np.minimum(0.5, T0[hi])) and np.all(t[(f >= 100) & ~hi] == 0.5)
