@@ -38,6 +38,24 @@ def _true_noise_floor(case) -> float:
     return relative_error_time(case.data.y, truth.simulate_noise_free(case.data.u))
 
 
+def _converged_truth_error(case) -> float:
+    """Error of the true plant simulated converged (64 substeps, not casegen's 8) against the
+    record: the best a simulation model of the continuous plant can reach. casegen's record
+    holds the friction force over each of 8 substeps (explicit, first order), which moves it
+    from the converged response by 3-4x its noise on the clear cases (seeds 1-3)."""
+    import plants
+    from workbench.core.lti import relative_error_time
+
+    truth = plants.get_plant(
+        "beam",
+        delay_s=0.0,
+        friction_force=BEAM_FRICTION_N[case.size],
+        friction_velocity=1e-5,
+        substeps=64,
+    )
+    return relative_error_time(case.data.y, truth.simulate_noise_free(case.data.u))
+
+
 def _check_friction_finding(case, result, *, floor_factor=None):
     effects = [f.effect for f in result.findings]
     assert effects and effects[0] == "nonlinearity", effects
@@ -110,9 +128,13 @@ def test_element_does_not_replace_a_true_modal_mismatch():
 def test_beam_friction_study(size, seed):
     case = casegen.make_case("beam", "time", (("nonlinearity", size),), seed=seed)
     result = diagnose(case.model, case.data)
-    # within 10x of the noise: the smooth law's v0 (1e-3 of the rms port velocity, below the
-    # truth's 1e-5 m/s) and 4 substeps per sample leave 2-8x (seeds 1-3)
-    _check_friction_finding(case, result, floor_factor=10.0)
+    # within 5x of casegen's noise floor: its record is simulated with 8 substeps, 3-4x the
+    # noise away from the converged response on the clear cases (1.7x on the subtle ones);
+    # the element's simulation is converged (fit_port_element), 1.6-4.2x (seeds 1-3)
+    _check_friction_finding(case, result, floor_factor=5.0)
+    # as close to the record as the true plant simulated converged (0.89-1.11x, seeds 1-3;
+    # the levels are fitted, so it may come below)
+    assert result.findings[0].error_after <= 1.25 * _converged_truth_error(case)
 
 
 #: every linear beam time case of the suite
