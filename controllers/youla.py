@@ -1111,7 +1111,7 @@ def _min_band_peak(maps, lo, hi, ms_max, loops, z, elsewhere, z_error):
                 f"min_band_peak: the program is {st} (no Q meets |S| <= {ms_max}{where})"
             )
         th = np.array(theta.value) / cscale
-        if _grow(active, figure(th), 1.0):
+        if _grow(active, figure(th), 1.0, most=96):
             continue
         if (
             measured is None
