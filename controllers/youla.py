@@ -107,7 +107,8 @@ class ModelError:
     (k standard deviations of the measurement), zero for an exact error.
     ``exact`` = (G_meas, G) discrete StateSpaces evaluates Delta at any
     frequency (studies on a known truth); otherwise :meth:`at` interpolates
-    linearly between the measured lines and holds the end values outside them.
+    linearly between the measured lines, holds the end values up to a line
+    spacing beyond them and is zero (nothing measured) further above.
     """
 
     freq: np.ndarray
@@ -141,7 +142,13 @@ class ModelError:
                 flat[:, j].imag) for j in range(flat.shape[1])]  # fmt: skip
         d = np.stack(cols, axis=1).reshape(f.size, *self.delta.shape[1:])
         col = np.linalg.norm(self.spread, axis=1)  # (n_f, n_u)
-        return d, np.stack([np.interp(f, self.freq, c) for c in col.T], axis=1)
+        sp = np.stack([np.interp(f, self.freq, c) for c in col.T], axis=1)
+        # more than a line spacing above the last line nothing is measured: no error is
+        # claimed there (the model), and tune_youla holds the loops to the baseline there
+        step = self.freq[-1] - self.freq[-2] if len(self.freq) > 1 else 0.0
+        beyond = f > self.freq[-1] + step
+        d[beyond], sp[beyond] = 0.0, 0.0
+        return d, sp
 
     def channel(self, i: int, j: int | None = None) -> ModelError:
         """The SISO error of output i from input j (default i)."""

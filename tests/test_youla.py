@@ -352,7 +352,8 @@ def test_reduce_loop_keeps_the_measured_bound_at_a_lower_order():
 
 def test_unmeasured_bound_holds_the_baseline_above_the_measured_band():
     """Above the FRF's last line |T| <= |T0| (K0's loop on the model, computed here from the
-    loop gain directly); below it the given bound is untouched (here: none, and (f, t))."""
+    loop gain directly); below it the given bound is untouched (here: none, and (f, t)); the
+    error of an FRF that stops short is zero above its band (nothing measured), not held."""
     G = control.minreal(_mimo_rigid()[0, 0], verbose=False)
     K0 = _pd(_mimo_rigid()).statespace()
     k0 = StateSpaceController(*control.ssdata(control.minreal(K0[0, 0], verbose=False)), FS)
@@ -364,3 +365,12 @@ def test_unmeasured_bound_holds_the_baseline_above_the_measured_band():
     assert np.all(np.isinf(t[~hi])) and np.allclose(t[hi], T0[hi], rtol=1e-9)
     t = unmeasured_bound((100.0, 0.5), G, k0, 300.0)(f)
     assert np.allclose(t[hi], np.minimum(0.5, T0[hi])) and np.all(t[(f >= 100) & ~hi] == 0.5)
+    # the error itself: held a line spacing past the FRF's last line, nothing further up
+    fl = np.arange(1.0, 301.0, 1.0)
+    Gt = _mimo_rigid_with_mode()
+    meas = FrfData(fl, frf(Gt, fl) / zoh_frf(fl, FS)[:, None, None], fs=FS,
+                   G_var=np.full((fl.size, 2, 2), 1e-12))  # fmt: skip
+    e = model_error(meas, _mimo_rigid())
+    d, sp = e.at([300.5, 302.0, 450.0])
+    assert np.allclose(d[0], e.delta[-1]) and np.all(sp[0] > 0)
+    assert not np.any(d[1:]) and not np.any(sp[1:])
