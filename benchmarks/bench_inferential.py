@@ -101,20 +101,26 @@ def _models(plant):
     return {"updated": updated, "prior": prior}
 
 
+def _evaluate(plant, fe, ctrl, setup, f1, profile, lines, design_s):
+    """evaluate_point's figures of ``ctrl`` on the true beam (the scan with the FE model's
+    suspension feedforward), with the design time."""
+    ff = suspension_feedforward(fe, setup.measured, profile)
+    ff = np.vstack([ff[setup.loop_delay_samples :], np.zeros((setup.loop_delay_samples, 3))])
+    fig, _ = evaluate_point(
+        plant, ctrl, setup, f1_hz=f1, disturbance=DIST, profile=profile, feedforward=ff,
+        noise_seed=11, window_s=0.01, freq_hz=lines,
+    )  # fmt: skip
+    fig["design_s"] = design_s
+    return fig
+
+
 def _run(plant, fe, setup, f1, profile, lines):
     out = {}
     for design in ("pid-notch", "inferential"):
         t = time.perf_counter()
         ctrl, _ = design_point(fe, setup, design)
-        dt = time.perf_counter() - t
-        ff = suspension_feedforward(fe, setup.measured, profile)
-        ff = np.vstack([ff[setup.loop_delay_samples :], np.zeros((setup.loop_delay_samples, 3))])
-        fig, _ = evaluate_point(
-            plant, ctrl, setup, f1_hz=f1, disturbance=DIST, profile=profile, feedforward=ff,
-            noise_seed=11, window_s=0.01, freq_hz=lines,
-        )  # fmt: skip
-        fig["design_s"] = dt
-        out[design] = fig
+        out[design] = _evaluate(plant, fe, ctrl, setup, f1, profile, lines,
+                                time.perf_counter() - t)  # fmt: skip
     return out
 
 
@@ -138,15 +144,8 @@ def _run_youla(plant, fe, setup, f1, profile, lines, measured, elsewhere):
     t = time.perf_counter()
     K, settings = design_youla_band(fe, setup, K0, measured, elsewhere=elsewhere)
     dt = time.perf_counter() - t
-    ff = suspension_feedforward(fe, setup.measured, profile)
-    ff = np.vstack([ff[setup.loop_delay_samples :], np.zeros((setup.loop_delay_samples, 3))])
     for name, ctrl, d in (("pid-notch", K0, dt0), ("youla-band", K, dt)):
-        fig, _ = evaluate_point(
-            plant, ctrl, setup, f1_hz=f1, disturbance=DIST, profile=profile, feedforward=ff,
-            noise_seed=11, window_s=0.01, freq_hz=lines,
-        )  # fmt: skip
-        fig["design_s"] = d
-        out[name] = fig
+        out[name] = _evaluate(plant, fe, ctrl, setup, f1, profile, lines, d)
     out["youla-band"]["settings"] = settings
     return out
 

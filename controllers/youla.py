@@ -137,18 +137,25 @@ class ModelError:
         if self.exact is not None:
             d = frf(self.exact[0], f) - frf(self.exact[1], f)
             return d, np.zeros((f.size, d.shape[2]))
-        flat = self.delta.reshape(len(self.freq), -1)
-        cols = [np.interp(f, self.freq, flat[:, j].real) + 1j * np.interp(f, self.freq,
-                flat[:, j].imag) for j in range(flat.shape[1])]  # fmt: skip
-        d = np.stack(cols, axis=1).reshape(f.size, *self.delta.shape[1:])
         col = np.linalg.norm(self.spread, axis=1)  # (n_f, n_u)
-        sp = np.stack([np.interp(f, self.freq, c) for c in col.T], axis=1)
-        # more than a line spacing above the last line nothing is measured: no error is
-        # claimed there (the model), and tune_youla holds the loops to the baseline there
+        return self.on_lines(self.delta, f), self.on_lines(col, f)
+
+    def on_lines(self, values: np.ndarray, f) -> np.ndarray:
+        """``values`` (n_freq, ...) on the measured lines, at the lines ``f`` (Hz).
+
+        Linear interpolation (real and imaginary parts), the end values held up to
+        a line spacing beyond the measured lines; more than a line spacing above
+        the last line nothing is measured and nothing is claimed: zero there (the
+        model; tune_youla holds the loops to the baseline there).
+        """
+        f = np.asarray(f, float)
+        flat = np.asarray(values).reshape(len(self.freq), -1)
+        out = np.stack([np.interp(f, self.freq, c.real) for c in flat.T], axis=1)
+        if np.iscomplexobj(flat):
+            out = out + 1j * np.stack([np.interp(f, self.freq, c.imag) for c in flat.T], axis=1)
         step = self.freq[-1] - self.freq[-2] if len(self.freq) > 1 else 0.0
-        beyond = f > self.freq[-1] + step
-        d[beyond], sp[beyond] = 0.0, 0.0
-        return d, sp
+        out[f > self.freq[-1] + step] = 0.0
+        return out.reshape(f.size, *np.shape(values)[1:])
 
     def channel(self, i: int, j: int | None = None) -> ModelError:
         """The SISO error of output i from input j (default i)."""
@@ -667,28 +674,19 @@ class _MeasuredLoop:
             nu, ny = maps.KS0.shape[1:]
             self.ks = k0.reshape(-1, nu, ny), K.reshape(-1, nu, ny, K.shape[-1])
 
-    def figure(self, theta, bounds, t) -> np.ndarray:
-        """(n_f,) the largest left-hand side over the loops (0 off ``self.on``)."""
-        idx = np.flatnonzero(self.on)
+    def coupling(self, theta, idx) -> np.ndarray:
+        """(len(idx),) r = ||M||_F + sum_a spread_a ||(K S)[a, :]|| at ``theta`` on lines idx."""
         r = np.linalg.norm(self.err[0][idx] + self.err[1][idx] @ theta, axis=1)
         if self.ks is not None:
             k0, K = self.ks
             ks = np.linalg.norm(k0[idx] + K[idx] @ theta, axis=2)  # (n, n_u)
             r = r + np.sum(self.maps.spread[idx] * ks, axis=1)
-        out = np.zeros(len(self.on))
-        for (r0, R), (t0, Tr), b in zip(self.rows, self.trows, bounds):
-            u = np.linalg.norm(r0[idx] + R[idx] @ theta, axis=1) / b[idx]
-            w = np.linalg.norm(t0[idx] + Tr[idx] @ theta, axis=1) / t[idx]
-            out[idx] = np.maximum(out[idx], np.maximum(u, w) + r)
-        return out
+        return r
 
-    def constraints(self, theta, s, bounds, t, scale, lines) -> list:
-        """The rows on ``lines`` (indices into the grid) that are in ``self.on``."""
+    def coupling_rows(self, theta, scale, idx) -> tuple:
+        """(r, cones): a cvxpy expression r >= :meth:`coupling` on lines idx and its cones."""
         import cvxpy as cp
 
-        idx = lines[self.on[lines]]
-        if not idx.size:
-            return []
         v = cp.Variable(idx.size)
         cons = [_row_norm_soc(self.err[0][idx], self.err[1][idx] / scale, theta, v)]
         r = v
@@ -705,6 +703,27 @@ class _MeasuredLoop:
                     )
                 )
                 r = r + w
+        return r, cons
+
+    def figure(self, theta, bounds, t) -> np.ndarray:
+        """(n_f,) the largest left-hand side over the loops (0 off ``self.on``)."""
+        idx = np.flatnonzero(self.on)
+        r = self.coupling(theta, idx)
+        out = np.zeros(len(self.on))
+        for (r0, R), (t0, Tr), b in zip(self.rows, self.trows, bounds):
+            u = np.linalg.norm(r0[idx] + R[idx] @ theta, axis=1) / b[idx]
+            w = np.linalg.norm(t0[idx] + Tr[idx] @ theta, axis=1) / t[idx]
+            out[idx] = np.maximum(out[idx], np.maximum(u, w) + r)
+        return out
+
+    def constraints(self, theta, s, bounds, t, scale, lines) -> list:
+        """The rows on ``lines`` (indices into the grid) that are in ``self.on``."""
+        import cvxpy as cp
+
+        idx = lines[self.on[lines]]
+        if not idx.size:
+            return []
+        r, cons = self.coupling_rows(theta, scale, idx)
         tl = idx[np.isfinite(t[idx])]
         for (r0, R), (t0, Tr), b in zip(self.rows, self.trows, bounds):
             u = cp.Variable(idx.size)
@@ -970,11 +989,7 @@ class _MeasuredDiagonal:
         b = self.base
         idx = np.flatnonzero(self.on)
         m = np.zeros(len(self.on))
-        m[idx] = np.linalg.norm(b.err[0][idx] + b.err[1][idx] @ theta, axis=1)
-        if b.ks is not None:
-            k0, K = b.ks
-            m[idx] += np.sum(b.maps.spread[idx] * np.linalg.norm(k0[idx] + K[idx] @ theta, axis=2),
-                             axis=1)  # fmt: skip
+        m[idx] = b.coupling(theta, idx)
         a = np.zeros((len(self.diag), len(self.on)))
         for j, (r0, R) in enumerate(b.rows):
             a[j, idx] = np.linalg.norm(r0[idx] + R[idx] @ theta, axis=1)
@@ -1002,18 +1017,7 @@ class _MeasuredDiagonal:
         idx = lines[self.on[lines]]
         if not idx.size:
             return []
-        m = cp.Variable(idx.size)
-        cons = [_row_norm_soc(b.err[0][idx], b.err[1][idx] / scale, theta, m)]
-        r = m
-        if b.ks is not None:
-            k0, K = b.ks
-            for j in range(k0.shape[1]):
-                e = b.maps.spread[idx, j]
-                if np.any(e > 0):
-                    w = cp.Variable(idx.size)
-                    ej = e[:, None, None] * K[idx, j] / scale
-                    cons.append(_row_norm_soc(e[:, None] * k0[idx, j], ej, theta, w))
-                    r = r + w
+        r, cons = b.coupling_rows(theta, scale, idx)
         cons.append(r <= self.mu)
         for j, ((c0, C), (r0, R)) in enumerate(zip(self.diag, b.rows)):
             a = cp.Variable(idx.size)
@@ -1240,8 +1244,7 @@ def closed_loop_error(error: ModelError, i: int, blocks, f) -> ModelError:
     spread = np.zeros(delta.shape)
     if error.exact is None and np.any(error.spread):
         order = [i] + r
-        sp = np.stack([np.interp(f, error.freq, error.spread[:, a, b])
-                       for a in order for b in order], axis=1).reshape(f.size, n, n)  # fmt: skip
+        sp = error.on_lines(error.spread, f)[:, order][:, :, order]
         left = np.concatenate([np.ones((f.size, 1)), np.abs(Y[:, 0, :])], axis=1)
         right = np.concatenate([np.ones((f.size, 1)), np.abs(X[:, :, 0])], axis=1)
         spread[:, 0, 0] = np.einsum("fa,fab,fb->f", left, sp, right)
@@ -1473,8 +1476,7 @@ def tune_youla(
         K = control.append(*blocks)
         ctrl = StateSpaceController(K.A, K.B, K.C, K.D, fs, pid.input_names, pid.output_names, m)
     else:
-        f = np.unique(np.concatenate([_design_grid(modal, i, fs) for i in range(plant.n_u)]))
-        maps = youla_maps(G, pid if K0 is None else K0, f, n_basis=n_basis, pole=pole,
+        maps = youla_maps(G, pid if K0 is None else K0, f_all, n_basis=n_basis, pole=pole,
                           diagonal=True, error=error)  # fmt: skip
         top = max(fb)
         d = max_bandwidth(maps, ms_max=margin * ms_max, slope=2.0, level=1.0, t_bound=t_bound,
