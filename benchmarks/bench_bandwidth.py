@@ -200,7 +200,10 @@ def part1(quick: bool):
     print(f"  stable: pid {a_pid.stable}, modal-sf {a_msf.stable}, hinf {a_hinf.stable}, "
           f"youla {a_youla.stable}; MIMO max sigma(S): pid {a_pid.sigma_max_S_inf:.2f}, "
           f"modal-sf {a_msf.sigma_max_S_inf:.2f}, hinf {a_hinf.sigma_max_S_inf:.2f}, "
-          f"youla {a_youla.sigma_max_S_inf:.2f}")  # fmt: skip
+          f"youla {a_youla.sigma_max_S_inf:.2f} (scaled, free of the m / rad units: pid "
+          f"{a_pid.scaled_sigma_max_S_inf:.2f}, modal-sf {a_msf.scaled_sigma_max_S_inf:.2f}, "
+          f"hinf {a_hinf.scaled_sigma_max_S_inf:.2f}, "
+          f"youla {a_youla.scaled_sigma_max_S_inf:.2f})")  # fmt: skip
     print("  youla told the model's error by a measurement of the true stage (measured=..., "
           "decentralized, |T_ii| <= interaction bound, then sequential loop closing on the "
           f"measured plant; n {20 if quick else 60}): fc / |S| / x pid-notch")  # fmt: skip
@@ -208,7 +211,8 @@ def part1(quick: bool):
         cells = "  ".join(f"{ly.name} {ly.crossover_hz:.1f}/{ly.s_peak:.2f}/"
                           f"{ly.crossover_hz / lp.crossover_hz:.2f}x"
                           for ly, lp in zip(a.loops, a_pid.loops))  # fmt: skip
-        print(f"    {label:>5}: stable {a.stable}, sigma(S) {a.sigma_max_S_inf:.2f}, "
+        print(f"    {label:>5}: stable {a.stable}, sigma(S) {a.sigma_max_S_inf:.2f} "
+              f"(scaled {a.scaled_sigma_max_S_inf:.2f}), "
               f"{dt:.0f} s, loop orders {list(orders)}: {cells}")  # fmt: skip
     return p
 

@@ -99,6 +99,31 @@ def test_stability_against_closed_loop_poles(gain):
     assert (resf.loops[0].unstable_poles == 0) == stable
 
 
+def test_scaled_sigma_max_against_direct_search():
+    """min_D sigma(D M D^-1): independent Nelder-Mead search on random 4 x 4 lines, and bounds."""
+    from scipy.optimize import minimize
+
+    from workbench.loop import scaled_sigma_max
+
+    rng = np.random.default_rng(3)
+    M = rng.standard_normal((40, 4, 4)) + 1j * rng.standard_normal((40, 4, 4))
+    M *= np.array([1.0, 1e3, 1.0, 1e-2])[:, None] / np.array([1.0, 1e2, 1e-1, 1.0])
+    got = scaled_sigma_max(M)
+
+    def sig(lv, Mk):
+        d = np.exp(np.r_[0.0, lv])
+        return np.linalg.svd(d[:, None] * Mk / d[None, :], compute_uv=False)[0]
+
+    ref = [minimize(sig, np.zeros(3), args=(Mk,), method="Nelder-Mead",
+                    options={"maxiter": 20000, "xatol": 1e-10, "fatol": 1e-12}).fun
+           for Mk in M]  # fmt: skip
+    # the maximum over the lines is exact; every line is an upper bound of its minimum
+    assert got.max() == pytest.approx(max(ref), rel=1e-6)
+    assert np.all(got >= np.array(ref) * (1 - 1e-6))
+    assert np.all(got <= np.linalg.svd(M, compute_uv=False)[:, 0] * (1 + 1e-12))
+    assert np.all(got >= np.max(np.abs(np.linalg.eigvals(M)), axis=1) * (1 - 1e-9))
+
+
 def test_coupled_mimo_loop_at_a_time_and_outputs(tmp_path):
     """Loop-at-a-time margins from S_ii (FRF path) equal python-control's on feedback-built L_i."""
     fs = 5000.0
@@ -119,6 +144,14 @@ def test_coupled_mimo_loop_at_a_time_and_outputs(tmp_path):
     assert res.stable and resf.stable
     # MIMO peak >= every diagonal peak (sigma_max(S) >= |S_ii|)
     assert res.sigma_max_S_inf >= max(lp.s_peak for lp in res.loops) - 1e-12
+    # the unit-free MIMO peak: the same when y is in mm instead of m (it scales S_xy, S_yx)
+    assert res.scaled_sigma_max_S_inf <= res.sigma_max_S_inf + 1e-12
+    assert res.scaled_sigma_max_S_inf >= max(lp.s_peak for lp in res.loops) - 1e-12
+    Pmm = control.ss(P.A, P.B, np.diag([1.0, 1e3]) @ P.C, P.D)
+    Kmm = control.append(K1, 1.3e-3 * K1)
+    res_mm = analyze_loop(Pmm, Kmm, loop_delay_samples=1)
+    assert res_mm.sigma_max_S_inf > 10 * res.sigma_max_S_inf
+    assert res_mm.scaled_sigma_max_S_inf == pytest.approx(res.scaled_sigma_max_S_inf, rel=1e-6)
     d = json.loads(res.to_json())
     assert len(d["loops"]) == 2 and d["stable"] is True
     assert "x" in res.table()

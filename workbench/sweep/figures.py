@@ -33,6 +33,7 @@ EVALUATE_FIGURES = {
     "stable": "evaluation.json:designs.*.analysis.stable",
     "s_peak_max": "max(evaluation.json:designs.*.analysis.loops.*.s_peak)",
     "sigma_s_max": "evaluation.json:designs.*.analysis.sigma_max_S_inf",
+    "scaled_sigma_s_max": "evaluation.json:designs.*.analysis.scaled_sigma_max_S_inf",
     "crossover_min_hz": "min(evaluation.json:designs.*.analysis.loops.*.crossover_hz)",
     "pole_radius_max": "evaluation.json:designs.*.analysis.max_pole_radius",
 }
