@@ -1,0 +1,91 @@
+"""The broadband rms cone of controllers.youla.min_band_peak (``rms_factor``): its figure is
+the weighted rms of the realized controller's force -> z response, a design with
+rms_factor = 1 is no worse than K0 in rms on the realized loop, bad factors are refused."""
+
+from __future__ import annotations
+
+import control
+import numpy as np
+import pytest
+
+from controllers.youla import min_band_peak, rms_weights, youla_maps, z_rms, z_rms_exact
+from workbench.core.errors import InputError
+from workbench.core.lti import frf
+
+FS = 1000.0
+DT = 1 / FS
+BAND = (25.0, 35.0)
+
+
+def _loop():
+    """(G, Gz, K0): 2 x 2 coupled rigid bodies + a 60 Hz mode behind a ZOH and a one-sample
+    delay; z a point between the outputs (G's states); K0 two lead controllers at 20 Hz."""
+    A = np.kron(np.eye(2), [[0, 1], [0, 0]])
+    B = np.array([[0, 0], [1.0, 0.3], [0, 0], [0.2, 0.5]])
+    C = np.array([[1.0, 0, 0, 0], [0, 0, 1.0, 0]])
+    w = 2 * np.pi * 60.0
+    Gc = control.parallel(
+        control.ss(A, B, C, np.zeros((2, 2))),
+        control.ss([[0, 1], [-(w**2), -0.02 * w]], [[0, 0], [0.05, -0.03]],
+                   [[1.0, 0], [-0.7, 0]], np.zeros((2, 2))),
+    )  # fmt: skip
+    delay = control.ss(np.zeros((2, 2)), np.eye(2), np.eye(2), np.zeros((2, 2)), DT)
+    P = control.sample_system(Gc, DT, "zoh") * delay
+    Gz = control.ss(P.A, P.B, 0.5 * (P.C[:1] + P.C[1:]), np.zeros((1, 2)), DT)
+    wc = 2 * np.pi * 20.0
+    lead = control.tf([1 / (wc / 3), 1], [1 / (wc * 3), 1]) * wc**2 / 3
+    Kd = control.ss(control.c2d(lead, DT, "tustin"))
+    return P, Gz, control.append(Kd, 2 * Kd)
+
+
+def _realized_rms(G, Gz, K, f) -> float:
+    """sqrt(sum_k w_k ||Gz (I + K G)^-1 (f_k)||^2) from the FRFs of the realized loop on f."""
+    Kf = frf(K.statespace() if hasattr(K, "statespace") else K, f)
+    T = frf(Gz, f) @ np.linalg.inv(np.eye(2) + Kf @ frf(G, f))
+    return float(np.sqrt(np.sum(rms_weights(f, FS) * np.sum(np.abs(T[:, 0]) ** 2, axis=1))))
+
+
+def test_the_cone_is_the_weighted_rms_of_the_realized_loop():
+    """The design's grid figure (the cone's) is the weighted rms of the REALIZED
+    controller's Gz Si on the design grid (realization error only: 1e-4), equals the
+    exact H2 figure of the realized loop (Lyapunov) to the quadrature's 1 %, and holds its
+    bound rms_factor x K0's."""
+    G, Gz, K0 = _loop()
+    f = np.geomspace(0.5, FS / 2, 400)
+    rho = 1.2
+    d = min_band_peak(youla_maps(G, K0, f, Gz=Gz, n_basis=8, pole=0.7), BAND, rms_factor=rho)
+    got, ref = d.rms
+    assert got == pytest.approx(_realized_rms(G, Gz, d.controller, d.maps.f), rel=1e-4)
+    assert ref == pytest.approx(_realized_rms(G, Gz, K0, d.maps.f), rel=1e-9)
+    assert got == pytest.approx(z_rms(d.maps, d.theta), rel=1e-12)
+    assert got == pytest.approx(z_rms_exact(G, Gz, d.controller), rel=1e-2)
+    assert ref == pytest.approx(z_rms_exact(G, Gz, K0), rel=1e-2)
+    assert got <= rho * ref * (1 + 1e-6)  # the bound, to the solver's tolerance
+
+
+def test_rms_factor_one_keeps_the_realized_rms_at_k0s():
+    """Without the cone the band-peak design's rms of z is well above K0's (the waterbed);
+    with rms_factor = 1 the realized loop's rms is not above K0's: exact (Lyapunov) and
+    on a dense linear grid (50000 lines, independent of the design's 150), and the band
+    peak is still far below K0's."""
+    G, Gz, K0 = _loop()
+    maps = youla_maps(G, K0, np.geomspace(0.5, FS / 2, 150), Gz=Gz, n_basis=8, pole=0.7)
+    k0 = z_rms_exact(G, Gz, K0)
+    plain = min_band_peak(maps, BAND)
+    assert z_rms_exact(G, Gz, plain.controller) > 1.2 * k0
+    d = min_band_peak(maps, BAND, rms_factor=1.0)
+    assert z_rms_exact(G, Gz, d.controller) <= k0 * (1 + 1e-9)
+    fd = np.linspace(0.01, FS / 2, 50000)
+    assert _realized_rms(G, Gz, d.controller, fd) <= _realized_rms(G, Gz, K0, fd) * (1 + 1e-4)
+    band = (maps.f >= BAND[0]) & (maps.f <= BAND[1])
+    k0_peak = np.max(np.linalg.norm(maps.GzSi0[band, 0], axis=1))
+    assert d.value < 0.3 * k0_peak
+
+
+@pytest.mark.parametrize("bad", [0.5, 0.999, np.nan, np.inf, -1.0])
+def test_rms_factor_below_one_or_not_finite_is_refused(bad):
+    G, Gz, K0 = _loop()
+    maps = youla_maps(G, K0, np.geomspace(1, 400, 30), Gz=Gz, n_basis=2, pole=0.5)
+    with pytest.raises(InputError, match="rms_factor: expected a finite factor >= 1") as exc:
+        min_band_peak(maps, BAND, rms_factor=bad)
+    assert "\n" not in str(exc.value) and f"got {bad}" in str(exc.value)
