@@ -1110,6 +1110,26 @@ class _MeasuredDiagonal:
         a, m = self._norms(theta)
         self.alpha = np.clip(np.where(a > 0, m / np.where(a > 0, a, 1.0), 1.0), 1e-6, 1e6)
 
+    def extend(self, theta) -> bool:
+        """Hold the rows also where the design at ``theta`` (not K0) makes the model error
+        matter (:data:`_ERROR_NEGLIGIBLE`), centered there; whether lines joined.
+
+        The lines were chosen on K0's ||Delta K0 S0||; a design whose gain differs from
+        K0's by orders (the beam's band design: 6e-4 -> 1e-2 at 8-60 Hz) moves the measured
+        |S| there while its nominal rows still hold (2.19 on the true beam at 16.8 Hz), and
+        the refinement's extra lines, nominal too, would not stop it.
+        """
+        off = np.flatnonzero(~self.on)
+        if not off.size:
+            return False
+        new = off[self.base.coupling(theta, off) >= _ERROR_NEGLIGIBLE]
+        if not new.size:
+            return False
+        self.on[new] = True  # the same array as self.base.on
+        a, m = self._norms(theta)
+        self.alpha[:, new] = np.clip(m[new] / np.where(a[:, new] > 0, a[:, new], 1.0), 1e-6, 1e6)
+        return True
+
     def figure(self, theta, ms_max: float) -> np.ndarray:
         """(n_f,) the largest ratio of a row to its bound (<= 1 holds), 0 off ``self.on``."""
         a, m = self._norms(theta)
@@ -1242,6 +1262,7 @@ def _min_band_peak(maps, lo, hi, ms_max, loops, z, elsewhere, z_error, rms=None,
     if "f_active" in warm:  # the refined grid holds the last grid's lines exactly
         active |= np.isin(f, warm["f_active"])
     if measured is not None and "theta" in warm:
+        measured.extend(warm["theta"])
         measured.recenter(warm["theta"])
     programs, rounds, last = 0, 0, None
     while True:  # each round adds lines, recenters or tightens (bounded), so this ends
@@ -1279,6 +1300,8 @@ def _min_band_peak(maps, lo, hi, ms_max, loops, z, elsewhere, z_error, rms=None,
                 f"min_band_peak: the program is {st} (no Q meets |S| <= {ms_max}{where})"
             )
         th = np.array(theta.value) / cscale
+        if measured is not None:
+            measured.extend(th)
         if _grow(active, figure(th), 1.0, most=96):
             continue
         if not (
