@@ -913,9 +913,10 @@ def min_band_peak(
     4 times): the grid's quadrature misses what peaks between its lines. ``design.rms``
     reports the grid figures.
 
-    ``elsewhere`` = e >= 1 (per line, kept for comparison; the cone supersedes it: on
-    the beam its hundreds of rows did not converge in 20 min): outside the band
-    ||T_dz(f)|| <= e ||T_dz(f) with K0|| on every line.
+    ``elsewhere`` = e >= 1 (per line, kept; the cone supersedes it: it bounds the
+    figure that is reported, and on the beam the per-line rows did not converge in 20
+    min, in a run whose band sat on a 2.6 Hz suspension mode): outside the band
+    ||T_dz(f)|| <= e ||T_dz(f) with K0|| on every line. Both may be given.
     The grid is refined as in :func:`max_bandwidth`.
 
     Maps built with a model error (``youla_maps(..., error=...)``): the |S_ii|

@@ -89,3 +89,33 @@ def test_rms_factor_below_one_or_not_finite_is_refused(bad):
     with pytest.raises(InputError, match="rms_factor: expected a finite factor >= 1") as exc:
         min_band_peak(maps, BAND, rms_factor=bad)
     assert "\n" not in str(exc.value) and f"got {bad}" in str(exc.value)
+
+
+def test_measured_rows_join_where_the_design_not_k0_meets_the_model_error():
+    """_MeasuredDiagonal.extend: lines where K0's ||Delta K0 S0|| is negligible (nominal rows
+    only) join the measured-loop rows when a design's ||Delta K S|| is not, centered there
+    (the inner bound touches |S_ii| + kappa a m at that design); nothing joins at K0."""
+    from controllers.youla import _ERROR_NEGLIGIBLE, _MeasuredDiagonal, _robust_lines, model_error
+
+    G, Gz, K0 = _loop()
+    # a 0.1 % gain error of actuator 1: ||Delta K0 S0|| 2e-3 at low frequency, 1e-9 at Nyquist
+    Gt = control.ss(G.A, G.B * [1.001, 1.0], G.C, G.D, DT)
+    maps = youla_maps(G, K0, np.geomspace(0.5, FS / 2, 120), n_basis=4, pole=0.7,
+                      error=model_error(Gt, G))  # fmt: skip
+    on = _robust_lines(maps)
+    assert 0 < on.sum() < on.size
+    md = _MeasuredDiagonal(maps, [0, 1], on.copy())
+    assert not md.extend(np.zeros(maps.theta_size))
+    theta = np.random.default_rng(5).standard_normal(maps.theta_size) * 1e3
+    assert md.extend(theta)
+    new = md.on & ~on
+    assert new.any()
+    m = md.base.coupling(theta, np.flatnonzero(new))
+    assert np.all(m >= _ERROR_NEGLIGIBLE)
+    a, m_all = md._norms(theta)
+    for j, (c0, C) in enumerate(md.diag):  # the centered inner bound is the exact one
+        s = np.abs(c0 + C @ theta)[new]
+        exact = (s + md.kappa * a[j, new] * m_all[new]) / 2.0
+        bound = (s + 0.5 * md.kappa * (md.alpha[j, new] * a[j, new] ** 2
+                                       + m_all[new] ** 2 / md.alpha[j, new])) / 2.0  # fmt: skip
+        assert np.allclose(bound, exact, rtol=1e-9)

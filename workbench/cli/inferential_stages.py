@@ -216,9 +216,9 @@ def design_youla_band(
     (:func:`controllers.youla.relative_error`). ``rms_factor`` (default 1) bounds the
     broadband rms of z under white forces at the actuators (the stage's disturbance,
     :func:`evaluate_point`) on the model by that factor times K0's, one cone (without it
-    the design on the beam buys the band with z rms 28 dB above pid-notch's); ``elsewhere``
-    (per line, off by default: superseded by the cone, it did not converge on the beam)
-    bounds the force -> z response outside the band line by line. Grid: ``n_log`` log
+    a band design on the beam bought its band with z rms 28 dB above pid-notch's);
+    ``elsewhere`` (per line, off by default: superseded by the cone; it did not converge
+    on the beam) bounds the force -> z response outside the band line by line. Grid: ``n_log`` log
     lines, 41 in the band, 40 within +-10 % of every flexible mode below Nyquist. The band
     is +-10 % around ``f1_hz`` (the stage's f1 from the updated FE model), by default the
     reduction's first flexible mode above ``SUSPENSION_MAX_HZ`` (the wire flexures' modes
