@@ -60,6 +60,7 @@ __all__ = [
     "min_band_peak",
     "relative_error",
     "rms_weights",
+    "scan_error_affine",
     "z_rms",
     "z_rms_exact",
     "min_mixed_sensitivity",
@@ -385,7 +386,8 @@ class YoulaDesign:
     ``solves`` the number of convex programs, ``seconds`` their wall time.
     ``rms`` (:func:`min_band_peak` with ``rms_factor``): (the design's, K0's) broadband
     rms of z under the disturbance force on the final grid (:func:`z_rms`), z's units
-    per unit force std (white) or absolute (``rms_psd``).
+    per unit force std (white) or absolute (``rms_psd``). ``scan_rms`` (with ``scan``):
+    (the design's, K0's) rms of z's scan error on the grid (:func:`scan_error_affine`), m.
     """
 
     controller: StateSpaceController
@@ -396,6 +398,7 @@ class YoulaDesign:
     seconds: float = 0.0
     status: str = "optimal"
     rms: tuple[float, float] | None = None
+    scan_rms: tuple[float, float] | None = None
 
 
 def _as_controller(K0) -> StateSpaceController:
@@ -635,7 +638,7 @@ def _refined(solve, maps: YoulaMaps, loops, ms_max: float, rounds: int) -> Youla
         maps = _regrid(maps, np.union1d(maps.f, extra))
     return YoulaDesign(youla_controller(maps, theta), theta, float(value), maps, solves,
                        time.perf_counter() - t0, status,
-                       rest[0] if rest else None)  # fmt: skip
+                       *rest)  # fmt: skip
 
 
 def _column_scale(blocks) -> np.ndarray:
@@ -889,6 +892,8 @@ def min_band_peak(
     elsewhere: float | None = None,
     rms_factor: float | None = None,
     rms_psd=None,
+    scan=None,
+    scan_factor: float = 1.0,
     z_error=None,
     refine: int = 4,
 ) -> YoulaDesign:
@@ -912,6 +917,12 @@ def min_band_peak(
     :func:`z_rms_exact`) is checked and the cone tightened until it holds (at most
     4 times): the grid's quadrature misses what peaks between its lines. ``design.rms``
     reports the grid figures.
+
+    ``scan`` = (r (N,), ff (N, n_u)): a scan's reference (m, the same at every measured
+    output and at z: a rigid translation) and feedforward force (N) records at fs; the rms
+    of z's tracking error in that scan on the model at most ``scan_factor`` (>= 1) x K0's,
+    a second cone of the same kind (:func:`scan_error_affine`): the band design's Q acts on
+    the reference path too (on the beam, without it, 4.4x pid-notch's scan error at z).
 
     ``elsewhere`` = e >= 1 (per line, kept; the cone supersedes it: it bounds the
     figure that is reported, and on the beam the per-line rows did not converge in 20
@@ -950,6 +961,19 @@ def min_band_peak(
         )
     if rms_psd is not None and not callable(rms_psd):
         raise InputError(f"rms_psd: expected a callable psd(f) -> (n_f,), got {rms_psd!r}")
+    if not (np.isfinite(scan_factor) and scan_factor >= 1.0):
+        raise InputError(
+            f"scan_factor: expected a finite factor >= 1 (K0 itself meets 1), got {scan_factor}"
+        )
+    sc = None
+    if scan is not None:
+        r, ff = (np.asarray(x, float) for x in scan)
+        nu = maps.H.shape[2]
+        if r.ndim != 1 or r.size < 2 or ff.shape != (r.size, nu):
+            raise InputError(f"scan: expected (r (N,), ff (N, {nu})), got {r.shape} and {ff.shape}")
+        if not (np.all(np.isfinite(r)) and np.all(np.isfinite(ff))):
+            raise InputError("scan: expected finite records, got non-finite values")
+        sc = (r, ff, float(scan_factor))
     if z_error is not None and not callable(z_error):
         if not (np.isfinite(z_error) and z_error >= 0):
             raise InputError(
@@ -958,7 +982,7 @@ def min_band_peak(
     rms = None if rms_factor is None else (float(rms_factor), rms_psd)
     warm: dict = {}  # carried across the refinement's grids: lines, design, tightened cone
     return _refined(lambda m: _min_band_peak(m, lo, hi, ms_max, loops, z, elsewhere, z_error,
-                                             rms, warm),
+                                             rms, warm, sc),
                     maps, loops, ms_max, refine)  # fmt: skip
 
 
@@ -1182,7 +1206,48 @@ def _z_error_lines(z_error, maps: YoulaMaps, z: int, sel: np.ndarray) -> np.ndar
     return eps * np.linalg.norm(frf(maps.Gz, f)[:, z, :], axis=1)
 
 
-def _rms_cone(maps: YoulaMaps, c0, C, psd) -> tuple[np.ndarray, np.ndarray, float]:
+def scan_error_affine(maps: YoulaMaps, r, ff, z: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(e0 (n_f, 1), E (n_f, 1, n_theta)): z's error in a scan, e_z = r - z, on the grid,
+    as the DTFT e_z(f) = e0 + E theta.
+
+    The loop tracks r (N,) (m) at every measured output, with the feedforward force
+    ff (N, n_u) at the plant input: z = Gz Si (K 1 r + ff) = Gz (K S) 1 r + Gz Si ff,
+    K S = K0 S0 + Si0 Q S0 and Gz Si = Gz Si0 - Gz Si0 Q H, both affine in Q. The records
+    are held at their last values after the end (the scan's final position and holding
+    force: the error then settles instead of seeing a step back to 0), so
+    R(f) = sum_n (r_n - r_end) e^{-j w n} + r_end / (1 - e^{-j w}), the same for ff; the
+    loop's integral action cancels the pole at DC. sum_k w_k |e_z(f_k)|^2 (the white
+    weights of :func:`rms_weights`) is then the error's energy sum_n e_n^2 (per sample),
+    the settling after the record included.
+    """
+    from workbench.core.lti import frf
+
+    r, ff = np.asarray(r, float), np.asarray(ff, float)
+    f = maps.f
+    wz = np.exp(-2j * np.pi * f / maps.fs)
+
+    def dtft(x):  # (n_f, ...) in blocks of lines: N can be 1e5 samples
+        n = np.arange(x.shape[0])
+        out = []
+        for i in range(0, f.size, 64):
+            out.append(np.exp(-2j * np.pi * np.outer(f[i : i + 64], n) / maps.fs) @ x)
+        return np.concatenate(out)
+
+    R = dtft(r - r[-1]) + r[-1] / (1 - wz)
+    FF = dtft(ff - ff[-1]) + ff[-1][None, :] / (1 - wz)[:, None]
+    one = np.ones(maps.S0.shape[1])
+    Gzf = frf(maps.Gz, f)[:, z, :]
+    L = maps.GzSi0[:, z : z + 1]
+    zr0 = np.einsum("fu,fuy,y->f", Gzf, maps.KS0, one)  # Gz K0 S0 1
+    C1 = maps._coef(L, (maps.S0 @ one)[:, :, None])[:, 0, 0]  # Gz Si0 Q S0 1
+    zf0 = np.einsum("fu,fu->f", maps.GzSi0[:, z], FF)  # Gz Si0 ff
+    C2 = maps._coef(L, maps.H @ FF[:, :, None])[:, 0, 0]  # Gz Si0 Q H ff
+    e0 = R - R * zr0 - zf0
+    E = -R[:, None] * C1 + C2
+    return e0[:, None], E[:, None, :]
+
+
+def _rms_cone(maps: YoulaMaps, c0, C, psd, what: str = "rms_factor"):
     """(R (m, n_theta), r (m,), ref): ||R theta + r|| = z_rms(theta) / z_rms(K0) for the
     scaled parameters (C already divided by the column scale), m <= n_theta + 1.
 
@@ -1197,7 +1262,7 @@ def _rms_cone(maps: YoulaMaps, c0, C, psd) -> tuple[np.ndarray, np.ndarray, floa
     b = np.concatenate([np.real(b).ravel(), np.imag(b).ravel()])
     ref = float(np.linalg.norm(b))
     if ref == 0:
-        raise InputError("rms_factor: expected K0 with a nonzero force -> z response, got zero")
+        raise InputError(f"{what}: expected K0 with a nonzero response at z, got zero")
     Qm, R = np.linalg.qr(A / ref)
     qb = Qm.T @ (b / ref)
     rest = np.linalg.norm(b / ref - Qm @ qb)
@@ -1210,7 +1275,9 @@ def _rms_cone(maps: YoulaMaps, c0, C, psd) -> tuple[np.ndarray, np.ndarray, floa
 _RMS_MARGIN, _RMS_TIGHTEN = 1e-4, 4
 
 
-def _min_band_peak(maps, lo, hi, ms_max, loops, z, elsewhere, z_error, rms=None, warm=None):
+def _min_band_peak(
+    maps, lo, hi, ms_max, loops, z, elsewhere, z_error, rms=None, warm=None, scan=None
+):
     """One design: the band rows on every band line, the |S_ii| (and, on the measured loop,
     :class:`_MeasuredDiagonal`) rows generated over the other lines as in :func:`_max_bandwidth`;
     the relaxation's optimum is the full program's once no line violates. ``rms`` = (rho,
@@ -1255,6 +1322,10 @@ def _min_band_peak(maps, lo, hi, ms_max, loops, z, elsewhere, z_error, rms=None,
         exact0 = None  # the exact check: white force and Gz on G's states only
         if psd is None and _shared_states(maps.G, maps.Gz):
             exact0 = z_rms_exact(maps.G, maps.Gz, maps.K0, z)
+    scone = None
+    if scan is not None:  # the scan's error at z: a second cone, on the grid's figure
+        e0, E = scan_error_affine(maps, scan[0], scan[1], z)
+        scone = _rms_cone(maps, e0, E / cscale, None, what="scan")
     warm = {} if warm is None else warm
     rho_eff, tightened = warm.get("rho_eff", rho), 0
     active = sel.copy()
@@ -1293,6 +1364,8 @@ def _min_band_peak(maps, lo, hi, ms_max, loops, z, elsewhere, z_error, rms=None,
                                       np.full(o.size, float(elsewhere))))  # fmt: skip
         if cone is not None:
             cons.append(cp.SOC(cp.Constant(float(rho_eff)), cone[0] @ theta + cone[1]))
+        if scone is not None:
+            cons.append(cp.SOC(cp.Constant(scan[2]), scone[0] @ theta + scone[1]))
         st = _solve(cp.Problem(cp.Minimize(t), cons))
         programs += 1
         if theta.value is None:
@@ -1331,7 +1404,14 @@ def _min_band_peak(maps, lo, hi, ms_max, loops, z, elsewhere, z_error, rms=None,
     figures = None
     if rms is not None:
         figures = (z_rms(maps, th, z, rms[1]), z_rms(maps, np.zeros_like(th), z, rms[1]))
-    return th, float(np.max(peak)), programs, st, figures
+    scan_figures = None
+    if scan is not None:
+        n = scan[0].size
+        e = np.abs(e0[:, 0] + E[:, 0] @ th) ** 2
+        wq = rms_weights(f, maps.fs)
+        scan_figures = (float(np.sqrt(np.sum(wq * e) / n)),
+                        float(np.sqrt(np.sum(wq * np.abs(e0[:, 0]) ** 2) / n)))  # fmt: skip
+    return th, float(np.max(peak)), programs, st, figures, scan_figures
 
 
 def min_mixed_sensitivity(maps: YoulaMaps, W1f: np.ndarray, W3f: np.ndarray) -> YoulaDesign:

@@ -119,3 +119,63 @@ def test_measured_rows_join_where_the_design_not_k0_meets_the_model_error():
         bound = (s + 0.5 * md.kappa * (md.alpha[j, new] * a[j, new] ** 2
                                        + m_all[new] ** 2 / md.alpha[j, new])) / 2.0  # fmt: skip
         assert np.allclose(bound, exact, rtol=1e-9)
+
+
+def _scan(G):
+    """(r (N,), ff (N, 2)): a 1 mm smoothstep in 0.2 s held to 1 s, the rigid bodies'
+    feedforward one sample early (the loop delay)."""
+    t = np.arange(0, 1.0, DT)
+    s = np.clip(t / 0.2, 0, 1)
+    r = 1e-3 * s**2 * (3 - 2 * s)
+    acc = np.r_[np.diff(r, 2) * FS**2, 0, 0]
+    ff = np.outer(acc, np.linalg.solve([[1.0, 0.3], [0.2, 0.5]], np.ones(2)))
+    return r, np.vstack([ff[1:], ff[-1:]])
+
+
+def _simulated_scan_rms(G, Gz, K, r, ff, n=20000) -> float:
+    """sqrt(sum_n e_n^2 / N) of e = r - z, time-stepped on the closed loop (r at both outputs,
+    ff at the plant input), the records held at their ends for ``n`` samples (settling)."""
+    from workbench.sim import closed_loop_matrices
+
+    Ks = K.statespace() if hasattr(K, "statespace") else K
+    A, B, U, W = closed_loop_matrices((G.A, G.B, G.C, G.D), (Ks.A, Ks.B, Ks.C, Ks.D))
+    rr = np.r_[r, np.full(n - r.size, r[-1])]
+    fr = np.vstack([ff, np.repeat(ff[-1:], n - r.size, axis=0)])
+    w = np.column_stack([rr, rr, fr, np.zeros((n, 2))])  # [r; d; v]
+    Cz = np.hstack([Gz.C, np.zeros((1, A.shape[0] - Gz.C.shape[1]))]) + Gz.D @ U[:2]
+    Dz = Gz.D @ W[:2]
+    x, e = np.zeros(A.shape[0]), np.zeros(n)
+    for k in range(n):
+        e[k] = rr[k] - (Cz @ x + Dz @ w[k])[0]
+        x = A @ x + B @ w[k]
+    return float(np.sqrt(np.sum(e**2) / r.size))
+
+
+def test_scan_cone_is_the_simulated_scan_error_and_holds_on_the_realized_loop():
+    """scan_error_affine's figure (the scan cone's) is the time-stepped scan error at z of
+    the realized controllers (K0's and the design's) to 1 %, and with scan_factor = 1 the
+    design's simulated scan error is not above K0's."""
+    G, Gz, K0 = _loop()
+    r, ff = _scan(G)
+    maps = youla_maps(G, K0, np.geomspace(0.5, FS / 2, 200), Gz=Gz, n_basis=8, pole=0.7)
+    d = min_band_peak(maps, BAND, rms_factor=1.0, scan=(r, ff), scan_factor=1.0)
+    got, ref = d.scan_rms
+    k0 = _simulated_scan_rms(G, Gz, K0, r, ff)
+    assert ref == pytest.approx(k0, rel=1e-2)
+    assert got == pytest.approx(_simulated_scan_rms(G, Gz, d.controller, r, ff), rel=1e-2)
+    assert got <= ref * (1 + 1e-6)
+    assert _simulated_scan_rms(G, Gz, d.controller, r, ff) <= k0 * (1 + 1e-2)
+
+
+@pytest.mark.parametrize("bad", [0.5, np.nan])
+def test_scan_factor_below_one_or_a_bad_record_is_refused(bad):
+    G, Gz, K0 = _loop()
+    maps = youla_maps(G, K0, np.geomspace(1, 400, 30), Gz=Gz, n_basis=2, pole=0.5)
+    r, ff = _scan(G)
+    for kw, match in (
+        (dict(scan=(r, ff), scan_factor=bad), "scan_factor: expected a finite factor >= 1"),
+        (dict(scan=(r, ff[:, :1])), "scan: expected"),
+    ):
+        with pytest.raises(InputError, match=match) as exc:
+            min_band_peak(maps, BAND, **kw)
+        assert "\n" not in str(exc.value)

@@ -203,6 +203,8 @@ def design_youla_band(
     elsewhere: float | None = None,
     refine: int = 2,
     f1_hz: float | None = None,
+    scan=None,
+    scan_factor: float = 1.0,
 ):
     """(controller, settings): the Youla band-peak design around ``K0`` on the FE model ``fe``.
 
@@ -223,6 +225,10 @@ def design_youla_band(
     is +-10 % around ``f1_hz`` (the stage's f1 from the updated FE model), by default the
     reduction's first flexible mode above ``SUSPENSION_MAX_HZ`` (the wire flexures' modes
     at 2-4 Hz are "flexible" in the reduction: the band must not land on them).
+    ``scan`` = (r (N,) m, ff (N, n_u) N): a scan's reference and feedforward records (as
+    :func:`evaluate_point` runs them, the feedforward already shifted by the loop delay);
+    its error at z on the model is then at most ``scan_factor`` x K0's
+    (:func:`controllers.youla.scan_error_affine`).
     """
     import control
 
@@ -255,7 +261,8 @@ def design_youla_band(
     maps = youla_maps(G, K0, f, Gz=Gz, n_basis=n_basis, pole=pole, error=err)
     d = min_band_peak(maps, ((1 - MODE_BAND) * f1, (1 + MODE_BAND) * f1), ms_max=setup.ms_max,
                       z_error=relative_error(err, G) if z_error else None,
-                      elsewhere=elsewhere, rms_factor=rms_factor, refine=refine)  # fmt: skip
+                      elsewhere=elsewhere, rms_factor=rms_factor, scan=scan,
+                      scan_factor=scan_factor, refine=refine)  # fmt: skip
     settings = {
         "band_peak_db_on_model": float(20 * np.log10(d.value)), "programs": d.solves,
         "seconds": d.seconds, "n_basis": int(n_basis), "pole": float(pole),
@@ -263,6 +270,8 @@ def design_youla_band(
         "elsewhere": elsewhere, "status": d.status, "model_f1_hz": f1,
         "rms_factor": rms_factor,
         "z_rms_ratio_on_model": None if d.rms is None else float(d.rms[0] / d.rms[1]),
+        "scan_factor": None if scan is None else scan_factor,
+        "scan_z_rms_on_model_m": None if d.scan_rms is None else list(d.scan_rms),
     }  # fmt: skip
     return d.controller, settings
 
