@@ -536,7 +536,7 @@ def _solve(problem) -> str:
         try:
             problem.solve(solver="CLARABEL", **opts)
             return str(problem.status)
-        except (cp.SolverError, ValueError, TypeError):
+        except (cp.SolverError, ValueError, TypeError, AttributeError):  # faer refused
             continue
     problem.solve(solver="SCS", eps=1e-7, max_iters=20000)
     return str(problem.status)
