@@ -11,12 +11,15 @@ prior FE model (E +8 %, flexures +30 %), both designs of the [inferential] stage
 2. The |S| bound the 10 dB target needs: both designs re-tuned at ms_max = 2.5 (8 dB;
    updated model, z = s3) against section 1's ms_max = 2 figures.
 3. Design time of each method (one model).
-4. (``--parts 4``, slow: 15-30 min a design) the Youla band-peak design around the pid-notch
+4. (``--parts 4``, 1.5-4 min a design) the Youla band-peak design around the pid-notch
    loops (workbench.cli.inferential_stages.design_youla_band: controllers.youla
    .min_band_peak, |S_ii| <= 2 held on the MEASURED loop, here the true beam's discrete loop
-   known exactly, a study), z = s3, on the true beam as in section 1.
+   known exactly, a study; the broadband z rms on the model at most ``--rms-factors`` x
+   pid-notch's), z = s3, on the true beam as in section 1, with the exact z rms
+   (Lyapunov) on the true beam next to the simulated one.
 
 Run: OMP_NUM_THREADS=1 python benchmarks/bench_inferential.py [--parts 12|4]
+     [--rms-factors 1,2] [--scan-factor 1]
 
 Measured (commit d99c213, noise seed 11; z error at f1 = 35.03 Hz from the spectra /
 the exact force -> z band peak; |S|max on the TRUE beam):
@@ -39,6 +42,33 @@ crossovers well above the 46-48 Hz the one-sample delay allows at |S| <= 2: at |
 prior's flexures are 30 % stiff in the feedforward (scan z rms 5.4 / 8.4 um on the prior
 against 1.9 / 2.5 um updated, inferential / pid-notch), and the conventional loops tuned
 on the prior leave the 6 dB bound on the true beam (7.24 dB).
+
+Section 4 with the rms cone (issue 10, this branch; updated FE, z = s3, band 31.5-38.5 Hz
+at the updated model's f1; Q 3 x 3 full, 12 Laguerre functions at pole 0.9, 250 log lines
++ 41 in the band + 40 around each mode, refine 2; pid-notch on the true beam: 5.99 dB,
+z@f1 150.1 nm/rtHz, exact -64.5 dB, z rms 3229 nm simulated / 3380 nm exact, scan z rms
+2463 nm; positive dB = better than pid-notch):
+
+    rms_factor  stable  |S|max    z@f1 spectra/exact  z rms sim / exact   scan z rms  design
+    1           yes     5.86 dB   +48.4 / +57.8 dB    -0.3 / +0.16 dB     -12.8 dB    227 s
+    2           yes     5.88 dB   +47.3 / +51.1 dB    -6.5 / -6.03 dB     -18.4 dB     79 s
+    1, scan 1   yes     5.87 dB   +47.7 / +53.2 dB    -0.6 / -0.09 dB      +1.7 dB    293 s
+    (8 Laguerre functions, rms_factor 1: 5.96 dB, +46.4 / +50.6 dB, -0.3 / -0.04 dB,
+    scan -9.0 dB, 173 s: no faster)
+
+The band peak on the model is -148 dB (the model's cancellation); on the truth the updated
+model's error at z limits it to 48-58 dB below pid-notch, whatever the rms allowance: a
+larger rms_factor buys nothing at f1 and the design spends it (the rms is bounded, not
+minimized). The simulated z rms is a 16 s record dominated by the 2-4 Hz suspension modes
+(pid-notch: 3229 nm simulated, 3380 nm exact); sensor noise adds 16 nm (design) and 3 nm
+(pid-notch) in quadrature. The rms cone leaves the scan (reference and feedforward path)
+free: 4.4x pid-notch's scan z rms; ``--scan-factor 1`` adds the scan's z error on the model
+as a second cone (controllers.youla.scan_error_affine) and the true beam's scan z rms is
+then 1.7 dB below pid-notch's. The model holds both rms figures at pid-notch's (ratios
+0.99997 and 1.0000); the true beam's exact z rms is 1.0 % above (3414 / 3380 nm): the
+model's error at z, which no factor >= 1 covers. Before this branch the band sat on the
+2.6 Hz suspension mode (the reduction's first "flexible" mode), in every row of the table
+below.
 
 Section 4, Youla band peak (session of issue 10, e31e4dd; updated FE, z = s3; Q 3 x 3 full,
 12 Laguerre functions at pole 0.9, 250 log lines + 41 in the band + 40 around each mode;
@@ -135,18 +165,47 @@ def _true_measured_loop(plant, setup):
     return discrete_plant(truth, setup.fs, setup.loop_delay_samples)
 
 
-def _run_youla(plant, fe, setup, f1, profile, lines, measured, elsewhere):
-    """pid-notch and the Youla band-peak design around it, both evaluated as in _run."""
-    out = {}
+def _exact_z_rms(plant, setup, ctrl) -> float:
+    """The rms of z (m) on the TRUE beam under the section's white force (DIST std at every
+    actuator), exact (discrete Lyapunov, controllers.youla.z_rms_exact): the simulated
+    figure is a 16 s record of a signal dominated by the 2-4 Hz suspension modes, a few %
+    off (3229 nm simulated against 3380 nm exact for pid-notch)."""
+    from controllers.youla import z_rms_exact
+    from workbench.core.model import LTIModel
+    from workbench.loop import discrete_plant
+
+    names = list(plant.output_names)
+    truth = LTIModel.from_statespace(plant.linear_model(), delay_s=float(plant.delay_s))
+    P = discrete_plant(truth, setup.fs, setup.loop_delay_samples)
+    G, Gz = P[[names.index(s) for s in setup.measured], :], P[[names.index(setup.z)], :]
+    return DIST["std_n"] * z_rms_exact(G, Gz, ctrl)
+
+
+def _run_youla(plant, fe, setup, f1, profile, lines, measured, rms_factors, scan_factor=None):
+    """pid-notch and the Youla band-peak designs around it (one per rms factor, the band at
+    the updated model's f1; with ``scan_factor`` the scan's error at z on the model at most
+    that x pid-notch's), all evaluated as in _run."""
     t = time.perf_counter()
     K0, _ = design_point(fe, setup, "pid-notch")
-    dt0 = time.perf_counter() - t
-    t = time.perf_counter()
-    K, settings = design_youla_band(fe, setup, K0, measured, elsewhere=elsewhere)
-    dt = time.perf_counter() - t
-    for name, ctrl, d in (("pid-notch", K0, dt0), ("youla-band", K, dt)):
-        out[name] = _evaluate(plant, fe, ctrl, setup, f1, profile, lines, d)
-    out["youla-band"]["settings"] = settings
+    out = {"pid-notch": _evaluate(plant, fe, K0, setup, f1, profile, lines,
+                                  time.perf_counter() - t)}  # fmt: skip
+    out["pid-notch"]["z_rms_exact_m"] = _exact_z_rms(plant, setup, K0)
+    scan = None
+    if scan_factor is not None:  # the records _evaluate runs, the holding force kept at the end
+        ff = suspension_feedforward(fe, setup.measured, profile)
+        ff = np.vstack(
+            [ff[setup.loop_delay_samples :], ff[-1:].repeat(setup.loop_delay_samples, 0)]
+        )
+        scan = (profile.position, ff)
+    for rho in rms_factors:
+        t = time.perf_counter()
+        K, settings = design_youla_band(fe, setup, K0, measured, rms_factor=rho, f1_hz=f1,
+                                        scan=scan, scan_factor=scan_factor or 1.0)  # fmt: skip
+        name = f"youla rms {rho:g}" + ("" if scan is None else f" scan {scan_factor:g}")
+        out[name] = _evaluate(plant, fe, K, setup, f1, profile, lines, time.perf_counter() - t)
+        out[name]["settings"] = settings
+        if out[name]["stable"]:
+            out[name]["z_rms_exact_m"] = _exact_z_rms(plant, setup, K)
     return out
 
 
@@ -179,7 +238,7 @@ def _ratio(res, other="inferential"):
     )
 
 
-def main(parts="12"):
+def main(parts="12", rms_factors=(1.0,), scan_factor=None):
     from controllers.inferential import analysis_lines, point_model
 
     plant = beam()
@@ -213,18 +272,22 @@ def main(parts="12"):
             print(_line(name, r))
         print(_ratio(res))
     if "4" in parts:
-        truth = _true_measured_loop(plant, PointSetup(MEASURED, "s3", plant.fs, 1, 2.0))
-        for model, fe in fes.items():
-            setup = PointSetup(MEASURED, "s3", plant.fs, 1, 2.0)
-            for elsewhere in (None, 1.0) if model == "updated" else (1.0,):
-                res = _run_youla(plant, fe, setup, f1, profile, lines, truth, elsewhere)
-                print(f"4. z = s3, {model} FE model, youla band peak around pid-notch, "
-                      f"measured loop exact, elsewhere {elsewhere}")  # fmt: skip
-                for name, r in res.items():
-                    print(_line(name, r))
-                print("   on the model:", res["youla-band"]["settings"])
-                if res["youla-band"]["stable"]:
-                    print(_ratio(res, "youla-band"))
+        setup = PointSetup(MEASURED, "s3", plant.fs, 1, 2.0)
+        truth = _true_measured_loop(plant, setup)
+        res = _run_youla(plant, fes["updated"], setup, f1, profile, lines, truth, rms_factors,
+                         scan_factor)  # fmt: skip
+        print("4. z = s3, updated FE model, youla band peak around pid-notch, measured loop "
+              "exact, broadband z rms <= rms_factor x pid-notch's on the model")  # fmt: skip
+        k0 = res["pid-notch"]["z_rms_exact_m"]
+        for name, r in res.items():
+            print(_line(name, r))
+            if "z_rms_exact_m" in r:
+                print(f"   z rms exact (Lyapunov, true beam) {r['z_rms_exact_m'] * 1e9:.1f} nm, "
+                      f"{reduction_db(k0, r['z_rms_exact_m']):+.2f} dB vs pid-notch")  # fmt: skip
+            if name != "pid-notch":
+                print("   on the model:", r["settings"])
+                if r["stable"]:
+                    print(_ratio(res, name))
 
 
 if __name__ == "__main__":
@@ -232,4 +295,7 @@ if __name__ == "__main__":
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--parts", default="12", help="parts to run, e.g. 12 or 4 (slow: ~min each)")
-    main(ap.parse_args().parts)
+    ap.add_argument("--rms-factors", default="1", help="part 4: comma-separated, e.g. 1,1.5,2,3")
+    ap.add_argument("--scan-factor", type=float, default=None, help="part 4: bound the scan too")
+    a = ap.parse_args()
+    main(a.parts, tuple(float(x) for x in a.rms_factors.split(",")), a.scan_factor)

@@ -62,6 +62,9 @@ DEFAULT_DESIGNS = ("pid-notch", "inferential")
 MODELS = ("updated", "prior")
 #: relative half-width of the band around the first flexible mode where the z error is read
 MODE_BAND = 0.1
+#: the beam's suspension (wire flexure) modes lie below this (2-4 Hz); the first flexible
+#: mode f1 is the first mode above it (stage_inferential, design_youla_band)
+SUSPENSION_MAX_HZ = 10.0
 
 
 @dataclass(frozen=True)
@@ -196,8 +199,12 @@ def design_youla_band(
     pole: float = 0.9,
     n_log: int = 250,
     z_error: bool = False,
-    elsewhere: float | None = 1.0,
+    rms_factor: float | None = 1.0,
+    elsewhere: float | None = None,
     refine: int = 2,
+    f1_hz: float | None = None,
+    scan=None,
+    scan_factor: float = 1.0,
 ):
     """(controller, settings): the Youla band-peak design around ``K0`` on the FE model ``fe``.
 
@@ -208,10 +215,20 @@ def design_youla_band(
     from its inputs, spec 1b, or a discrete StateSpace of the truth for a study; its
     :func:`controllers.youla.model_error`), and with ``z_error`` the band figure robust
     to a relative error at z as large as the measured loop's
-    (:func:`controllers.youla.relative_error`); with ``elsewhere`` (default 1) the force
-    -> z response outside the band nowhere above K0's (without it the design on the beam
-    buys the band with z rms 28 dB above pid-notch's). Grid: ``n_log`` log lines, 41 in the
-    band, 40 within +-10 % of every flexible mode below Nyquist.
+    (:func:`controllers.youla.relative_error`). ``rms_factor`` (default 1) bounds the
+    broadband rms of z under white forces at the actuators (the stage's disturbance,
+    :func:`evaluate_point`) on the model by that factor times K0's, one cone (without it
+    a band design on the beam bought its band with z rms 28 dB above pid-notch's);
+    ``elsewhere`` (per line, off by default: superseded by the cone; it did not converge
+    on the beam) bounds the force -> z response outside the band line by line. Grid: ``n_log`` log
+    lines, 41 in the band, 40 within +-10 % of every flexible mode below Nyquist. The band
+    is +-10 % around ``f1_hz`` (the stage's f1 from the updated FE model), by default the
+    reduction's first flexible mode above ``SUSPENSION_MAX_HZ`` (the wire flexures' modes
+    at 2-4 Hz are "flexible" in the reduction: the band must not land on them).
+    ``scan`` = (r (N,) m, ff (N, n_u) N): a scan's reference and feedforward records (as
+    :func:`evaluate_point` runs them, the feedforward already shifted by the loop delay);
+    its error at z on the model is then at most ``scan_factor`` x K0's
+    (:func:`controllers.youla.scan_error_affine`).
     """
     import control
 
@@ -228,7 +245,15 @@ def design_youla_band(
     exact = isinstance(measured, control.StateSpace)
     err = model_error(measured, G, loop_delay_samples=0 if exact else m)
     flex = sorted(md.freq_hz for md in full.modes if md.kind == "flexible")
-    f1 = float(flex[0])
+    if f1_hz is None:
+        above = [fm for fm in flex if fm > SUSPENSION_MAX_HZ]
+        if not above:
+            raise InputError(
+                f"design_youla_band: expected a flexible mode above {SUSPENSION_MAX_HZ:g} Hz "
+                f"in the FE model, got {flex}"
+            )
+        f1_hz = above[0]
+    f1 = float(f1_hz)
     lines = [np.geomspace(0.3, setup.fs / 2, int(n_log)), np.linspace(0.9 * f1, 1.1 * f1, 41)]
     lines += [np.linspace(0.9 * fm, min(1.1 * fm, setup.fs / 2), 40) for fm in flex
               if fm < setup.fs / 2]  # fmt: skip
@@ -236,12 +261,17 @@ def design_youla_band(
     maps = youla_maps(G, K0, f, Gz=Gz, n_basis=n_basis, pole=pole, error=err)
     d = min_band_peak(maps, ((1 - MODE_BAND) * f1, (1 + MODE_BAND) * f1), ms_max=setup.ms_max,
                       z_error=relative_error(err, G) if z_error else None,
-                      elsewhere=elsewhere, refine=refine)  # fmt: skip
+                      elsewhere=elsewhere, rms_factor=rms_factor, scan=scan,
+                      scan_factor=scan_factor, refine=refine)  # fmt: skip
     settings = {
         "band_peak_db_on_model": float(20 * np.log10(d.value)), "programs": d.solves,
         "seconds": d.seconds, "n_basis": int(n_basis), "pole": float(pole),
         "z_error": bool(z_error),
         "elsewhere": elsewhere, "status": d.status, "model_f1_hz": f1,
+        "rms_factor": rms_factor,
+        "z_rms_ratio_on_model": None if d.rms is None else float(d.rms[0] / d.rms[1]),
+        "scan_factor": None if scan is None else scan_factor,
+        "scan_z_rms_on_model_m": None if d.scan_rms is None else list(d.scan_rms),
     }  # fmt: skip
     return d.controller, settings
 
@@ -470,7 +500,9 @@ def stage_inferential(st: RunState, table: dict) -> None:
 
     ref_fe = updated if updated is not None else prior
     f_modes = solve_modes(*ref_fe.matrices(), 6).freq_hz
-    f1 = float(f_modes[f_modes > 10.0][0])  # first flexible mode (above the suspension)
+    f1 = float(
+        f_modes[f_modes > SUSPENSION_MAX_HZ][0]
+    )  # first flexible mode (above the suspension)
     from controllers.inferential import analysis_lines, point_model
 
     lines = analysis_lines(
