@@ -205,6 +205,7 @@ def design_youla_band(
     f1_hz: float | None = None,
     scan=None,
     scan_factor: float = 1.0,
+    k_std: float = 3.0,
 ):
     """(controller, settings): the Youla band-peak design around ``K0`` on the FE model ``fe``.
 
@@ -228,7 +229,8 @@ def design_youla_band(
     ``scan`` = (r (N,) m, ff (N, n_u) N): a scan's reference and feedforward records (as
     :func:`evaluate_point` runs them, the feedforward already shifted by the loop delay);
     its error at z on the model is then at most ``scan_factor`` x K0's
-    (:func:`controllers.youla.scan_error_affine`).
+    (:func:`controllers.youla.scan_error_affine`). ``k_std``: an FRF ``measured``'s
+    spread in standard deviations of its noise (:func:`controllers.youla.model_error`).
     """
     import control
 
@@ -243,7 +245,7 @@ def design_youla_band(
     iz = list(full.output_names).index(setup.z)
     Gz = discrete_plant(full.to_lti(), setup.fs, m)[iz : iz + 1, :]
     exact = isinstance(measured, control.StateSpace)
-    err = model_error(measured, G, loop_delay_samples=0 if exact else m)
+    err = model_error(measured, G, loop_delay_samples=0 if exact else m, k_std=k_std)
     flex = sorted(md.freq_hz for md in full.modes if md.kind == "flexible")
     if f1_hz is None:
         above = [fm for fm in flex if fm > SUSPENSION_MAX_HZ]
@@ -272,6 +274,7 @@ def design_youla_band(
         "z_rms_ratio_on_model": None if d.rms is None else float(d.rms[0] / d.rms[1]),
         "scan_factor": None if scan is None else scan_factor,
         "scan_z_rms_on_model_m": None if d.scan_rms is None else list(d.scan_rms),
+        "k_std": None if exact else float(k_std),
     }  # fmt: skip
     return d.controller, settings
 
