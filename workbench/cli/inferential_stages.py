@@ -58,7 +58,7 @@ __all__ = [
 #: measured outputs) is refused on the beam: with two rigid-body modes and three measured
 #: loops no setting gives every loop a crossover at |S_ii| <= 2 (51 s to refuse, so it is
 #: not in the scenario's list)
-#: "youla-band" (opt-in, 7 min on the beam: not a default, not in the scenario's list):
+#: "youla-band" (opt-in, 5 min on the beam: not a default, not in the scenario's list):
 #: design_youla_band around the pid-notch loops of the same FE model, held on a simulated
 #: FRF of the measured loop ([inferential.youla])
 DESIGNS = ("pid-notch", "modal-sf", "inferential", "youla-band")
