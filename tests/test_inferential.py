@@ -232,8 +232,25 @@ def test_design_on_the_true_beam_is_stable_with_margins():
         ({"ms_max": 0.5}, "ms_max"),
         ({"scan": {"speed": 1.0}}, "speed"),
         ({"zz": 1}, "zz"),
+        ({"designs": ["pid-notch", "youla-band"], "youla": {"nois_rel": 1e-3}}, "nois_rel"),
+        ({"designs": ["pid-notch", "youla-band"], "youla": {"k_std": -1}}, "k_std"),
+        ({"designs": ["pid-notch", "youla-band"], "youla": {"rms_factor": 0}}, "rms_factor"),
+        ({"designs": ["pid-notch", "youla-band"], "youla": {"n_basis": 2.5}}, "n_basis"),
+        ({"youla": {"df_hz": "x"}}, "df_hz"),
     ],
-    ids=["design", "model", "z", "ms_max", "scan-key", "unknown-key"],
+    ids=[
+        "design",
+        "model",
+        "z",
+        "ms_max",
+        "scan-key",
+        "unknown-key",
+        "youla-key",
+        "youla-k_std",
+        "youla-rms_factor",
+        "youla-n_basis",
+        "youla-type",
+    ],  # fmt: skip
 )
 def test_stage_refuses_a_bad_table_before_any_work(tmp_path, table, match):
     import plants
