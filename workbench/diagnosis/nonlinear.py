@@ -11,9 +11,10 @@ coordinates of a stage):
 
 with p the port displacement (the collocated output) and v its velocity.
 Over each of ``substeps`` substeps per sample the linear part is propagated
-exactly (zero-order hold) and the port force is held (explicit, first order
-in the substep): :func:`workbench.sim.substep_zoh`, the propagation the plants
-use too; this module supplies the port law (with its friction clamp).
+exactly (zero-order hold) and the port force varies linearly from its start to
+its end value (trapezoidal, the friction's end value implicit):
+:func:`workbench.sim.substep_zoh` and its compiled loop, the propagation the
+plants use too; this module supplies the port law.
 
 A model that is not square has no output at most ports. With one sensor i
 collocated with actuator j (methods.md section 4, the extended modal model),
@@ -212,54 +213,24 @@ def _simulate(sys, u, fs, nl, delay_s=0.0, port_outputs=None):
     """(y, p): :func:`simulate_nonlinear`'s measured outputs and the port displacements."""
     A, B, C, D, Cp, _ = _ports(sys, port_outputs)
     delay_s = float(delay_s) + float(getattr(sys, "delay_s", 0.0))  # the model's delay travels
-    n = A.shape[0]
-    # the held input enters at the ports like the port forces: one force input
-    # f = u[k-m] - friction - k3 p^3 through B (no separate delayed-input path)
-    no_input = np.zeros((n, 0))
-    prop = sim.substep_zoh(A, no_input, B, 1.0 / fs, nl.substeps)
-    Bd = prop.Gp
+    # the held input enters at the ports like the port forces (B both), whole-sample delay
+    prop = sim.substep_zoh(A, B, B, 1.0 / fs, nl.substeps)
     m = int(round(delay_s * fs))
     u = np.asarray(u, float)
-    N, n_u = u.shape
+    n_u = u.shape[1]
     ud = sim.delayed(u, m)
     if nl.saturation is not None:
         sat = np.broadcast_to(np.asarray(nl.saturation, float), (n_u,))
         ud = np.clip(ud, -sat, sat)
-    Fc = np.broadcast_to(np.asarray(nl.friction_force, float), (n_u,))
-    k3 = (
-        np.zeros(n_u)
-        if nl.cubic_stiffness is None
-        else np.broadcast_to(np.asarray(nl.cubic_stiffness, float), (n_u,))
+    law = sim.PortLaw(
+        Cv=Cp @ A,  # the port velocity (a displacement output has no feedthrough of force)
+        Cp=Cp,
+        friction_force=nl.friction_force,
+        friction_velocity=nl.friction_velocity,
+        cubic_stiffness=0.0 if nl.cubic_stiffness is None else nl.cubic_stiffness,
     )
-    CA = Cp @ A
-    v0 = nl.friction_velocity
-    # velocity change of each port per unit force held over one substep: friction is
-    # limited to the force that stops the port within the substep, so the explicit
-    # scheme cannot make friction reverse the motion (stable for any F_c and v0)
-    mobility = np.maximum(np.abs(np.diag(CA @ Bd)), 1e-300)
-    y = np.empty((N, C.shape[0]))
-    p = np.empty((N, Cp.shape[0]))
-    # the substep loop x <- Phi x + Gp f(x) of prop.advance, with the port law above, compiled
-    from workbench.diagnosis._port_kernel import port_loop
-
-    c = np.ascontiguousarray
-    port_loop(
-        c(prop.Phi),
-        c(Bd),
-        c(C),
-        c(D),
-        c(Cp),
-        c(CA),
-        c(ud),
-        c(Fc, dtype=float),
-        c(k3, dtype=float),
-        float(v0),
-        mobility,
-        int(nl.substeps),
-        y,
-        p,
-    )
-    return y, p
+    # the compiled substep loop of the plants (trapezoidal port force, implicit friction)
+    return prop.simulate(law, ud, ud, C, D)
 
 
 def fit_friction(
@@ -330,8 +301,8 @@ MOTION_ITERATIONS = 4
 #: Gauss-Newton steps on the levels through the simulation model itself (estimated ports)
 REFINE_ITERATIONS = 2
 #: the final simulation's substeps are doubled until doubling moves the output by less than this
-#: fraction of the misfit left: the port force is held over a substep (explicit, first order), so
-#: a coarse simulation adds an error of its own, largest where friction switches sign
+#: fraction of the misfit left: a coarse simulation adds an error of its own (the trapezoidal
+#: port force is second order in the substep), largest where friction switches sign
 CONVERGED = 0.25
 #: ... up to this many substeps per sample
 MAX_SUBSTEPS = 64
