@@ -153,7 +153,7 @@ class Effects:
         Substeps per sample of the nonlinear simulation (friction, cubic spring).
         None = automatic, from the friction law: the fewest with
         h F_c mobility / v0 <= 1/64 (h the substep, s; mobility the port's
-        driving-point velocity per unit force and second, 1/kg), 8..128, and 8
+        driving-point velocity per unit force and second, 1/kg), 32..128, and 8
         without friction (``plants.sim`` says why). An integer >= 1 overrides it.
 
     Notes

@@ -25,9 +25,11 @@ the smallest count n with
 
 for every port, mobility = (Cv Bp)_jj (1/kg: the port's driving-point velocity
 per unit force and second, the velocity one newton held over one substep gives
-it is h times this), clamped to 8..128 (:data:`MIN_SUBSTEPS`,
-:data:`MAX_SUBSTEPS`); without friction 8 (the cubic spring of the plants is not
-stiff: 8 trapezoidal substeps are converged, tested). At the clamp (the wafer stage
+it is h times this), clamped to 32..128 (:data:`MIN_FRICTION_SUBSTEPS`,
+:data:`MAX_SUBSTEPS`: weak friction needs substeps to resolve the law's transitions
+rather than its stiffness); without friction 8 (:data:`MIN_SUBSTEPS`; the cubic spring
+of the plants is not stiff: 8 trapezoidal substeps are converged, measured on the
+stage's test level, 6e-6 of the record's noise from 32). At the clamp (the wafer stage
 with v0 = 1 um/s) the ratio is above 1/64: the implicit trapezoid stays stable and
 accurate there (tested against 4x the substeps).
 
@@ -52,6 +54,10 @@ __all__ = ["DiscreteChain"]
 
 #: fewest and most substeps per sample of the automatic count
 MIN_SUBSTEPS, MAX_SUBSTEPS = 8, 128
+#: fewest with friction: the stiffness rule alone gives weak friction too few substeps to resolve
+#: the smooth law's transitions (casegen's subtle beam friction: 9 substeps, 0.29 of the record's
+#: noise from the converged response; 32: 0.015)
+MIN_FRICTION_SUBSTEPS = 32
 #: the automatic count keeps h F_c mobility / v0 at most this (dimensionless)
 FRICTION_STEP_RATIO = 1.0 / 64
 
@@ -137,7 +143,7 @@ class DiscreteChain:
         mobility = np.abs(np.diag(mats["Cv"] @ mats["Bp"]))  # 1/kg
         # h F_c mobility / v0 <= ratio  <=>  n >= F_c mobility / (v0 fs ratio)
         need = np.max(fc * mobility) / (float(self._nl["v0"]) * self.fs * FRICTION_STEP_RATIO)
-        return int(np.clip(np.ceil(need * (1 - 1e-12)), MIN_SUBSTEPS, MAX_SUBSTEPS))
+        return int(np.clip(np.ceil(need * (1 - 1e-12)), MIN_FRICTION_SUBSTEPS, MAX_SUBSTEPS))
 
     @cached_property
     def substep(self) -> sim.SubstepZoh:

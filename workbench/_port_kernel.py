@@ -15,9 +15,11 @@ with ``G1 = int_0^h e^{A s} (1 - s / h) ds Bp`` (the end value's weight) and
 ``g(r) = r + F_c tanh((Cv xp + Mv r) / v0)``, unique because the friction law is
 monotone in the velocity and Mv is a (symmetric, positive semi-definite)
 driving-point mobility. Newton steps ``-(I + diag(F_c sech^2 / v0) Mv)^-1 g`` are
-taken whole when they halve max |g|, else backtracked on the convex merit
-``E(r) = r' Mv r / 2 + sum_j F_c v0 log cosh((Cv xp + Mv r)_j / v0)`` (its gradient
-is Mv g: a Newton step on g is a descent direction of E). The cubic spring is not
+taken whole when they halve max |g|, else to the minimum along them of the convex
+merit ``E(r) = r' Mv r / 2 + sum_j F_c v0 log cosh((Cv xp + Mv r)_j / v0)`` (its
+gradient is Mv g: a Newton step on g is a descent direction of E; with one port the
+line is the whole space, and a stiff friction, far from its root, converges in one
+line search where a backtracking search crawls). The cubic spring is not
 stiff at the levels used (a hardening spring far below the substep's rate): its end
 value is predicted (held), corrected once from the state this gives (Heun), and the
 friction re-solved from the corrected prediction.
@@ -37,30 +39,27 @@ __all__ = ["port_record", "port_sample", "NEWTON_TOL", "NEWTON_ITER"]
 NEWTON_TOL = 1e-13
 #: ... or after this many steps (quadratic convergence needs a handful)
 NEWTON_ITER = 60
-#: backtracking halvings of one Newton step at most
-_HALVINGS = 50
-_LOG2 = np.log(2.0)
+#: a line search stops when the merit's slope is this fraction of its slope at the start...
+_LINE_TOL = 0.01
+#: ... or after this many evaluations (bisection halves the bracket at each)
+_LINE_ITER = 60
 
 
-@numba.njit(cache=True)
-def _log_cosh(z):
-    a = abs(z)
-    return a + np.log1p(np.exp(-2.0 * a)) - _LOG2
-
-
-@numba.njit(cache=True)
-def _merit(a, Mv, Fc, v0, r):
-    """E(r) of the module docstring."""
+@numba.njit(cache=True, inline="always")
+def _trial(a, Mv, Fc, iv0, r, dlt, s, rt, gt, tt):
+    """rt = r + s dlt, gt = g(rt), tt = tanh(w / v0) at rt (in place); returns max |gt|."""
     n = r.shape[0]
-    E = 0.0
+    gmax = 0.0
+    for i in range(n):
+        rt[i] = r[i] + s * dlt[i]
     for i in range(n):
         w = a[i]
-        q = 0.0
         for k in range(n):
-            w += Mv[i, k] * r[k]
-            q += Mv[i, k] * r[k]
-        E += 0.5 * r[i] * q + Fc[i] * v0 * _log_cosh(w / v0)
-    return E
+            w += Mv[i, k] * rt[k]
+        tt[i] = np.tanh(w * iv0)
+        gt[i] = rt[i] + Fc[i] * tt[i]
+        gmax = max(gmax, abs(gt[i]))
+    return gmax
 
 
 @numba.njit(cache=True)
@@ -80,6 +79,9 @@ def _advance(
     n_p = Fc.shape[0]
     n_u = u_new.shape[0]
     iv0 = 1.0 / v0
+    stiff = False
+    for i in range(n_p):
+        stiff = stiff or Fc[i] * Mv[i, i] * iv0 > 1.0
     for j in range(G_newT.shape[0]):
         # port forces at the start of the substep, F(x0): the friction is the end value just
         # solved for (equal to F_c tanh(Cv x0 / v0) to the Newton tolerance), computed at the
@@ -152,6 +154,19 @@ def _advance(
                 t[i] = np.tanh(w * iv0)
                 g[i] = r[i] + Fc[i] * t[i]
                 gmax = max(gmax, abs(g[i]))
+            if stiff:
+                # a stiff friction (F_c Mv_jj / v0 > 1) either stops its port within the
+                # substep or slides at +-F_c: the force that stops each port alone, clipped
+                # to +-F_c, starts Newton near the root where the warm start may be far
+                for i in range(n_p):
+                    dlt[i] = min(max(-a[i] / Mv[i, i], -Fc[i]), Fc[i]) if Mv[i, i] > 0 else 0.0
+                gt_max = _trial(a, Mv, Fc, iv0, dlt, dlt, 0.0, rt, gt, tt)
+                if gt_max < gmax:
+                    for i in range(n_p):
+                        r[i] = rt[i]
+                        g[i] = gt[i]
+                        t[i] = tt[i]
+                    gmax = gt_max
             for _ in range(NEWTON_ITER):
                 if gmax <= NEWTON_TOL * fc_max:
                     break
@@ -194,35 +209,43 @@ def _advance(
                     for i in range(n_p):  # left is rounding (in Cv xp), not convergence
                         r[i] += dlt[i]
                     break
-                # the whole step when it halves max |g| (the quadratic region), else
-                # backtracked until the convex merit falls enough (Armijo)
-                step = 1.0
-                E0 = 0.0
-                slope = 0.0
-                for _h in range(_HALVINGS + 1):
+                # the whole step when it halves max |g| (the quadratic region); else the
+                # minimum of the convex merit along it, s in (0, 1]: the root of its slope
+                # phi'(s) = q . g(r + s dlt), q = Mv dlt, increasing in s (Newton on phi' kept
+                # inside the bracket that phi' changes sign in, bisection when it leaves it)
+                gt_max = _trial(a, Mv, Fc, iv0, r, dlt, 1.0, rt, gt, tt)
+                if not gt_max <= 0.5 * gmax:
                     for i in range(n_p):
-                        rt[i] = r[i] + step * dlt[i]
-                    gt_max = 0.0
-                    for i in range(n_p):
-                        w = a[i]
+                        acc = 0.0
                         for k in range(n_p):
-                            w += Mv[i, k] * rt[k]
-                        tt[i] = np.tanh(w * iv0)
-                        gt[i] = rt[i] + Fc[i] * tt[i]
-                        gt_max = max(gt_max, abs(gt[i]))
-                    if step == 1.0 and gt_max <= 0.5 * gmax:
-                        break
-                    if step == 1.0:
-                        E0 = _merit(a, Mv, Fc, v0, r)
-                        # grad E . dlt = g' Mv dlt (< 0: a descent direction)
+                            acc += Mv[i, k] * dlt[k]
+                        f0[i] = acc  # q (f0 is free until the next substep)
+                    slope0 = 0.0
+                    dphi = 0.0
+                    for i in range(n_p):
+                        slope0 += f0[i] * g[i]
+                        dphi += f0[i] * gt[i]
+                    lo, hi, s = 0.0, 1.0, 1.0
+                    for _ls in range(_LINE_ITER):
+                        if dphi <= 0.0 and s == 1.0:  # the merit falls all the way: s = 1
+                            break
+                        if abs(dphi) <= _LINE_TOL * abs(slope0):
+                            break
+                        if dphi > 0.0:
+                            hi = s
+                        else:
+                            lo = s
+                        d2 = 0.0  # phi''(s) = q . (I + diag(F_c sech^2 / v0) Mv) dlt > 0
                         for i in range(n_p):
-                            q = 0.0
-                            for k in range(n_p):
-                                q += Mv[i, k] * dlt[k]
-                            slope += g[i] * q
-                    if _merit(a, Mv, Fc, v0, rt) <= E0 + 1e-4 * step * min(slope, 0.0):
-                        break
-                    step *= 0.5
+                            d2 += f0[i] * (dlt[i] + Fc[i] * (1.0 - tt[i] * tt[i]) * iv0 * f0[i])
+                        s_new = s - dphi / d2 if d2 > 0.0 else 0.5 * (lo + hi)
+                        if not (lo < s_new < hi):
+                            s_new = 0.5 * (lo + hi)
+                        s = s_new
+                        gt_max = _trial(a, Mv, Fc, iv0, r, dlt, s, rt, gt, tt)
+                        dphi = 0.0
+                        for i in range(n_p):
+                            dphi += f0[i] * gt[i]
                 for i in range(n_p):
                     r[i] = rt[i]
                     g[i] = gt[i]

@@ -529,20 +529,21 @@ class SubstepZoh:
 
 
 def _friction_end_reference(a, Mv, Fc, v0, r):
-    """NumPy reference of ``workbench._port_kernel._friction_end`` (same steps)."""
-    from workbench._port_kernel import _HALVINGS, NEWTON_ITER, NEWTON_TOL
-
-    def merit(r):
-        w = (a + Mv @ r) / v0
-        aw = np.abs(w)
-        return 0.5 * r @ (Mv @ r) + np.sum(Fc * v0 * (aw + np.log1p(np.exp(-2 * aw)) - np.log(2)))
+    """NumPy reference of the friction solve of ``workbench._port_kernel`` (same steps)."""
+    from workbench._port_kernel import _LINE_ITER, _LINE_TOL, NEWTON_ITER, NEWTON_TOL
 
     def residual(r):
-        t = np.tanh((a + Mv @ r) / v0)
+        t = np.tanh((a + Mv @ r) * (1.0 / v0))
         return r + Fc * t, t
 
     fc_max = Fc.max()
     g, t = residual(r)
+    mv = np.diag(Mv)
+    if np.any(Fc * mv / v0 > 1.0):  # stiff: the force that stops each port, clipped
+        r0 = np.where(mv > 0, np.clip(-a / np.where(mv > 0, mv, 1.0), -Fc, Fc), 0.0)
+        g0, t0 = residual(r0)
+        if np.max(np.abs(g0)) < np.max(np.abs(g)):
+            r, g, t = r0, g0, t0
     for _ in range(NEWTON_ITER):
         if np.max(np.abs(g)) <= NEWTON_TOL * fc_max:
             break
@@ -551,17 +552,22 @@ def _friction_end_reference(a, Mv, Fc, v0, r):
         if np.max(np.abs(dlt)) <= NEWTON_TOL * fc_max:
             r = r + dlt
             break
-        rt = r + dlt
-        gt, tt = residual(rt)
+        gt, tt = residual(r + dlt)
+        s = 1.0
         if not np.max(np.abs(gt)) <= 0.5 * np.max(np.abs(g)):
-            E, slope, step = merit(r), g @ (Mv @ dlt), 1.0
-            for _ in range(_HALVINGS):
-                if merit(rt) <= E + 1e-4 * step * min(slope, 0.0):
+            q = Mv @ dlt
+            slope0, dphi = q @ g, q @ gt
+            lo, hi = 0.0, 1.0
+            for _ in range(_LINE_ITER):
+                if (dphi <= 0 and s == 1.0) or abs(dphi) <= _LINE_TOL * abs(slope0):
                     break
-                step *= 0.5
-                rt = r + step * dlt
-            gt, tt = residual(rt)
-        r, g, t = rt, gt, tt
+                lo, hi = (lo, s) if dphi > 0 else (s, hi)
+                d2 = q @ (dlt + Fc * (1 - tt * tt) / v0 * q)
+                s_new = s - dphi / d2 if d2 > 0 else 0.5 * (lo + hi)
+                s = s_new if lo < s_new < hi else 0.5 * (lo + hi)
+                gt, tt = residual(r + s * dlt)
+                dphi = q @ gt
+        r, g, t = r + s * dlt, gt, tt
     return r
 
 
