@@ -149,8 +149,12 @@ class Effects:
         plant's nominal value; 0 = no noise.
     quantization : None or float
         Resolution of the raw sensors, m. None = the plant's nominal value; 0 = none.
-    substeps : int
+    substeps : None or int
         Substeps per sample of the nonlinear simulation (friction, cubic spring).
+        None = automatic, from the friction law: the fewest with
+        h F_c mobility / v0 <= 1/64 (h the substep, s; mobility the port's
+        driving-point velocity per unit force and second, 1/kg), 32..128, and 8
+        without friction (``plants.sim`` says why). An integer >= 1 overrides it.
 
     Notes
     -----
@@ -175,7 +179,7 @@ class Effects:
     saturation: tuple[float, ...] | None = None
     noise_std: tuple[float, ...] | None = None
     quantization: float | None = None
-    substeps: int = 8
+    substeps: int | None = None
 
     def __post_init__(self):
         if not (np.isfinite(self.delay_s) and self.delay_s >= 0):
@@ -245,8 +249,16 @@ class Effects:
             raise InputError(
                 f"Effects.quantization: expected a resolution >= 0 in m, got {self.quantization!r}"
             )
-        if int(self.substeps) != self.substeps or self.substeps < 1:
-            raise InputError(f"Effects.substeps: expected an integer >= 1, got {self.substeps!r}")
+        if self.substeps is not None:
+            n = self.substeps
+            integral = isinstance(n, (int, np.integer)) or (
+                isinstance(n, (float, np.floating)) and float(n).is_integer()
+            )
+            if isinstance(n, (bool, np.bool_)) or not integral or n < 1:
+                raise InputError(
+                    f"Effects.substeps: expected None (automatic) or an integer >= 1, got {n!r}"
+                )
+            object.__setattr__(self, "substeps", int(n))
         object.__setattr__(
             self,
             "crosstalk_input",

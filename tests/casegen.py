@@ -12,9 +12,12 @@ Sizes: "clear" (the effect's error is many times the noise-induced error) and
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
+import numba
 import numpy as np
+import scipy.linalg
 
 import plants
 from plants.effects import ExtraMode
@@ -155,6 +158,204 @@ def _frf_data(true_plant, nominal, freq, rel_noise, rng):
     return data, floor
 
 
+# ---------------------------------------------------------------- friction, casegen's own truth
+# The plants' nonlinear path and the diagnosis' simulation models share one port-force
+# substep (workbench._port_kernel); a record made with it would reward a model that copies its
+# scheme. casegen integrates the friction with its own, different scheme instead: the port
+# force taken at the END of each substep (implicit Euler in the force, the linear part exact),
+# run with n and 2n substeps from every sample's state and extrapolated, x = 2 x_2n - x_n
+# (Richardson: the first-order error cancels, second order). n per plant below: the
+# extrapolated record is within a few hundredths of its noise of the converged response
+# (tests/test_port_substeps.py checks it against the plants' simulation at 4x its substeps).
+FRICTION_SUBSTEPS = {"beam": 64, "wafer_stage": 128}
+
+
+@numba.njit(cache=True)
+def _implicit_euler_substeps(x, Phi, Gu, Gf, Cv, Mv, Fc, v0, u, n):  # pragma: no cover
+    """x after n substeps of x+ = Phi x + Gu u + Gf f+, f+ = -Fc tanh(Cv x+ / v0) (N).
+
+    f+ solves f + Fc tanh((Cv xp + Mv f) / v0) = 0, Mv = Cv Gf: Newton (Gauss-Jordan on the
+    small port system), each step halved until the residual's norm falls. Loops written out:
+    small matrices, called for every sample.
+    """
+    n_x = x.shape[0]
+    n_u = u.shape[0]
+    n_p = Fc.shape[0]
+    scale = 1e-300
+    for i in range(n_p):
+        scale = max(scale, Fc[i])
+    f = np.zeros(n_p)
+    x = x.copy()
+    xp = np.empty(n_x)
+    a = np.empty(n_p)
+    t = np.empty(n_p)
+    g = np.empty(n_p)
+    d = np.empty(n_p)
+    fn = np.empty(n_p)
+    J = np.empty((n_p, n_p + 1))
+    for _ in range(n):
+        for i in range(n_x):
+            acc = 0.0
+            for k in range(n_x):
+                acc += Phi[i, k] * x[k]
+            for k in range(n_u):
+                acc += Gu[i, k] * u[k]
+            xp[i] = acc
+        for i in range(n_p):
+            acc = 0.0
+            for k in range(n_x):
+                acc += Cv[i, k] * xp[k]
+            a[i] = acc
+        for _it in range(200):
+            norm = 0.0
+            gmax = 0.0
+            for i in range(n_p):
+                w = a[i]
+                for k in range(n_p):
+                    w += Mv[i, k] * f[k]
+                t[i] = np.tanh(w / v0)
+                g[i] = f[i] + Fc[i] * t[i]
+                norm += g[i] * g[i]
+                gmax = max(gmax, abs(g[i]))
+            if gmax <= 1e-13 * scale:
+                break
+            for i in range(n_p):  # [J | -g], J = I + diag(Fc sech^2 / v0) Mv
+                s = Fc[i] * (1.0 - t[i] * t[i]) / v0
+                for k in range(n_p):
+                    J[i, k] = s * Mv[i, k] + (1.0 if i == k else 0.0)
+                J[i, n_p] = -g[i]
+            for c in range(n_p):  # Gauss-Jordan with partial pivoting
+                piv = c
+                for i in range(c + 1, n_p):
+                    if abs(J[i, c]) > abs(J[piv, c]):
+                        piv = i
+                for k in range(n_p + 1):
+                    J[c, k], J[piv, k] = J[piv, k], J[c, k]
+                for i in range(n_p):
+                    if i != c:
+                        r = J[i, c] / J[c, c]
+                        for k in range(c, n_p + 1):
+                            J[i, k] -= r * J[c, k]
+            dmax = 0.0
+            for i in range(n_p):
+                d[i] = J[i, n_p] / J[i, i]
+                dmax = max(dmax, abs(d[i]))
+            step = 1.0
+            while True:
+                for i in range(n_p):
+                    fn[i] = f[i] + step * d[i]
+                nn = 0.0
+                for i in range(n_p):
+                    w = a[i]
+                    for k in range(n_p):
+                        w += Mv[i, k] * fn[k]
+                    gi = fn[i] + Fc[i] * np.tanh(w / v0)
+                    nn += gi * gi
+                if nn < norm or step < 1e-8:
+                    break
+                step *= 0.5
+            for i in range(n_p):
+                f[i] = fn[i]
+            if step * dmax <= 1e-13 * scale:
+                break
+        for i in range(n_x):
+            acc = xp[i]
+            for k in range(n_p):
+                acc += Gf[i, k] * f[k]
+            x[i] = acc
+    return x
+
+
+@dataclass(frozen=True)
+class FrictionTruth:
+    """A plant with Coulomb friction, its friction integrated by casegen's own scheme.
+
+    Everything but the simulation is the plant's (``__getattr__``): its linear model, its
+    measurement (noise, quantization), its names. A closed loop steps it sample by sample
+    (``init``/``step``); ``sampled_step`` is None (no compiled linear loop).
+
+    Parameters
+    ----------
+    plant : plants.mechanical.MechanicalPlant
+        The true plant, friction on (``effects.friction_force``), no saturation, a delay
+        of whole samples.
+    substeps : int
+        n of the module's scheme (the extrapolation also runs 2n).
+    """
+
+    plant: Any
+    substeps: int
+
+    def __getattr__(self, name):
+        return getattr(self.plant, name)
+
+    @cached_property
+    def _matrices(self):
+        p = self.plant
+        e = p.chain.effects
+        if e.saturation is not None or e.cubic_stiffness is not None:
+            raise ValueError("FrictionTruth: friction only (no saturation, no cubic spring)")
+        m = int(round(p.delay_s * p.fs))
+        if abs(p.delay_s * p.fs - m) > 1e-9:
+            raise ValueError(f"FrictionTruth: a delay of whole samples, got {p.delay_s} s")
+        mats = p.chain.matrices
+        A, B, Bp, Cv = mats["A"], mats["B"], mats["Bp"], mats["Cv"]
+        n, n_u, n_p = A.shape[0], B.shape[1], Bp.shape[1]
+        fc = np.broadcast_to(np.asarray(e.friction_force, float), (n_p,)).copy()
+        out = []
+        for n_sub in (self.substeps, 2 * self.substeps):
+            h = 1.0 / (p.fs * n_sub)
+            M = np.zeros((n + n_u + n_p, n + n_u + n_p))
+            M[:n, :n] = A * h
+            M[:n, n : n + n_u] = B * h
+            M[:n, n + n_u :] = Bp * h
+            E = scipy.linalg.expm(M)
+            Phi, Gu, Gf = E[:n, :n], E[:n, n : n + n_u], E[:n, n + n_u :]
+            c = np.ascontiguousarray
+            out.append((c(Phi), c(Gu), c(Gf), c(Cv), c(Cv @ Gf), fc, float(e.friction_velocity)))
+        return m, mats["C"], mats["D"], out
+
+    def _advance(self, x, u):
+        """The state one sample on from x with u (n_u,) applied (held)."""
+        (_, _, _, coarse_fine) = self._matrices
+        coarse, fine = coarse_fine
+        u = np.ascontiguousarray(u, dtype=float)
+        x_n = _implicit_euler_substeps(x, *coarse, u, self.substeps)
+        x_2n = _implicit_euler_substeps(x, *fine, u, 2 * self.substeps)
+        return 2.0 * x_2n - x_n
+
+    def simulate_noise_free(self, u: np.ndarray) -> np.ndarray:
+        """Output (N, n_y) from rest for u (N, n_u), y[k] at k / fs."""
+        m, C, D, _ = self._matrices
+        u = np.asarray(u, float)
+        ud = np.zeros_like(u)
+        ud[m:] = u[: u.shape[0] - m]
+        x = np.zeros(C.shape[1])
+        y = np.empty((u.shape[0], C.shape[0]))
+        for k in range(u.shape[0]):
+            y[k] = C @ x + D @ ud[k]
+            x = self._advance(x, ud[k])
+        return y
+
+    def simulate(self, u: np.ndarray, *, rng: np.random.Generator) -> np.ndarray:
+        return self.plant.measure(self.simulate_noise_free(u), rng)
+
+    def init(self, rng: np.random.Generator):
+        m, C, _, _ = self._matrices
+        return (np.zeros(C.shape[1]), np.zeros((m + 1, self.plant.n_u)), rng)
+
+    def step(self, state, u_k):
+        """Measured y[k], then one sample on with u[k] (through the delay line)."""
+        m, C, D, _ = self._matrices
+        x, hist, rng = state
+        hist = np.vstack([np.asarray(u_k, float).reshape(1, -1), hist[:-1]])  # u[k], u[k-1]..
+        y = self.plant.measure((C @ x + D @ hist[m])[None, :], rng)[0]
+        return y, (self._advance(x, hist[m]), hist, rng)
+
+    def sampled_step(self):
+        return None
+
+
 def _time_data(true_plant, rng):
     from workbench.experiments import ExperimentConfig, run_experiment
 
@@ -198,6 +399,8 @@ def make_case(
         names.append(effect)
     make = plants.get_plant
     true_plant = make(plant, **fields)
+    if "friction_force" in fields:  # casegen's own friction integrator (see FrictionTruth)
+        true_plant = FrictionTruth(true_plant, FRICTION_SUBSTEPS[plant])
     nominal = make(plant, delay_s=0.0).linear_model()
     if data_kind == "frf":
         fs = true_plant.fs

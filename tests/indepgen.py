@@ -404,6 +404,41 @@ def _c2d(A, B, dt, delay):
     return Ad, G1, P1 @ Gt, m
 
 
+#: substeps per sample of the friction records: the friction acts as a velocity change per
+#: substep between exact linear propagations (Lie splitting, first order in the substep).
+#: Applied once per sample, as before, the split moved a closed-loop stage record 2.0e-2 of its
+#: rms from the continuous plant (1-10x its noise, 0.2-2 % of its rms); at 32 substeps 5.8e-4
+#: (measured against 128 substeps, seed 1)
+NL_SUBSTEPS = 32
+
+
+def _c2d_substeps(A, B, dt, delay, n_sub):
+    """Substep ZOH with the input delay: x+ = Ph x + Gn[j] u[k-m] + Go[j] u[k-m-1] (substep j)."""
+    n, nu = B.shape
+    m = int(np.floor(delay / dt + 1e-9))
+    tau = delay - m * dt
+    h = dt / n_sub
+
+    def phi_gamma(t):
+        M = np.zeros((n + nu, n + nu))
+        M[:n, :n], M[:n, n:] = A * t, B * t
+        E = scipy.linalg.expm(M)
+        return E[:n, :n], E[:n, n:]
+
+    Ph, Gh = phi_gamma(h)
+    Gn, Go = np.zeros((n_sub, n, nu)), np.zeros((n_sub, n, nu))
+    for j in range(n_sub):
+        t0, t1 = j * h, (j + 1) * h
+        if tau <= t0:
+            Gn[j] = Gh
+        elif tau >= t1:
+            Go[j] = Gh
+        else:  # the input switches inside this substep
+            P1, Gn[j] = phi_gamma(t1 - tau)
+            Go[j] = P1 @ phi_gamma(tau - t0)[1]
+    return Ph, Gn, Go
+
+
 def multisine(n_u, period, fs, f_max, rng, *, tilt=0.0, k_min=1, odd=False):
     k = np.arange(max(k_min, 1), int(f_max * period / fs), 2 if odd else 1)
     k = k[rng.random(k.size) > 0.25]
@@ -420,7 +455,7 @@ def multisine(n_u, period, fs, f_max, rng, *, tilt=0.0, k_min=1, odd=False):
 def time_record(
     truth: Truth, nominal: Plant, rng, *, N, period, closed, r, noise_sd, gain=1.0, stats=None
 ):
-    """Simulate the true plant (linear part exact ZOH, nonlinearity per sample)."""
+    """Simulate the true plant (linear part exact ZOH; friction per substep, others per sample)."""
     A, B, C, D = (np.asarray(M, float) for M in truth.ss_mats())
     fs = truth.plant.fs
     Ad, B0, B1, m = _c2d(A, B, 1 / fs, truth.delay_s)
@@ -449,6 +484,10 @@ def time_record(
     n_lag = A.shape[0] - 2 * len(truth.plant.modes)
     off = n_lag if truth.act_cut is not None else 0
     q_sq = 0.0
+    if nl.get("type") == "friction":
+        Ph, Gn, Go = _c2d_substeps(A, B, 1 / fs, truth.delay_s, NL_SUBSTEPS)
+        h = 1.0 / (fs * NL_SUBSTEPS)
+        dv_sub = [nl["Fc"][i] * np.linalg.norm(truth.plant.modes[i][2]) * h for i in rig]
     for k in range(N):
         if pos_flex:
             q_sq += x[off + 2 * pos_flex[0]] ** 2
@@ -473,15 +512,19 @@ def time_record(
             applied[k] = np.clip(u[k], -lim, lim)
         ua = applied[k - m] if k - m >= 0 else np.zeros(n_u)
         ua1 = applied[k - m - 1] if k - m - 1 >= 0 else np.zeros(n_u)
-        x = Ad @ x + B0 @ ua + B1 @ ua1
         if nl.get("type") == "friction":
-            # Coulomb friction as a velocity change per sample, no sticking overshoot
-            for i in rig:
-                iv = off + 2 * i + 1
-                v = x[iv]
-                dv = nl["Fc"][i] * np.linalg.norm(truth.plant.modes[i][2]) / fs
-                x[iv] = v - np.sign(v) * min(abs(v), dv)
+            for j in range(NL_SUBSTEPS):
+                x = Ph @ x + Gn[j] @ ua + Go[j] @ ua1
+                # Coulomb friction as a velocity change per substep, no sticking overshoot
+                for i, dv in zip(rig, dv_sub):
+                    iv = off + 2 * i + 1
+                    v = x[iv]
+                    x[iv] = v - np.sign(v) * min(abs(v), dv)
+            continue
+        x = Ad @ x + B0 @ ua + B1 @ ua1
         if nl.get("type") == "cubic":
+            # per sample (a cubic spring's kick per substep did not converge as the friction's
+            # did: 4.3e-2 -> 3.0e-2 of the rms from 1 to 32 substeps, left as it was)
             i = pos_flex[0]
             f = truth.plant.modes[i][0]
             w = 2 * np.pi * f

@@ -119,9 +119,17 @@ def test_substep_propagation_without_port_force_is_the_delayed_zoh():
     prop = sim.substep_zoh(A, B, np.zeros((5, 1)), T, 6, delay_s=delay)
     Ad, B0, B1, m = sim.c2d_zoh(A, B, T, delay_s=delay)
     x, un, uo = rng.standard_normal(5), rng.standard_normal(2), rng.standard_normal(2)
-    x1 = prop.advance(x, un, uo, lambda x: np.zeros(1))
+    none = sim.PortLaw(
+        Cv=np.ones((1, 5)),
+        Cp=np.ones((1, 5)),
+        friction_force=0.0,
+        friction_velocity=1.0,
+        cubic_stiffness=0.0,
+    )
     assert prop.m == m == 1
-    np.testing.assert_allclose(x1, Ad @ x + B0 @ un + B1 @ uo, rtol=1e-12)
+    for engine in ("compiled", "python"):
+        x1 = prop.advance(x, un, uo, none, engine=engine)
+        np.testing.assert_allclose(x1, Ad @ x + B0 @ un + B1 @ uo, rtol=1e-12)
 
 
 # ------------------------------------------------------------------ controller protocol

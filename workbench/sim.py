@@ -45,6 +45,8 @@ __all__ = [
     "discretize",
     "dlsim",
     "simulate_zoh",
+    "phi_gamma_foh",
+    "PortLaw",
     "SubstepZoh",
     "substep_zoh",
     "closed_loop_matrices",
@@ -312,20 +314,100 @@ def simulate_zoh(sys, u: np.ndarray, fs: float, *, delay_s: float = 0.0, x0=None
 
 
 # ------------------------------------------------------------------ nonlinear ports
+def phi_gamma_foh(A: np.ndarray, Bp: np.ndarray, h: float):
+    """(e^{A h}, Gamma_0, Gamma_1) of a port force that varies linearly over [0, h].
+
+    ``Gamma_0 = int_0^h e^{A s} ds Bp`` (a force held over the interval) and
+    ``Gamma_1 = int_0^h e^{A s} (1 - s / h) ds Bp``, the weight of the force's end value:
+    with f(t) = f0 + (f1 - f0) t / h, ``x(h) = e^{A h} x(0) + (Gamma_0 - Gamma_1) f0 +
+    Gamma_1 f1``. One matrix exponential of the augmented matrix
+    ``[[A h, Bp h, 0], [0, 0, I], [0, 0, 0]]``, whose exponential holds
+    ``sum_k (A h)^k Bp h / (k + 1)!`` = Gamma_0 and ``sum_k (A h)^k Bp h / (k + 2)!``
+    = Gamma_1 in its first block row (Van Loan).
+
+    Parameters
+    ----------
+    A : (n, n) array
+    Bp : (n, n_p) array
+    h : float
+        Interval, s (> 0).
+    """
+    A = np.asarray(A, float)
+    Bp = np.asarray(Bp, float)
+    n, p = Bp.shape
+    M = np.zeros((n + 2 * p, n + 2 * p))
+    M[:n, :n] = A * h
+    M[:n, n : n + p] = Bp * h
+    M[n : n + p, n + p :] = np.eye(p)
+    E = scipy.linalg.expm(M)
+    return E[:n, :n], E[:n, n : n + p], E[:n, n + p :]
+
+
+@dataclass(frozen=True)
+class PortLaw:
+    """Port forces of a state: ``F(x) = -F_c tanh(Cv x / v0) - k3 (Cp x)^3``, (n_p,) N.
+
+    Smooth Coulomb friction on the port velocity ``Cv x`` and a hardening spring on
+    the port displacement ``Cp x``; 0 in ``friction_force`` / ``cubic_stiffness`` = none.
+
+    Parameters
+    ----------
+    Cv, Cp : (n_p, n) arrays
+        Port velocity (m/s per state) and displacement (m per state).
+    friction_force : (n_p,) array
+        Coulomb level F_c of each port, N (N m), >= 0.
+    friction_velocity : float
+        v0 of the smooth law, m/s (rad/s), > 0.
+    cubic_stiffness : (n_p,) array
+        k3 of each port, N/m^3 (N m/rad^3), >= 0.
+    """
+
+    Cv: np.ndarray
+    Cp: np.ndarray
+    friction_force: np.ndarray
+    friction_velocity: float
+    cubic_stiffness: np.ndarray
+
+    def __post_init__(self):
+        n_p = np.asarray(self.Cv).shape[0]
+        for name in ("friction_force", "cubic_stiffness"):
+            v = np.broadcast_to(np.asarray(getattr(self, name), float), (n_p,)).copy()
+            if not np.all(np.isfinite(v) & (v >= 0)):
+                raise InputError(f"PortLaw.{name}: expected {n_p} finite values >= 0, got {v}")
+            object.__setattr__(self, name, v)
+        if not (np.isfinite(self.friction_velocity) and self.friction_velocity > 0):
+            raise InputError(
+                f"PortLaw.friction_velocity: expected a velocity > 0 in m/s, "
+                f"got {self.friction_velocity!r}"
+            )
+        object.__setattr__(self, "Cv", np.ascontiguousarray(self.Cv, dtype=float))
+        object.__setattr__(self, "Cp", np.ascontiguousarray(self.Cp, dtype=float))
+
+    def force(self, x: np.ndarray) -> np.ndarray:
+        """F(x), (n_p,) N, for a state x (n,)."""
+        f = -self.friction_force * np.tanh((self.Cv @ x) / self.friction_velocity)
+        return f - self.cubic_stiffness * (self.Cp @ x) ** 3
+
+
 @dataclass(frozen=True)
 class SubstepZoh:
-    """Exact propagation over ``n_sub`` substeps of one sample, for port nonlinearities.
+    """Propagation over ``n_sub`` substeps of one sample, for port nonlinearities.
 
     Over substep j the state advances as
-    x <- Phi x + G_old[j] u[k-m-1] + G_new[j] u[k-m] + Gp f(x),
-    with the port force f held over the substep (explicit, first order in the
-    substep) and the delayed input switching exactly at the fractional delay.
+    ``x <- Phi x + G_old[j] u[k-m-1] + G_new[j] u[k-m] + (Gp - Gp_end) f0 + Gp_end f1``:
+    the linear part exact, the delayed input held and switching exactly at the
+    fractional delay, the port force varying linearly from its start value
+    f0 = F(x) to its end value f1 = F(x+) (trapezoidal, second order in the
+    substep; the friction's end value implicit, solved by a safeguarded Newton
+    step, :mod:`workbench._port_kernel`, which says how).
 
     Parameters
     ----------
     Phi : (n, n) array
     Gp : (n, n_p) array
-        Port-force input over one substep.
+        Port-force input over one substep, the force held.
+    Gp_end : (n, n_p) array
+        Weight of the force's end value when it varies linearly (:func:`phi_gamma_foh`).
     G_old, G_new : (n_sub, n, n_u) arrays
     m : int
         Whole samples of the input delay.
@@ -333,26 +415,184 @@ class SubstepZoh:
 
     Phi: np.ndarray
     Gp: np.ndarray
+    Gp_end: np.ndarray
     G_old: np.ndarray
     G_new: np.ndarray
     m: int
+
+    @property
+    def n_sub(self) -> int:
+        """Substeps per sample."""
+        return int(self.G_new.shape[0])
+
+    @cached_property
+    def _kernel_args(self):
+        # transposed (the kernel sums column by column: independent running sums)
+        c = np.ascontiguousarray
+        return (
+            c(self.Phi.T),
+            c((self.Gp - self.Gp_end).T),
+            c(self.Gp_end.T),
+            c(self.G_old.transpose(0, 2, 1)),
+            c(self.G_new.transpose(0, 2, 1)),
+            bool(np.any(self.G_old)),
+        )
+
+    def _law_args(self, law: PortLaw):
+        c = np.ascontiguousarray
+        return (
+            c(law.Cv.T),
+            c(law.Cp.T),
+            law.friction_force,
+            float(law.friction_velocity),
+            law.cubic_stiffness,
+            np.ascontiguousarray(law.Cv @ self.Gp_end),
+        )
 
     def advance(
         self,
         x: np.ndarray,
         u_new: np.ndarray,
         u_old: np.ndarray,
-        force: Callable[[np.ndarray], np.ndarray],
+        law: PortLaw,
+        *,
+        engine: Literal["compiled", "python"] = "compiled",
     ) -> np.ndarray:
-        """State after one sample; ``u_new`` = u[k-m], ``u_old`` = u[k-m-1]; ``force(x)`` (n_p,)."""
-        Phi, Gp, G_old, G_new = self.Phi, self.Gp, self.G_old, self.G_new
-        if G_new.shape[2] == 0:  # every input enters as a port force
-            for _ in range(G_old.shape[0]):
-                x = Phi @ x + Gp @ force(x)
-            return x
-        for j in range(G_old.shape[0]):
-            x = Phi @ x + G_old[j] @ u_old + G_new[j] @ u_new + Gp @ force(x)
-        return x
+        """State after one sample (n,); ``u_new`` = u[k-m], ``u_old`` = u[k-m-1] (n_u,).
+
+        ``engine="python"`` is the NumPy reference of the compiled kernel (same arithmetic).
+        """
+        x = np.asarray(x, float)
+        if engine == "python":
+            return _advance_reference(
+                self, x, np.asarray(u_new, float), np.asarray(u_old, float), law
+            )
+        return self.stepper(law)(x, u_new, u_old)
+
+    def stepper(self, law: PortLaw) -> Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]:
+        """``step(x, u_new, u_old)``: :meth:`advance`, compiled, with its matrices prepared once
+        (a closed loop steps the plant sample by sample)."""
+        from workbench._port_kernel import port_sample
+
+        args = self._kernel_args
+        law_args = self._law_args(law)
+        c = np.ascontiguousarray
+
+        def step(x, u_new, u_old):
+            return port_sample(
+                c(x, dtype=float), *args, c(u_new, dtype=float), c(u_old, dtype=float), *law_args
+            )
+
+        return step
+
+    def simulate(
+        self,
+        law: PortLaw,
+        um: np.ndarray,
+        um1: np.ndarray,
+        C: np.ndarray,
+        D: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Record from rest, compiled: (y, p) with y[k] = C x + D um[k], p[k] = Cp x.
+
+        Parameters
+        ----------
+        law : PortLaw
+        um, um1 : (N, n_u) arrays
+            u[k-m] and u[k-m-1], saturated.
+        C, D : (n_y, n), (n_y, n_u) arrays
+
+        Returns
+        -------
+        y : (N, n_y) array
+        p : (N, n_p) array
+            Port displacements.
+        """
+        from workbench._port_kernel import port_record
+
+        c = np.ascontiguousarray
+        um = c(um, dtype=float)
+        N = um.shape[0]
+        y = np.empty((N, C.shape[0]))
+        p = np.empty((N, law.Cp.shape[0]))
+        port_record(
+            *self._kernel_args,
+            c(C, dtype=float),
+            c(D, dtype=float),
+            *self._law_args(law),
+            um,
+            c(um1, dtype=float),
+            y,
+            p,
+        )
+        return y, p
+
+
+def _friction_end_reference(a, Mv, Fc, v0, r):
+    """NumPy reference of the friction solve of ``workbench._port_kernel`` (same steps)."""
+    from workbench._port_kernel import _LINE_ITER, _LINE_TOL, NEWTON_ITER, NEWTON_TOL
+
+    def residual(r):
+        t = np.tanh((a + Mv @ r) * (1.0 / v0))
+        return r + Fc * t, t
+
+    fc_max = Fc.max()
+    g, t = residual(r)
+    mv = np.diag(Mv)
+    if np.any(Fc * mv / v0 > 1.0):  # stiff: the force that stops each port, clipped
+        r0 = np.where(mv > 0, np.clip(-a / np.where(mv > 0, mv, 1.0), -Fc, Fc), 0.0)
+        g0, t0 = residual(r0)
+        if np.max(np.abs(g0)) < np.max(np.abs(g)):
+            r, g, t = r0, g0, t0
+    for _ in range(NEWTON_ITER):
+        if np.max(np.abs(g)) <= NEWTON_TOL * fc_max:
+            break
+        J = np.eye(r.size) + (Fc * (1 - t * t) / v0)[:, None] * Mv
+        dlt = np.linalg.solve(J, -g)
+        if np.max(np.abs(dlt)) <= NEWTON_TOL * fc_max:
+            r = r + dlt
+            break
+        gt, tt = residual(r + dlt)
+        s = 1.0
+        if not np.max(np.abs(gt)) <= 0.5 * np.max(np.abs(g)):
+            q = Mv @ dlt
+            slope0, dphi = q @ g, q @ gt
+            lo, hi = 0.0, 1.0
+            for _ in range(_LINE_ITER):
+                if (dphi <= 0 and s == 1.0) or abs(dphi) <= _LINE_TOL * abs(slope0):
+                    break
+                lo, hi = (lo, s) if dphi > 0 else (s, hi)
+                d2 = q @ (dlt + Fc * (1 - tt * tt) / v0 * q)
+                s_new = s - dphi / d2 if d2 > 0 else 0.5 * (lo + hi)
+                s = s_new if lo < s_new < hi else 0.5 * (lo + hi)
+                gt, tt = residual(r + s * dlt)
+                dphi = q @ gt
+        r, g, t = r + s * dlt, gt, tt
+    return r
+
+
+def _advance_reference(prop: SubstepZoh, x, u_new, u_old, law: PortLaw):
+    """NumPy reference of ``workbench._port_kernel.port_sample``."""
+    Ga, G1 = prop.Gp - prop.Gp_end, prop.Gp_end
+    Fc, v0, k3 = law.friction_force, law.friction_velocity, law.cubic_stiffness
+    Mv = law.Cv @ G1
+    has_fr, has_k3 = bool(np.any(Fc > 0)), bool(np.any(k3 != 0))
+    r = -Fc * np.tanh((law.Cv @ x) / v0)  # the friction at the sample's start
+    for j in range(prop.n_sub):
+        fr = r if has_fr else np.zeros_like(Fc)  # the end value of the substep before
+        c0 = -k3 * (law.Cp @ x) ** 3
+        xp = prop.Phi @ x + prop.G_new[j] @ u_new + Ga @ (fr + c0) + G1 @ c0
+        if np.any(prop.G_old):
+            xp = xp + prop.G_old[j] @ u_old
+        for rep in range(2 if has_k3 else 1):
+            if rep == 1:  # Heun: the spring's end value from the state just found
+                xp = xp + G1 @ (-k3 * (law.Cp @ x) ** 3 - c0)
+            if has_fr:
+                r = _friction_end_reference(law.Cv @ xp, Mv, Fc, v0, r)
+                x = xp + G1 @ r
+            else:
+                x = xp
+    return x
 
 
 def substep_zoh(A, B, Bp, dt: float, n_sub: int, *, delay_s: float = 0.0) -> SubstepZoh:
@@ -372,21 +612,27 @@ def substep_zoh(A, B, Bp, dt: float, n_sub: int, *, delay_s: float = 0.0) -> Sub
     delay_s : float
         Input delay, s (fractional part exact).
     """
+    if isinstance(n_sub, bool) or int(n_sub) != n_sub or n_sub < 1:
+        raise InputError(f"substeps: expected an integer >= 1, got {n_sub!r}")
     n_sub = int(n_sub)
-    if n_sub < 1:
-        raise InputError(f"substeps: expected an integer >= 1, got {n_sub}")
     h = dt / n_sub
     m, tau = split_delay(delay_s, dt)
-    Phi, Gp = phi_gamma(A, Bp, h)
-    G_old, G_new = [], []
+    Phi, Gp, Gp_end = phi_gamma_foh(A, Bp, h)
+    _, G_h = phi_gamma(A, B, h)
+    # every substep but the one the input switches in holds one input throughout: one
+    # exponential for all of them (a 128-substep sample would otherwise take 256)
+    G_old = np.zeros((n_sub,) + G_h.shape)
+    G_new = np.zeros((n_sub,) + G_h.shape)
     for j in range(n_sub):
         t0, t1 = j * h, (j + 1) * h
-        ts = min(max(tau, t0), t1)
-        P1, Gn = phi_gamma(A, B, t1 - ts)  # new input over [ts, t1]
-        _, Go = phi_gamma(A, B, ts - t0)  # old input over [t0, ts]
-        G_old.append(P1 @ Go)
-        G_new.append(Gn)
-    return SubstepZoh(Phi=Phi, Gp=Gp, G_old=np.array(G_old), G_new=np.array(G_new), m=m)
+        if tau <= t0:  # the new input over the whole substep
+            G_new[j] = G_h
+        elif tau >= t1:  # the old input over the whole substep
+            G_old[j] = G_h
+        else:  # old input over [t0, tau], new over [tau, t1]
+            P1, G_new[j] = phi_gamma(A, B, t1 - tau)
+            G_old[j] = P1 @ phi_gamma(A, B, tau - t0)[1]
+    return SubstepZoh(Phi=Phi, Gp=Gp, Gp_end=Gp_end, G_old=G_old, G_new=G_new, m=m)
 
 
 # ------------------------------------------------------------------ closed loop

@@ -11,9 +11,10 @@ coordinates of a stage):
 
 with p the port displacement (the collocated output) and v its velocity.
 Over each of ``substeps`` substeps per sample the linear part is propagated
-exactly (zero-order hold) and the port force is held (explicit, first order
-in the substep): :func:`workbench.sim.substep_zoh`, the propagation the plants
-use too; this module supplies the port law (with its friction clamp).
+exactly (zero-order hold) and the port force varies linearly from its start to
+its end value (trapezoidal, the friction's end value implicit):
+:func:`workbench.sim.substep_zoh` and its compiled loop, the propagation the
+plants use too; this module supplies the port law.
 
 A model that is not square has no output at most ports. With one sensor i
 collocated with actuator j (methods.md section 4, the extended modal model),
@@ -212,54 +213,24 @@ def _simulate(sys, u, fs, nl, delay_s=0.0, port_outputs=None):
     """(y, p): :func:`simulate_nonlinear`'s measured outputs and the port displacements."""
     A, B, C, D, Cp, _ = _ports(sys, port_outputs)
     delay_s = float(delay_s) + float(getattr(sys, "delay_s", 0.0))  # the model's delay travels
-    n = A.shape[0]
-    # the held input enters at the ports like the port forces: one force input
-    # f = u[k-m] - friction - k3 p^3 through B (no separate delayed-input path)
-    no_input = np.zeros((n, 0))
-    prop = sim.substep_zoh(A, no_input, B, 1.0 / fs, nl.substeps)
-    Bd = prop.Gp
+    # the held input enters at the ports like the port forces (B both), whole-sample delay
+    prop = sim.substep_zoh(A, B, B, 1.0 / fs, nl.substeps)
     m = int(round(delay_s * fs))
     u = np.asarray(u, float)
-    N, n_u = u.shape
+    n_u = u.shape[1]
     ud = sim.delayed(u, m)
     if nl.saturation is not None:
         sat = np.broadcast_to(np.asarray(nl.saturation, float), (n_u,))
         ud = np.clip(ud, -sat, sat)
-    Fc = np.broadcast_to(np.asarray(nl.friction_force, float), (n_u,))
-    k3 = (
-        np.zeros(n_u)
-        if nl.cubic_stiffness is None
-        else np.broadcast_to(np.asarray(nl.cubic_stiffness, float), (n_u,))
+    law = sim.PortLaw(
+        Cv=Cp @ A,  # the port velocity (a displacement output has no feedthrough of force)
+        Cp=Cp,
+        friction_force=nl.friction_force,
+        friction_velocity=nl.friction_velocity,
+        cubic_stiffness=0.0 if nl.cubic_stiffness is None else nl.cubic_stiffness,
     )
-    CA = Cp @ A
-    v0 = nl.friction_velocity
-    # velocity change of each port per unit force held over one substep: friction is
-    # limited to the force that stops the port within the substep, so the explicit
-    # scheme cannot make friction reverse the motion (stable for any F_c and v0)
-    mobility = np.maximum(np.abs(np.diag(CA @ Bd)), 1e-300)
-    y = np.empty((N, C.shape[0]))
-    p = np.empty((N, Cp.shape[0]))
-    # the substep loop x <- Phi x + Gp f(x) of prop.advance, with the port law above, compiled
-    from workbench.diagnosis._port_kernel import port_loop
-
-    c = np.ascontiguousarray
-    port_loop(
-        c(prop.Phi),
-        c(Bd),
-        c(C),
-        c(D),
-        c(Cp),
-        c(CA),
-        c(ud),
-        c(Fc, dtype=float),
-        c(k3, dtype=float),
-        float(v0),
-        mobility,
-        int(nl.substeps),
-        y,
-        p,
-    )
-    return y, p
+    # the compiled substep loop of the plants (trapezoidal port force, implicit friction)
+    return prop.simulate(law, ud, ud, C, D)
 
 
 def fit_friction(
@@ -329,9 +300,12 @@ ELEMENTS = ("coulomb_friction", "cubic_stiffness", "saturation")
 MOTION_ITERATIONS = 4
 #: Gauss-Newton steps on the levels through the simulation model itself (estimated ports)
 REFINE_ITERATIONS = 2
+#: ... on a friction's levels and its velocity scale v0 (which may have to move several-fold
+#: from its estimate, at most e^0.5 per step)
+VELOCITY_ITERATIONS = 6
 #: the final simulation's substeps are doubled until doubling moves the output by less than this
-#: fraction of the misfit left: the port force is held over a substep (explicit, first order), so
-#: a coarse simulation adds an error of its own, largest where friction switches sign
+#: fraction of the misfit left: a coarse simulation adds an error of its own (the trapezoidal
+#: port force is second order in the substep), largest where friction switches sign
 CONVERGED = 0.25
 #: ... up to this many substeps per sample
 MAX_SUBSTEPS = 64
@@ -472,10 +446,11 @@ def fit_port_element(
         c[c < 0.05 * c.max()] = 0.0
         return c
 
-    def make_element(name, c, n_sub=substeps):
+    def make_element(name, c, n_sub=substeps, v=None):
         if name == "coulomb_friction":
-            nl = PortNonlinearity(friction_force=c, friction_velocity=v0, substeps=n_sub)
-            params = {"friction_force": [float(x) for x in c], "friction_velocity": v0}
+            v = v0 if v is None else float(v)
+            nl = PortNonlinearity(friction_force=c, friction_velocity=v, substeps=n_sub)
+            params = {"friction_force": [float(x) for x in c], "friction_velocity": v}
             return nl, params | {"substeps": n_sub}
         nl = PortNonlinearity(friction_force=np.zeros(n_u), cubic_stiffness=c, substeps=n_sub)
         return nl, {"cubic_stiffness": [float(x) for x in c], "substeps": n_sub}
@@ -493,11 +468,11 @@ def fit_port_element(
             return y_nl, p_nl
         return float(lti.relative_error_time(y, y_nl)), p_nl
 
-    def converged_substeps(name, c, n_sub):
+    def converged_substeps(name, c, n_sub, v=None):
         """Substeps, from ``n_sub`` up, at which the element's simulation is converged."""
-        y_n = simulated(make_element(name, c, n_sub)[0], output=True)[0]
+        y_n = simulated(make_element(name, c, n_sub, v)[0], output=True)[0]
         while n_sub < MAX_SUBSTEPS and np.all(np.isfinite(y_n)):
-            y_2n = simulated(make_element(name, c, 2 * n_sub)[0], output=True)[0]
+            y_2n = simulated(make_element(name, c, 2 * n_sub, v)[0], output=True)[0]
             if not np.all(np.isfinite(y_2n)):
                 break
             n_sub *= 2
@@ -508,25 +483,35 @@ def fit_port_element(
                 break
         return n_sub
 
-    def refine_levels(name, c, n_sub=substeps):
-        """Gauss-Newton on the log levels of the active ports, through the simulation model."""
+    def refine_levels(name, c, n_sub=substeps, v=None):
+        """Gauss-Newton on the log levels of the active ports, through the simulation model;
+        for friction on log v0 too (the smooth law's velocity scale: the estimate above only
+        sets its order, and its shape near sticking is what is left of the misfit)."""
         active = np.flatnonzero(c > 0)
+        friction = name == "coulomb_friction"
+        n_lvl = active.size
         out = []
 
-        def resid(theta):
+        def unpack(theta):
             levels = np.zeros(n_u)
-            levels[active] = np.exp(theta)
-            return simulated(make_element(name, levels, n_sub)[0], residual=True)[0]
+            levels[active] = np.exp(theta[:n_lvl])
+            return levels, (float(np.exp(theta[n_lvl])) if friction else None)
+
+        def resid(theta):
+            levels, vel = unpack(theta)
+            return simulated(make_element(name, levels, n_sub, vel)[0], residual=True)[0]
 
         theta = np.log(c[active])
+        if friction:
+            theta = np.append(theta, np.log(v0 if v is None else v))
         r0 = resid(theta)
         if not np.all(np.isfinite(r0)):
             return out
         h = 0.02
-        for _ in range(REFINE_ITERATIONS):
-            J = np.empty((r0.size, active.size))
-            for n in range(active.size):
-                r = resid(theta + h * np.eye(active.size)[n])
+        for _ in range(VELOCITY_ITERATIONS if friction else REFINE_ITERATIONS):
+            J = np.empty((r0.size, theta.size))
+            for n in range(theta.size):
+                r = resid(theta + h * np.eye(theta.size)[n])
                 if not np.all(np.isfinite(r)):
                     return out
                 J[:, n] = (r - r0) / h
@@ -540,9 +525,8 @@ def fit_port_element(
                     break
             else:
                 break
-            levels = np.zeros(n_u)
-            levels[active] = np.exp(theta)
-            nl, params = make_element(name, levels, n_sub)
+            levels, vel = unpack(theta)
+            nl, params = make_element(name, levels, n_sub, vel)
             out.append((float(np.sqrt(r0 @ r0)), name, nl, params))
             if np.max(np.abs(step)) < 0.005:
                 break
@@ -611,13 +595,14 @@ def fit_port_element(
         n_sub = substeps
         for _ in range(CONVERGE_ROUNDS):
             levels = np.asarray(next(iter(params.values())), float)
-            n_new = converged_substeps(element, levels, n_sub)
+            vel = params.get("friction_velocity")
+            n_new = converged_substeps(element, levels, n_sub, vel)
             if n_new == n_sub:
                 break
             n_sub = n_new
-            nl, params = make_element(element, levels, n_sub)
+            nl, params = make_element(element, levels, n_sub, vel)
             fine = [(simulated(nl)[0], element, nl, params)]
-            fine += refine_levels(element, levels, n_sub)
+            fine += refine_levels(element, levels, n_sub, vel)
             best_fine = min(fine, key=lambda t: t[0])
             if not best_fine[0] <= after:
                 # the record is explained better by the coarse simulation (a record made by

@@ -1,0 +1,332 @@
+"""Compiled substep loop of the port nonlinearities (:class:`workbench.sim.SubstepZoh`).
+
+The one implementation of the port-force substep, used by the plants' nonlinear path
+(``plants.sim``) and by the diagnosis' simulation models
+(``workbench.diagnosis.nonlinear``). Per substep j of length h (the linear part exact,
+the port force f(t) varying linearly from its start value f0 = F(x0) to its end value
+f1 = F(x1), trapezoidal)::
+
+    x1 = Phi x0 + G_old[j] u_old + G_new[j] u_new + Ga f0 + G1 f1
+    F(x) = -F_c tanh(Cv x / v0) - k3 (Cp x)^3
+
+with ``G1 = int_0^h e^{A s} (1 - s / h) ds Bp`` (the end value's weight) and
+``Ga = int_0^h e^{A s} ds Bp - G1``. The friction end value is implicit: with
+``xp`` the state without it and ``Mv = Cv G1``, it is the root ``r`` of
+``g(r) = r + F_c tanh((Cv xp + Mv r) / v0)``, unique because the friction law is
+monotone in the velocity and Mv is a (symmetric, positive semi-definite)
+driving-point mobility. Newton steps ``-(I + diag(F_c sech^2 / v0) Mv)^-1 g`` are
+taken whole when they halve max |g|, else to the minimum along them of the convex
+merit ``E(r) = r' Mv r / 2 + sum_j F_c v0 log cosh((Cv xp + Mv r)_j / v0)`` (its
+gradient is Mv g: a Newton step on g is a descent direction of E; with one port the
+line is the whole space, and a stiff friction, far from its root, converges in one
+line search where a backtracking search crawls). The cubic spring is not
+stiff at the levels used (a hardening spring far below the substep's rate): its end
+value is predicted (held), corrected once from the state this gives (Heun), and the
+friction re-solved from the corrected prediction.
+
+numba is a dependency of the project; :meth:`workbench.sim.SubstepZoh.advance` with
+``engine="python"`` is the pure-NumPy reference of the same arithmetic (tested equal).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+__all__ = ["port_record", "port_sample", "NEWTON_TOL", "NEWTON_ITER"]
+
+#: Newton stops when every |g_j| <= NEWTON_TOL * max(F_c) (N), or its step is that small
+NEWTON_TOL = 1e-13
+#: ... or after this many steps (quadratic convergence needs a handful)
+NEWTON_ITER = 60
+#: a line search stops when the merit's slope is this fraction of its slope at the start...
+_LINE_TOL = 0.01
+#: ... or after this many evaluations (bisection halves the bracket at each)
+_LINE_ITER = 60
+
+
+@numba.njit(cache=True, inline="always")
+def _trial(a, Mv, Fc, iv0, r, dlt, s, rt, gt, tt):
+    """rt = r + s dlt, gt = g(rt), tt = tanh(w / v0) at rt (in place); returns max |gt|."""
+    n = r.shape[0]
+    gmax = 0.0
+    for i in range(n):
+        rt[i] = r[i] + s * dlt[i]
+    for i in range(n):
+        w = a[i]
+        for k in range(n):
+            w += Mv[i, k] * rt[k]
+        tt[i] = np.tanh(w * iv0)
+        gt[i] = rt[i] + Fc[i] * tt[i]
+        gmax = max(gmax, abs(gt[i]))
+    return gmax
+
+
+@numba.njit(cache=True)
+def _advance(
+    x, PhiT, GaT, G1T, G_oldT, G_newT, has_old, u_new, u_old, CvT, CpT, Fc, v0, k3, Mv,
+    has_fr, has_k3, fc_max, xp, f0, c0, r, a, g, J, dlt, rt, t, gt, tt,
+):  # fmt: skip
+    """x (in place) after the ``G_newT.shape[0]`` substeps of one sample (the matrices
+    transposed: PhiT = Phi', GaT = Ga', G1T = G1', G_oldT[j] = G_old[j]', CvT = Cv', CpT = Cp').
+
+    Written out in one function: a call with array arguments costs reference counting
+    (atomic operations), more than the arithmetic at these sizes. Products M x are summed
+    column by column (MT = M'): the n running sums are independent, each summed in the order
+    of a row dot product.
+    """
+    n = x.shape[0]
+    n_p = Fc.shape[0]
+    n_u = u_new.shape[0]
+    iv0 = 1.0 / v0
+    stiff = False
+    for i in range(n_p):
+        stiff = stiff or Fc[i] * Mv[i, i] * iv0 > 1.0
+    for j in range(G_newT.shape[0]):
+        # port forces at the start of the substep, F(x0): the friction is the end value just
+        # solved for (equal to F_c tanh(Cv x0 / v0) to the Newton tolerance), computed at the
+        # first substep of the sample only
+        if has_fr and j == 0:
+            for i in range(n_p):
+                a[i] = 0.0
+            for m in range(n):
+                xm = x[m]
+                for i in range(n_p):
+                    a[i] += CvT[m, i] * xm
+            for i in range(n_p):
+                r[i] = -Fc[i] * np.tanh(a[i] * iv0)
+        for i in range(n_p):
+            f0[i] = r[i] if has_fr else 0.0  # r: also the warm start of the end value
+            c0[i] = 0.0
+        if has_k3:
+            for i in range(n_p):
+                q = 0.0
+                for m in range(n):
+                    q += CpT[m, i] * x[m]
+                c0[i] = -k3[i] * q * q * q
+                f0[i] += c0[i]
+        # the state without the friction's end value (the spring's end value held)
+        for i in range(n):
+            xp[i] = 0.0
+        for m in range(n):
+            xm = x[m]
+            for i in range(n):
+                xp[i] += PhiT[m, i] * xm
+        for m in range(n_u):
+            um = u_new[m]
+            for i in range(n):
+                xp[i] += G_newT[j, m, i] * um
+        if has_old:
+            for m in range(n_u):
+                um = u_old[m]
+                for i in range(n):
+                    xp[i] += G_oldT[j, m, i] * um
+        for m in range(n_p):
+            fm = f0[m]
+            cm = c0[m]
+            for i in range(n):
+                xp[i] += GaT[m, i] * fm + G1T[m, i] * cm
+        for rep in range(2 if has_k3 else 1):
+            if rep == 1:  # Heun: the spring's end value from the state just found
+                for i in range(n_p):
+                    q = 0.0
+                    for m in range(n):
+                        q += CpT[m, i] * x[m]
+                    dc = -k3[i] * q * q * q - c0[i]
+                    for m in range(n):
+                        xp[m] += G1T[i, m] * dc
+            for i in range(n):
+                x[i] = xp[i]
+            if not has_fr:
+                continue
+            for i in range(n_p):
+                a[i] = 0.0
+            for m in range(n):
+                xm = xp[m]
+                for i in range(n_p):
+                    a[i] += CvT[m, i] * xm
+            # Newton on g(r) = r + F_c tanh((a + Mv r) / v0), r warm-started
+            gmax = 0.0
+            for i in range(n_p):
+                w = a[i]
+                for k in range(n_p):
+                    w += Mv[i, k] * r[k]
+                t[i] = np.tanh(w * iv0)
+                g[i] = r[i] + Fc[i] * t[i]
+                gmax = max(gmax, abs(g[i]))
+            if stiff:
+                # a stiff friction (F_c Mv_jj / v0 > 1) either stops its port within the
+                # substep or slides at +-F_c: the force that stops each port alone, clipped
+                # to +-F_c, starts Newton near the root where the warm start may be far
+                for i in range(n_p):
+                    dlt[i] = min(max(-a[i] / Mv[i, i], -Fc[i]), Fc[i]) if Mv[i, i] > 0 else 0.0
+                gt_max = _trial(a, Mv, Fc, iv0, dlt, dlt, 0.0, rt, gt, tt)
+                if gt_max < gmax:
+                    for i in range(n_p):
+                        r[i] = rt[i]
+                        g[i] = gt[i]
+                        t[i] = tt[i]
+                    gmax = gt_max
+            for _ in range(NEWTON_ITER):
+                if gmax <= NEWTON_TOL * fc_max:
+                    break
+                for i in range(n_p):
+                    slope_i = Fc[i] * (1.0 - t[i] * t[i]) * iv0
+                    for k in range(n_p):
+                        J[i, k] = slope_i * Mv[i, k]
+                    J[i, i] += 1.0
+                    rt[i] = -g[i]
+                # J dlt = rt by Gaussian elimination with partial pivoting
+                for c in range(n_p):
+                    piv = c
+                    big = abs(J[c, c])
+                    for i in range(c + 1, n_p):
+                        if abs(J[i, c]) > big:
+                            big = abs(J[i, c])
+                            piv = i
+                    if piv != c:
+                        for k in range(n_p):
+                            tmp = J[c, k]
+                            J[c, k] = J[piv, k]
+                            J[piv, k] = tmp
+                        tmp = rt[c]
+                        rt[c] = rt[piv]
+                        rt[piv] = tmp
+                    for i in range(c + 1, n_p):
+                        fct = J[i, c] / J[c, c]
+                        for k in range(c, n_p):
+                            J[i, k] -= fct * J[c, k]
+                        rt[i] -= fct * rt[c]
+                for i in range(n_p - 1, -1, -1):
+                    acc = rt[i]
+                    for k in range(i + 1, n_p):
+                        acc -= J[i, k] * dlt[k]
+                    dlt[i] = acc / J[i, i]
+                dmax = 0.0
+                for i in range(n_p):
+                    dmax = max(dmax, abs(dlt[i]))
+                if dmax <= NEWTON_TOL * fc_max:  # a step below the tolerance: the residual
+                    for i in range(n_p):  # left is rounding (in Cv xp), not convergence
+                        r[i] += dlt[i]
+                    break
+                # the whole step when it halves max |g| (the quadratic region); else the
+                # minimum of the convex merit along it, s in (0, 1]: the root of its slope
+                # phi'(s) = q . g(r + s dlt), q = Mv dlt, increasing in s (Newton on phi' kept
+                # inside the bracket that phi' changes sign in, bisection when it leaves it)
+                gt_max = _trial(a, Mv, Fc, iv0, r, dlt, 1.0, rt, gt, tt)
+                if not gt_max <= 0.5 * gmax:
+                    for i in range(n_p):
+                        acc = 0.0
+                        for k in range(n_p):
+                            acc += Mv[i, k] * dlt[k]
+                        f0[i] = acc  # q (f0 is free until the next substep)
+                    slope0 = 0.0
+                    dphi = 0.0
+                    for i in range(n_p):
+                        slope0 += f0[i] * g[i]
+                        dphi += f0[i] * gt[i]
+                    lo, hi, s = 0.0, 1.0, 1.0
+                    for _ls in range(_LINE_ITER):
+                        if dphi <= 0.0 and s == 1.0:  # the merit falls all the way: s = 1
+                            break
+                        if abs(dphi) <= _LINE_TOL * abs(slope0):
+                            break
+                        if dphi > 0.0:
+                            hi = s
+                        else:
+                            lo = s
+                        d2 = 0.0  # phi''(s) = q . (I + diag(F_c sech^2 / v0) Mv) dlt > 0
+                        for i in range(n_p):
+                            d2 += f0[i] * (dlt[i] + Fc[i] * (1.0 - tt[i] * tt[i]) * iv0 * f0[i])
+                        s_new = s - dphi / d2 if d2 > 0.0 else 0.5 * (lo + hi)
+                        if not (lo < s_new < hi):
+                            s_new = 0.5 * (lo + hi)
+                        s = s_new
+                        gt_max = _trial(a, Mv, Fc, iv0, r, dlt, s, rt, gt, tt)
+                        dphi = 0.0
+                        for i in range(n_p):
+                            dphi += f0[i] * gt[i]
+                for i in range(n_p):
+                    r[i] = rt[i]
+                    g[i] = gt[i]
+                    t[i] = tt[i]
+                gmax = gt_max
+            for m in range(n_p):
+                rm = r[m]
+                for i in range(n):
+                    x[i] += G1T[m, i] * rm
+
+
+@numba.njit(cache=True)
+def port_sample(x, PhiT, GaT, G1T, G_oldT, G_newT, has_old, u_new, u_old, CvT, CpT, Fc, v0, k3, Mv):
+    """The state after one sample from ``x`` (a new array); ``u_new`` = u[k-m], ``u_old`` =
+    u[k-m-1] (n_u,). Transposed shapes: PhiT (n, n), GaT / G1T (n_p, n), G_oldT / G_newT
+    (n_sub, n_u, n), CvT / CpT (n, n_p); Fc / k3 (n_p,) N and N/m^3, v0 m/s, Mv = Cv G1
+    (n_p, n_p)."""
+    n = x.shape[0]
+    n_p = Fc.shape[0]
+    out = x.copy()
+    fc_max = 0.0
+    for i in range(n_p):
+        fc_max = max(fc_max, Fc[i])
+    has_k3 = False
+    for i in range(n_p):
+        has_k3 = has_k3 or k3[i] != 0.0
+    _advance(
+        out, PhiT, GaT, G1T, G_oldT, G_newT, has_old, u_new, u_old, CvT, CpT, Fc, v0, k3, Mv,
+        fc_max > 0.0, has_k3, fc_max, np.empty(n), np.empty(n_p), np.empty(n_p),
+        np.empty(n_p), np.empty(n_p), np.empty(n_p), np.empty((n_p, n_p)), np.empty(n_p),
+        np.empty(n_p), np.empty(n_p), np.empty(n_p), np.empty(n_p),
+    )  # fmt: skip
+    return out
+
+
+@numba.njit(cache=True)
+def port_record(
+    PhiT, GaT, G1T, G_oldT, G_newT, has_old, C, D, CvT, CpT, Fc, v0, k3, Mv, um, um1, y, p
+):  # fmt: skip
+    """Run a record from rest: y[k] = C x + D um[k], p[k] = Cp x (written), then one sample.
+
+    ``um`` = u[k-m], ``um1`` = u[k-m-1] (N, n_u), saturated; y (N, n_y), p (N, n_p); the
+    other arguments as :func:`port_sample`'s.
+    """
+    n = PhiT.shape[0]
+    n_p = Fc.shape[0]
+    n_y = C.shape[0]
+    n_u = um.shape[1]
+    x = np.zeros(n)
+    fc_max = 0.0
+    for i in range(n_p):
+        fc_max = max(fc_max, Fc[i])
+    has_k3 = False
+    for i in range(n_p):
+        has_k3 = has_k3 or k3[i] != 0.0
+    xp = np.empty(n)
+    f0 = np.empty(n_p)
+    c0 = np.empty(n_p)
+    r = np.empty(n_p)
+    a = np.empty(n_p)
+    g = np.empty(n_p)
+    J = np.empty((n_p, n_p))
+    dlt = np.empty(n_p)
+    rt = np.empty(n_p)
+    t = np.empty(n_p)
+    gt = np.empty(n_p)
+    tt = np.empty(n_p)
+    for k in range(um.shape[0]):
+        for i in range(n_y):
+            acc = 0.0
+            for m in range(n):
+                acc += C[i, m] * x[m]
+            for m in range(n_u):
+                acc += D[i, m] * um[k, m]
+            y[k, i] = acc
+        for i in range(n_p):
+            acc = 0.0
+            for m in range(n):
+                acc += CpT[m, i] * x[m]
+            p[k, i] = acc
+        _advance(
+            x, PhiT, GaT, G1T, G_oldT, G_newT, has_old, um[k], um1[k], CvT, CpT, Fc, v0, k3, Mv,
+            fc_max > 0.0, has_k3, fc_max, xp, f0, c0, r, a, g, J, dlt, rt, t, gt, tt,
+        )  # fmt: skip
