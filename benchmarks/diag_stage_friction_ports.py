@@ -38,7 +38,11 @@ With g = 0 (rigid ports only): levels 0.199-0.212 N, 0.0688 (17x), 43 s.
 (17x, 46 s), joint 0.00516 = 1.28x the floor, levels 0.1998-0.2002 N, v0 9.7e-7 (1e-6),
 g 0.0170 / 0.0580 (0.01735 / 0.06112), 91 s in all. subtle: step 1 (g = 0) already fails,
 coulomb_friction 3.28 (970x): the joint fit needs a better start there (e.g. a g grid first,
-or step 1 at a g > 0); not finished (killed after 4 min).
+or step 1 at a g > 0); not finished (killed after 4 min). Step 1 at g = 1e-2: 2.87 (848x, v0
+runs off to 6e-10); the joint fit from its levels with v0 restarted at 1e-3 of the rms output
+velocity (2.4e-7) and bounded to [1e-8, 1e-4]: levels 0.045-0.0507 N (0.05), v0 1.1e-6,
+g 0.0142 / 0.0777, 12.9x the floor after 25 evaluations (54 s): near the truth, converging
+slowly (Ty's level stuck at 0.045).
 
 tests/indepgen.py's stage (rng 1, friction per rigid mode, none on its flexible modes: the
 truth is g = 0): true levels, Cp = C 4.96-5.01 (1040x its floor 0.00477); rigid-only ports
