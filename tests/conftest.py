@@ -51,3 +51,14 @@ def one_line(err: str) -> str:
     assert len(lines) == 1, err
     assert "Traceback" not in err
     return lines[0]
+
+
+@pytest.fixture(scope="session")
+def beam_measured_truth():
+    """The true beam's measured loops (s1, s2, s5 from F1..F3) with its own delay (0), an
+    LTIModel: what the inferential scenarios' controllers are judged on again."""
+    from plants.beam import beam
+    from workbench.core.model import LTIModel
+
+    p = beam()
+    return LTIModel.from_statespace(p.linear_model()[[0, 1, 4], :], delay_s=p.delay_s)

@@ -386,21 +386,22 @@ def frf_measure(truth: Truth, f, rng, *, rel, floor_rel, with_var=True):
     return Gm, G, (sd**2 if with_var else None)
 
 
+def _phi_gamma(A, B, h):
+    """(e^{A h}, int_0^h e^{A s} ds B) by one exponential of the augmented matrix."""
+    n, nu = B.shape
+    M = np.zeros((n + nu, n + nu))
+    M[:n, :n], M[:n, n:] = A * h, B * h
+    E = scipy.linalg.expm(M)
+    return E[:n, :n], E[:n, n:]
+
+
 def _c2d(A, B, dt, delay):
     """ZOH discretization with an input delay: x+ = Ad x + B0 u[k-m] + B1 u[k-m-1]."""
-    n, nu = B.shape
     m = int(np.floor(delay / dt + 1e-9))
     tau = delay - m * dt
-
-    def phi_gamma(h):
-        M = np.zeros((n + nu, n + nu))
-        M[:n, :n], M[:n, n:] = A * h, B * h
-        E = scipy.linalg.expm(M)
-        return E[:n, :n], E[:n, n:]
-
-    Ad, _ = phi_gamma(dt)
-    P1, G1 = phi_gamma(dt - tau)
-    Pt, Gt = phi_gamma(tau)
+    Ad, _ = _phi_gamma(A, B, dt)
+    P1, G1 = _phi_gamma(A, B, dt - tau)
+    Pt, Gt = _phi_gamma(A, B, tau)
     return Ad, G1, P1 @ Gt, m
 
 
@@ -418,14 +419,7 @@ def _c2d_substeps(A, B, dt, delay, n_sub):
     m = int(np.floor(delay / dt + 1e-9))
     tau = delay - m * dt
     h = dt / n_sub
-
-    def phi_gamma(t):
-        M = np.zeros((n + nu, n + nu))
-        M[:n, :n], M[:n, n:] = A * t, B * t
-        E = scipy.linalg.expm(M)
-        return E[:n, :n], E[:n, n:]
-
-    Ph, Gh = phi_gamma(h)
+    Ph, Gh = _phi_gamma(A, B, h)
     Gn, Go = np.zeros((n_sub, n, nu)), np.zeros((n_sub, n, nu))
     for j in range(n_sub):
         t0, t1 = j * h, (j + 1) * h
@@ -434,8 +428,8 @@ def _c2d_substeps(A, B, dt, delay, n_sub):
         elif tau >= t1:
             Go[j] = Gh
         else:  # the input switches inside this substep
-            P1, Gn[j] = phi_gamma(t1 - tau)
-            Go[j] = P1 @ phi_gamma(tau - t0)[1]
+            P1, Gn[j] = _phi_gamma(A, B, t1 - tau)
+            Go[j] = P1 @ _phi_gamma(A, B, tau - t0)[1]
     return Ph, Gn, Go
 
 

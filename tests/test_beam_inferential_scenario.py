@@ -24,7 +24,6 @@ import pytest
 from workbench.cli.main import main
 
 SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "beam_inferential.toml"
-MEASURED = [0, 1, 4]  # s1, s2, s5 among the beam's s1..s5
 
 pytestmark = pytest.mark.slow
 
@@ -35,16 +34,6 @@ def run(tmp_path_factory):
     status = main(["run", str(SCENARIO), "--results", str(out), "--quiet"])
     assert status == 0
     return out, json.loads((out / "inferential.json").read_text())
-
-
-@pytest.fixture(scope="module")
-def truth():
-    """The true beam's measured loops (s1, s2, s5 from F1..F3), its own delay (0)."""
-    from plants.beam import beam
-    from workbench.core.model import LTIModel
-
-    p = beam()
-    return LTIModel.from_statespace(p.linear_model()[MEASURED, :], delay_s=p.delay_s)
 
 
 def test_files_next_to_the_json(run):
@@ -64,25 +53,25 @@ def test_files_next_to_the_json(run):
 
 
 @pytest.mark.parametrize("design", ["pid-notch", "inferential"])
-def test_updated_designs_meet_the_bound_on_the_true_beam(run, truth, design):
+def test_updated_designs_meet_the_bound_on_the_true_beam(run, beam_measured_truth, design):
     from workbench.testing import assert_margins, assert_stable
 
     out, res = run
     path = out / f"controller_{design}_updated.npz"
     m = res["loop_delay_samples"]
-    assert_stable(truth, path, loop_delay_samples=m)
-    assert_margins(truth, path, s_peak_max=res["ms_max"], loop_delay_samples=m)
+    assert_stable(beam_measured_truth, path, loop_delay_samples=m)
+    assert_margins(beam_measured_truth, path, s_peak_max=res["ms_max"], loop_delay_samples=m)
 
 
 @pytest.mark.parametrize("key", ["pid-notch/updated", "inferential/updated", "inferential/prior"])
-def test_reported_loop_figures_equal_analyze_loop(run, truth, key):
+def test_reported_loop_figures_equal_analyze_loop(run, beam_measured_truth, key):
     from controllers.protocol import StateSpaceController
     from workbench.loop import analyze_loop
 
     out, res = run
     design, model = key.split("/")
     K = StateSpaceController.read(out / f"controller_{design}_{model}.npz")
-    a = analyze_loop(truth, K, loop_delay_samples=res["loop_delay_samples"])
+    a = analyze_loop(beam_measured_truth, K, loop_delay_samples=res["loop_delay_samples"])
     got = res["designs"][key]["analysis"]
     assert got["stable"] == a.stable
     for lp, ref in zip(got["loops"], a.loops, strict=True):

@@ -24,7 +24,6 @@ from workbench.cli.main import main
 SCENARIO = (
     Path(__file__).resolve().parents[1] / "scenarios" / "studies" / "beam_inferential_youla.toml"
 )
-MEASURED = [0, 1, 4]  # s1, s2, s5 among the beam's s1..s5
 
 pytestmark = pytest.mark.slow
 
@@ -37,26 +36,16 @@ def run(tmp_path_factory):
     return out, json.loads((out / "inferential.json").read_text())
 
 
-@pytest.fixture(scope="module")
-def truth():
-    """The true beam's measured loops (s1, s2, s5 from F1..F3), its own delay (0)."""
-    from plants.beam import beam
-    from workbench.core.model import LTIModel
-
-    p = beam()
-    return LTIModel.from_statespace(p.linear_model()[MEASURED, :], delay_s=p.delay_s)
-
-
 @pytest.mark.parametrize("design", ["pid-notch", "youla-band"])
-def test_updated_designs_meet_the_bound_on_the_true_beam(run, truth, design):
+def test_updated_designs_meet_the_bound_on_the_true_beam(run, beam_measured_truth, design):
     from workbench.testing import assert_margins, assert_stable
 
     out, res = run
     assert res["designs"][f"{design}/updated"]["status"] == "designed"
     path = out / f"controller_{design}_updated.npz"
     m = res["loop_delay_samples"]
-    assert_stable(truth, path, loop_delay_samples=m)
-    assert_margins(truth, path, s_peak_max=res["ms_max"], loop_delay_samples=m)
+    assert_stable(beam_measured_truth, path, loop_delay_samples=m)
+    assert_margins(beam_measured_truth, path, s_peak_max=res["ms_max"], loop_delay_samples=m)
 
 
 def test_youla_band_meets_the_target_at_the_unmeasured_point(run):

@@ -62,6 +62,28 @@ def _trial(a, Mv, Fc, iv0, r, dlt, s, rt, gt, tt):
     return gmax
 
 
+@numba.njit(cache=True, inline="always")
+def _port_map(MT, x, a):
+    """a = M x (in place) for a port map M (n_p, n) given as MT = M', summed column by column."""
+    for i in range(a.shape[0]):
+        a[i] = 0.0
+    for m in range(x.shape[0]):
+        xm = x[m]
+        for i in range(a.shape[0]):
+            a[i] += MT[m, i] * xm
+
+
+@numba.njit(cache=True, inline="always")
+def _levels(Fc, k3):
+    """(the largest friction level, whether any port has a cubic spring)."""
+    fc_max = 0.0
+    has_k3 = False
+    for i in range(Fc.shape[0]):
+        fc_max = max(fc_max, Fc[i])
+        has_k3 = has_k3 or k3[i] != 0.0
+    return fc_max, has_k3
+
+
 @numba.njit(cache=True)
 def _advance(
     x, PhiT, GaT, G1T, G_oldT, G_newT, has_old, u_new, u_old, CvT, CpT, Fc, v0, k3, Mv,
@@ -87,12 +109,7 @@ def _advance(
         # solved for (equal to F_c tanh(Cv x0 / v0) to the Newton tolerance), computed at the
         # first substep of the sample only
         if has_fr and j == 0:
-            for i in range(n_p):
-                a[i] = 0.0
-            for m in range(n):
-                xm = x[m]
-                for i in range(n_p):
-                    a[i] += CvT[m, i] * xm
+            _port_map(CvT, x, a)
             for i in range(n_p):
                 r[i] = -Fc[i] * np.tanh(a[i] * iv0)
         for i in range(n_p):
@@ -139,21 +156,9 @@ def _advance(
                 x[i] = xp[i]
             if not has_fr:
                 continue
-            for i in range(n_p):
-                a[i] = 0.0
-            for m in range(n):
-                xm = xp[m]
-                for i in range(n_p):
-                    a[i] += CvT[m, i] * xm
-            # Newton on g(r) = r + F_c tanh((a + Mv r) / v0), r warm-started
-            gmax = 0.0
-            for i in range(n_p):
-                w = a[i]
-                for k in range(n_p):
-                    w += Mv[i, k] * r[k]
-                t[i] = np.tanh(w * iv0)
-                g[i] = r[i] + Fc[i] * t[i]
-                gmax = max(gmax, abs(g[i]))
+            _port_map(CvT, xp, a)
+            # Newton on g(r) = r + F_c tanh((a + Mv r) / v0), r warm-started (g, t at r)
+            gmax = _trial(a, Mv, Fc, iv0, r, r, 0.0, rt, g, t)
             if stiff:
                 # a stiff friction (F_c Mv_jj / v0 > 1) either stops its port within the
                 # substep or slides at +-F_c: the force that stops each port alone, clipped
@@ -266,12 +271,7 @@ def port_sample(x, PhiT, GaT, G1T, G_oldT, G_newT, has_old, u_new, u_old, CvT, C
     n = x.shape[0]
     n_p = Fc.shape[0]
     out = x.copy()
-    fc_max = 0.0
-    for i in range(n_p):
-        fc_max = max(fc_max, Fc[i])
-    has_k3 = False
-    for i in range(n_p):
-        has_k3 = has_k3 or k3[i] != 0.0
+    fc_max, has_k3 = _levels(Fc, k3)
     _advance(
         out, PhiT, GaT, G1T, G_oldT, G_newT, has_old, u_new, u_old, CvT, CpT, Fc, v0, k3, Mv,
         fc_max > 0.0, has_k3, fc_max, np.empty(n), np.empty(n_p), np.empty(n_p),
@@ -295,12 +295,7 @@ def port_record(
     n_y = C.shape[0]
     n_u = um.shape[1]
     x = np.zeros(n)
-    fc_max = 0.0
-    for i in range(n_p):
-        fc_max = max(fc_max, Fc[i])
-    has_k3 = False
-    for i in range(n_p):
-        has_k3 = has_k3 or k3[i] != 0.0
+    fc_max, has_k3 = _levels(Fc, k3)
     xp = np.empty(n)
     f0 = np.empty(n_p)
     c0 = np.empty(n_p)
@@ -321,11 +316,7 @@ def port_record(
             for m in range(n_u):
                 acc += D[i, m] * um[k, m]
             y[k, i] = acc
-        for i in range(n_p):
-            acc = 0.0
-            for m in range(n):
-                acc += CpT[m, i] * x[m]
-            p[k, i] = acc
+        _port_map(CpT, x, p[k])
         _advance(
             x, PhiT, GaT, G1T, G_oldT, G_newT, has_old, um[k], um1[k], CvT, CpT, Fc, v0, k3, Mv,
             fc_max > 0.0, has_k3, fc_max, xp, f0, c0, r, a, g, J, dlt, rt, t, gt, tt,
