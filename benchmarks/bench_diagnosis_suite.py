@@ -4,7 +4,10 @@ and time data, clear and subtle sizes, two-effect and clean cases.
 Prints one line per case (visibility, top finding, parameter errors,
 error_after / noise floor, seconds) and the confusion table.
 
-    python benchmarks/bench_diagnosis_suite.py [--quick] [--seeds 1 2 3]
+    python benchmarks/bench_diagnosis_suite.py [--quick] [--seeds 1 2 3] [--kinds frf time]
+        [--plants wafer_stage beam] [--domain auto|time|frequency]
+
+``--domain`` is :func:`workbench.diagnosis.diagnose`'s: where a time record is fitted.
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ import casegen  # noqa: E402
 from workbench.diagnosis import diagnose  # noqa: E402
 
 
-def run(specs, seeds, *, verbose=True):
+def run(specs, seeds, *, verbose=True, domain="auto"):
     rows, scores = [], []
     # progress on stderr, silent when stderr is not a terminal (disable=None)
     bar = tqdm(total=len(seeds) * len(specs), unit="case", disable=None, file=sys.stderr)
@@ -31,7 +34,7 @@ def run(specs, seeds, *, verbose=True):
             bar.update()
             case = casegen.make_case(*spec, seed=seed)
             t0 = time.perf_counter()
-            result = diagnose(case.model, case.data).to_json()
+            result = diagnose(case.model, case.data, domain=domain).to_json()
             dt = time.perf_counter() - t0
             s = casegen.score(case, result)
             scores.append((case, s, dt))
@@ -52,9 +55,14 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="the CI subset only")
     ap.add_argument("--seeds", type=int, nargs="+", default=[1])
+    ap.add_argument("--kinds", nargs="+", default=["frf", "time"], choices=["frf", "time"])
+    ap.add_argument("--plants", nargs="+", default=["wafer_stage", "beam"])
+    ap.add_argument("--domain", default="auto", choices=["auto", "time", "frequency"])
     args = ap.parse_args()
-    specs = casegen.suite(full=not args.quick)
-    rows, scores = run(specs, args.seeds)
+    specs = [
+        s for s in casegen.suite(full=not args.quick) if s[0] in args.plants and s[1] in args.kinds
+    ]
+    rows, scores = run(specs, args.seeds, domain=args.domain)
     n = len(scores)
     named = sum(s["named"] for _, s, _ in scores)
     params = sum(s["params_ok"] for _, s, _ in scores)

@@ -218,6 +218,7 @@ def diagnose(
     effects: tuple[str, ...] | None = None,
     delay_s: float = 0.0,
     blas_threads: int | None = 1,
+    domain: str = "auto",
 ) -> Diagnosis:
     """Tell which physical effect ``model`` misses to explain ``data``, fit it, rank the findings.
 
@@ -238,6 +239,10 @@ def diagnose(
         Input delay added to the model's own, s.
     blas_threads : int or None
         BLAS threads during the call (restored on return); None keeps the caller's setting.
+    domain : {"auto", "time", "frequency"}
+        Where a time record is fitted (:func:`~workbench.diagnosis.problem.make_problem`):
+        "auto" fits a periodic record on its steady-state periods' excited lines and any
+        other record as a simulation. Every reported error is the time-domain measure.
 
     Returns
     -------
@@ -258,6 +263,7 @@ def diagnose(
             n_full_fits=n_full_fits,
             effects=effects,
             delay_s=delay_s,
+            domain=domain,
         )
 
 
@@ -294,10 +300,10 @@ def model_notes(model) -> tuple[str, ...]:
     return ()
 
 
-def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Diagnosis:
+def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s, domain) -> Diagnosis:
     check_model_matches(model, data)
     base = base_model(model, data, delay_s)
-    problem = make_problem(data)
+    problem = make_problem(data, domain=domain)
     error_before = _spec_error(model, data, delay_s)
     notes = list(model_notes(model))
     if getattr(problem, "transient", False):

@@ -24,7 +24,37 @@ import scipy.signal
 
 from workbench.sim import c2d_zoh, split_delay
 
-__all__ = ["filtered_inputs", "simulate", "zoh_filter"]
+__all__ = ["filtered_inputs", "filtered_lines", "simulate", "zoh_filter", "zoh_response"]
+
+
+def _channel_filters(model, den, numerator_s: bool):
+    """The filters of :func:`filtered_inputs`: per output group, per input-lag set, per numerator.
+
+    Returns
+    -------
+    filters : list of (g, cols, k, num, d)
+        Output group ``g``, input columns ``cols``, slot ``k`` (0: ``1/den``, 1: ``s/den``)
+        and the filter ``num(s) / d(s)`` (``d`` = ``den`` times the channel's lags).
+    groups : list of int arrays
+        Output indices sharing one sensor lag.
+    """
+    taus = np.round(model.lags("out"), 15)
+    uniq = np.unique(taus)
+    groups = [np.flatnonzero(taus == t) for t in uniq]
+    two = den is not None and len(den) == 2 and numerator_s
+    tin = np.round(model.lags("in"), 15)
+    base = np.array([1.0]) if den is None else np.concatenate([[1.0], den])
+    nums = [np.array([1.0]), np.array([1.0, 0.0])] if two else [np.array([1.0])]
+    filters = []
+    for g, ty in enumerate(uniq):
+        for ti in np.unique(tin):
+            cols = np.flatnonzero(tin == ti)
+            d = base
+            for lag in (ty, ti):
+                if lag > 0:
+                    d = np.polymul(d, [lag, 1.0])
+            filters += [(g, cols, k, num, d) for k, num in enumerate(nums)]
+    return filters, groups
 
 
 def filtered_inputs(model, den, u: np.ndarray, fs: float, *, numerator_s: bool = True):
@@ -52,24 +82,39 @@ def filtered_inputs(model, den, u: np.ndarray, fs: float, *, numerator_s: bool =
     groups : list of int arrays
         Output indices sharing one sensor lag.
     """
-    taus = np.round(model.lags("out"), 15)
-    uniq = np.unique(taus)
-    groups = [np.flatnonzero(taus == t) for t in uniq]
-    N = u.shape[0]
-    two = den is not None and len(den) == 2 and numerator_s
-    X = np.zeros((len(uniq), N, model.n_u, 2))
-    tin = np.round(model.lags("in"), 15)
-    base = np.array([1.0]) if den is None else np.concatenate([[1.0], den])
-    for g, ty in enumerate(uniq):
-        for ti in np.unique(tin):
-            cols = np.flatnonzero(tin == ti)
-            d = base
-            for lag in (ty, ti):
-                if lag > 0:
-                    d = np.polymul(d, [lag, 1.0])
-            nums = [np.array([1.0, 0.0]), np.array([1.0])] if two else [np.array([1.0])]
-            for k, num in enumerate(nums[::-1]):
-                X[g, :, cols, k] = zoh_filter(num, d, u[:, cols], 1.0 / fs, model.delay_s).T
+    filters, groups = _channel_filters(model, den, numerator_s)
+    X = np.zeros((len(groups), u.shape[0], model.n_u, 2))
+    for g, cols, k, num, d in filters:
+        X[g, :, cols, k] = zoh_filter(num, d, u[:, cols], 1.0 / fs, model.delay_s).T
+    return X, groups
+
+
+def filtered_lines(model, den, U: np.ndarray, z: np.ndarray, fs: float, *, numerator_s=True):
+    """:func:`filtered_inputs` in the frequency domain: the same filters at DFT lines.
+
+    For a periodic input in steady state, the DFT of ``filtered_inputs`` over one
+    period is ``H(z_l) U_l`` at its bins (``z_l = exp(2j pi l / period)``), with
+    ``H`` the exact ZOH-sampled filter of :func:`zoh_response`.
+
+    Parameters
+    ----------
+    model, den, fs, numerator_s
+        As :func:`filtered_inputs`.
+    U : (n_l, n_u) complex array
+        DFT of the inputs (after the static input coupling) at the lines.
+    z : (n_l,) complex array
+        The lines' points on the unit circle, ``exp(2j pi f / fs)``.
+
+    Returns
+    -------
+    X : (n_groups, n_l, n_u, 2) complex array
+    groups : list of int arrays
+    """
+    filters, groups = _channel_filters(model, den, numerator_s)
+    X = np.zeros((len(groups), U.shape[0], model.n_u, 2), complex)
+    for g, cols, k, num, d in filters:
+        h = zoh_response(num, d, z, 1.0 / fs, model.delay_s)
+        X[g, :, cols, k] = (h[:, None] * U[:, cols]).T
     return X, groups
 
 
@@ -106,6 +151,34 @@ def _charpoly(M: np.ndarray) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=512)
+def _zoh_discretization(den_bytes: bytes, dt: float, frac: float):
+    """(Ad, B0, B1, t, a) of the balanced controllable form of 1/den, ZOH with a delay ``frac``.
+
+    ``t`` is the balancing's diagonal (the output row of a numerator is scaled by it) and
+    ``a`` = det(zI - Ad). One discretization serves every numerator over the same ``den``
+    (a mode's ``1/den`` and ``s/den``).
+    """
+    den = np.frombuffer(den_bytes)
+    n = den.size - 1
+    # controllable canonical form
+    A = np.zeros((n, n))
+    A[0, :] = -den[1:]
+    if n > 1:
+        A[1:, :-1] = np.eye(n - 1)
+    B = np.zeros((n, 1))
+    B[0, 0] = 1.0
+    # balance the companion matrix: a0 ~ w^2 makes expm costly and inaccurate
+    A, Tb = scipy.linalg.matrix_balance(A, permute=False)
+    t = np.diag(Tb).copy()
+    B = B / t[:, None]
+    Ad, B0, B1, _ = c2d_zoh(A, B, dt, delay_s=frac)
+    a = _charpoly(Ad)
+    for x in (Ad, B0, B1, t, a):
+        x.flags.writeable = False
+    return Ad, B0, B1, t, a
+
+
+@functools.lru_cache(maxsize=512)
 def _zoh_coefficients(num_bytes: bytes, den_bytes: bytes, dt: float, frac: float):
     """(b, a) of the ZOH-sampled strictly proper part of num/den (monic den, num padded).
 
@@ -114,28 +187,15 @@ def _zoh_coefficients(num_bytes: bytes, den_bytes: bytes, dt: float, frac: float
     (balance, expm, three characteristic polynomials) costs more than the filter.
     """
     num, den = np.frombuffer(num_bytes), np.frombuffer(den_bytes)
-    n = den.size - 1
     strict = num[1:] - num[0] * den[1:]
-    # controllable canonical form of the strictly proper part
-    A = np.zeros((n, n))
-    A[0, :] = -den[1:]
-    if n > 1:
-        A[1:, :-1] = np.eye(n - 1)
-    B = np.zeros((n, 1))
-    B[0, 0] = 1.0
-    C = strict[None, :]
-    # balance the companion matrix: a0 ~ w^2 makes expm costly and inaccurate
-    A, Tb = scipy.linalg.matrix_balance(A, permute=False)
-    B = B / np.diag(Tb)[:, None]
-    C = C * np.diag(Tb)[None, :]
-    Ad, B0, B1, _ = c2d_zoh(A, B, dt, delay_s=frac)
+    Ad, B0, B1, t, a = _zoh_discretization(den_bytes, dt, frac)
+    C = (strict * t)[None, :]
     # SISO transfer functions of (Ad, B0, C) and (Ad, B1, C): numerator
     # det(zI - Ad + B C) - det(zI - Ad) (what scipy's ss2tf computes, without its overhead)
-    a = _charpoly(Ad)
     b0 = _charpoly(Ad - B0 @ C) - a
     b1 = _charpoly(Ad - B1 @ C) - a
     b = np.concatenate([b0, [0.0]]) + np.concatenate([[0.0], b1])
-    b.flags.writeable = a.flags.writeable = False
+    b.flags.writeable = False
     return b, a
 
 
@@ -167,3 +227,29 @@ def zoh_filter(num, den, u: np.ndarray, dt: float, delay_s: float = 0.0) -> np.n
             ud[shift:] = u[: N - shift]
         y = y + d * ud
     return y
+
+
+def zoh_response(num, den, z: np.ndarray, dt: float, delay_s: float = 0.0) -> np.ndarray:
+    """Frequency response of :func:`zoh_filter`'s discrete filter at the points ``z``.
+
+    The exact ZOH-sampled ``num(s)/den(s)`` with its input delay, as a transfer
+    function of the shift operator: ``zoh_filter``'s output in periodic steady
+    state has the DFT ``zoh_response(...) * DFT(u)`` at every bin. ``z`` (n,)
+    complex, usually on the unit circle; ``dt``, ``delay_s`` in s. Returns (n,) complex.
+    """
+    num = np.atleast_1d(np.asarray(num, float))
+    den = np.atleast_1d(np.asarray(den, float))
+    num, den = num / den[0], den / den[0]
+    n = den.size - 1
+    num = np.concatenate([np.zeros(n + 1 - num.size), num])
+    d = num[0]
+    m_int, frac = split_delay(delay_s, dt)
+    zi = 1.0 / np.asarray(z, complex)
+    h = np.zeros(zi.shape, complex)
+    if n > 0:
+        b, a = _zoh_coefficients(num.tobytes(), den.tobytes(), float(dt), float(frac))
+        # b, a are lfilter's coefficients of z^-1, lowest power first
+        h = np.polyval(b[::-1], zi) / np.polyval(a[::-1], zi) * zi**m_int
+    if d:
+        h = h + d * zi ** (m_int + (1 if frac > 0 else 0))
+    return h
