@@ -263,10 +263,13 @@ def _orthonormal_columns(B: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
 
 
 def _lstsq_std(X: np.ndarray, b: np.ndarray):
-    """Least squares by the normal equations of the column-scaled X; returns x and unit-noise "
-    "std."""
+    """Least squares by the normal equations of the column-scaled X; x and its unit-noise std.
+
+    ``X`` (n, p); ``b`` (n,) or (n, k) (k right-hand sides sharing X: one factorization);
+    returns x (p,) or (p, k) and std (p,).
+    """
     if X.shape[1] == 0:
-        return np.zeros(0), np.zeros(0)
+        return np.zeros((0,) + b.shape[1:]), np.zeros(0)
     scale = np.linalg.norm(X, axis=0)
     scale = np.where(scale > 0, scale, 1.0)
     Xs = X / scale
@@ -274,7 +277,8 @@ def _lstsq_std(X: np.ndarray, b: np.ndarray):
     M += 1e-12 * np.eye(M.shape[0])
     cov = np.linalg.pinv(M, hermitian=True)
     x = cov @ (Xs.T @ b)
-    return x / scale, np.sqrt(np.abs(np.diag(cov))) / scale
+    s = 1.0 / scale if b.ndim == 1 else (1.0 / scale)[:, None]
+    return x * s, np.sqrt(np.abs(np.diag(cov))) / scale
 
 
 #: a record starts in motion when some output's first value exceeds this fraction of its rms
@@ -325,11 +329,23 @@ class _FilteredProblem:
         flat = X.reshape(X.shape[0], -1)
         return (flat - Q @ (Q.T @ flat)).reshape(X.shape)
 
+    def _filtered(self, model: ModalModel, den, u_in):
+        """``_filter``, cached by what it depends on: a fit's linear parts and its cost see
+        the same denominator with different numerators."""
+        k = _key(den, [model.delay_s], model.lags("in"), model.lags("out"), model.T_in)
+        out = self._filter_cache.get(k)
+        if out is None:
+            out = self._filter(model, den, u_in)
+            if len(self._filter_cache) > 32:
+                self._filter_cache.clear()
+            self._filter_cache[k] = out
+        return out
+
     def _part(self, model: ModalModel, den, N0, N1, u_in) -> np.ndarray:
         k = _key(den, N0, N1, [model.delay_s], model.lags("in"), model.lags("out"), model.T_in)
         out = self._cache.get(k)
         if out is None:
-            X, groups = self._filter(model, den, u_in)
+            X, groups = self._filtered(model, den, u_in)
             out = np.zeros(self.target.shape)
             for g, rows in enumerate(groups):
                 out[:, rows] = X[g, :, :, 0] @ N0[rows].T
@@ -372,27 +388,27 @@ class _FilteredProblem:
         std = np.zeros_like(coef)
         for g, rows in enumerate(groups):
             Xg = self._project(model, X[g]) / self.scale
-            for i in rows:
-                coef[i], std[i] = _lstsq_std(Xg, e[:, i])
+            x, sd = _lstsq_std(Xg, e[:, rows])  # the outputs of a group share their regressors
+            coef[rows], std[rows] = x.T, sd
         return coef, std
 
     def fit_new_term(self, model: ModalModel, den: np.ndarray):
-        X, groups = self._filter(model, den, self._u_in(model))
+        X, groups = self._filtered(model, den, self._u_in(model))
         n_u = model.n_u
         Xc = np.concatenate([X[..., 0], X[..., 1]], axis=-1)  # [u_0..u_{n-1} | s u_0..]
         coef, std = self._regress(model, Xc, groups)
         return coef[:, :n_u], coef[:, n_u:], std[:, :n_u], std[:, n_u:]
 
     def fit_feedthrough(self, model: ModalModel):
-        X, groups = self._filter(model, None, self._u_in(model))
+        X, groups = self._filtered(model, None, self._u_in(model))
         coef, std = self._regress(model, X[..., 0], groups)
         return coef, std
 
     def fit_upper_residual(self, model: ModalModel, den: np.ndarray):
         """As :meth:`FrfProblem.fit_upper_residual`, on the record's rows."""
         u_in = self._u_in(model)
-        X0, groups = self._filter(model, None, u_in)
-        X, _ = self._filter(model, den, u_in)
+        X0, groups = self._filtered(model, None, u_in)
+        X, _ = self._filtered(model, den, u_in)
         n_u = model.n_u
         Xc = np.concatenate([X0[..., 0], X[..., 0], X[..., 1]], axis=-1)
         coef, std = self._regress(model, Xc, groups)
@@ -417,7 +433,7 @@ class _FilteredProblem:
         parts += [(m.denominator(), *m.numerator()) for m in model.modes]
         R = np.zeros((self.target.shape[0], n_y, n_u, n_u))  # (n_rows, n_y, j, k)
         for den, N0, N1 in parts:
-            X, groups = self._filter(model, den, u_in)
+            X, groups = self._filtered(model, den, u_in)
             for g, rows in enumerate(groups):
                 R[:, rows] += np.einsum("nk,ij->nijk", X[g, :, :, 0], N0[rows])
                 if N1 is not None and np.any(N1):
@@ -466,6 +482,7 @@ class TimeProblem(_FilteredProblem):
         self.band_hz = _time_band(data)
         self.transient = moving_start(data) if transient is None else bool(transient)
         self._cache: dict = {}
+        self._filter_cache: dict = {}
         self._basis_cache: dict = {}
 
     def _filter(self, model, den, u_in):
@@ -601,6 +618,7 @@ class PeriodicProblem(_FilteredProblem):
         self.scale = float(np.sqrt(np.mean(self.target**2))) or 1.0
         self.n_obs = self.target.size
         self._cache: dict = {}
+        self._filter_cache: dict = {}
         self._basis_cache: dict = {}
         self._basis_key: dict = {}
 

@@ -32,17 +32,30 @@ def _channel_filters(model, den, numerator_s: bool):
 
     Returns
     -------
-    filters : list of (g, cols, k, num, d)
+    filters : tuple of (g, cols, k, num, d)
         Output group ``g``, input columns ``cols``, slot ``k`` (0: ``1/den``, 1: ``s/den``)
         and the filter ``num(s) / d(s)`` (``d`` = ``den`` times the channel's lags).
-    groups : list of int arrays
+    groups : tuple of int arrays
         Output indices sharing one sensor lag.
     """
-    taus = np.round(model.lags("out"), 15)
+    den_bytes = None if den is None else np.asarray(den, float).tobytes()
+    return _channel_filters_of(
+        np.round(model.lags("out"), 15).tobytes(),
+        np.round(model.lags("in"), 15).tobytes(),
+        den_bytes,
+        bool(numerator_s),
+    )
+
+
+@functools.lru_cache(maxsize=256)
+def _channel_filters_of(out_bytes: bytes, in_bytes: bytes, den_bytes, numerator_s: bool):
+    """:func:`_channel_filters` from the lags' and ``den``'s bytes (cached: a fit asks again
+    and again for the same few)."""
+    taus, tin = np.frombuffer(out_bytes), np.frombuffer(in_bytes)
+    den = None if den_bytes is None else np.frombuffer(den_bytes)
     uniq = np.unique(taus)
-    groups = [np.flatnonzero(taus == t) for t in uniq]
+    groups = tuple(np.flatnonzero(taus == t) for t in uniq)
     two = den is not None and len(den) == 2 and numerator_s
-    tin = np.round(model.lags("in"), 15)
     base = np.array([1.0]) if den is None else np.concatenate([[1.0], den])
     nums = [np.array([1.0]), np.array([1.0, 0.0])] if two else [np.array([1.0])]
     filters = []
@@ -54,7 +67,9 @@ def _channel_filters(model, den, numerator_s: bool):
                 if lag > 0:
                     d = np.polymul(d, [lag, 1.0])
             filters += [(g, cols, k, num, d) for k, num in enumerate(nums)]
-    return filters, groups
+    for x in [a for f in filters for a in (f[1], f[3], f[4])] + list(groups):
+        x.flags.writeable = False
+    return tuple(filters), groups
 
 
 def filtered_inputs(model, den, u: np.ndarray, fs: float, *, numerator_s: bool = True):
@@ -247,9 +262,53 @@ def zoh_response(num, den, z: np.ndarray, dt: float, delay_s: float = 0.0) -> np
     zi = 1.0 / np.asarray(z, complex)
     h = np.zeros(zi.shape, complex)
     if n > 0:
-        b, a = _zoh_coefficients(num.tobytes(), den.tobytes(), float(dt), float(frac))
-        # b, a are lfilter's coefficients of z^-1, lowest power first
-        h = np.polyval(b[::-1], zi) / np.polyval(a[::-1], zi) * zi**m_int
+        h = _distinct_pole_response(num[1:] - d * den[1:], den, zi, dt, frac)
+        if h is None:
+            b, a = _zoh_coefficients(num.tobytes(), den.tobytes(), float(dt), float(frac))
+            # b, a are lfilter's coefficients of z^-1, lowest power first
+            h = np.polyval(b[::-1], zi) / np.polyval(a[::-1], zi)
+        h = h * zi**m_int
     if d:
         h = h + d * zi ** (m_int + (1 if frac > 0 else 0))
     return h
+
+
+#: poles closer than this (relative) are treated as repeated: partial fractions would lose
+#: about its inverse squared in accuracy, and the discretization by expm takes over
+_POLE_SEPARATION = 1e-3
+
+
+def _distinct_pole_response(strict, den, zi, dt: float, frac: float):
+    """ZOH response of ``strict(s)/den(s)`` (monic ``den``, strictly proper) by partial fractions.
+
+    Each simple pole ``lam`` with residue ``r`` samples exactly to
+    ``r (b0 z^-1 + b1 z^-2) / (1 - exp(lam dt) z^-1)`` with ``b0 = (exp(lam (dt - frac)) - 1)
+    / lam`` and ``b1 = exp(lam (dt - frac)) (exp(lam frac) - 1) / lam`` (the scalar case of
+    :func:`workbench.sim.c2d_zoh`). Returns (n_l,) complex, or None when two poles are
+    within :data:`_POLE_SEPARATION` of each other (or a pole is at 0 with another one):
+    then the caller's discretization by the matrix exponential applies.
+    """
+    if den.size == 3:  # a mode: the quadratic's roots directly (np.roots costs 20x more)
+        h, q = 0.5 * den[1], np.sqrt(complex(0.25 * den[1] ** 2 - den[2]))
+        lam = np.array([-h + q, -h - q])
+    else:
+        lam = np.roots(den)
+    if lam.size > 1:
+        diff = np.abs(lam[:, None] - lam[None, :]) + np.diag(np.full(lam.size, np.inf))
+        size = np.maximum(np.abs(lam[:, None]), np.abs(lam[None, :]))
+        if np.any(diff <= _POLE_SEPARATION * np.maximum(size, 1e-300)):
+            return None
+    dden = np.polyder(den)
+    r = np.polyval(strict, lam) / np.polyval(dden, lam)
+
+    def integral(h):  # int_0^h exp(lam s) ds, its limit h at lam = 0
+        small = np.abs(lam * h) < 1e-8
+        safe = np.where(small, 1.0, lam)
+        return np.where(small, h * (1 + 0.5 * lam * h), np.expm1(lam * h) / safe)
+
+    b0 = integral(dt - frac)
+    b1 = np.exp(lam * (dt - frac)) * integral(frac) if frac > 0 else np.zeros_like(lam)
+    p = np.exp(lam * dt)
+    zc = zi[:, None]
+    h = (r * (b0 * zc + b1 * zc * zc) / (1.0 - p * zc)).sum(axis=1)
+    return h if np.all(np.isfinite(h)) else None
