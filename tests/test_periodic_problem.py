@@ -153,6 +153,10 @@ def test_domain_choice_and_refusals():
     assert isinstance(make_problem(one_period), TimeProblem)
     with pytest.raises(InputError, match="domain 'frequency': expected a periodic record"):
         make_problem(one_period, domain="frequency")
+    # a period set but an excitation that never repeats: no steady state to fit on
+    noise = np.random.default_rng(2).standard_normal(data.u.shape)
+    not_periodic = TimeData(FS, noise, data.y, period=PERIOD)
+    assert isinstance(make_problem(not_periodic), TimeProblem)
     with pytest.raises(InputError, match="domain: expected one of"):
         make_problem(data, domain="fourier")
 

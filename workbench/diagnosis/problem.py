@@ -732,8 +732,9 @@ def make_problem(data, *, domain: str = "auto"):
 
     ``domain`` (time records): "time" fits the simulated record; "frequency" the
     steady-state periods' excited lines (:class:`PeriodicProblem`; refused for a record
-    that is not periodic); "auto" the latter when the record has at least two periods
-    and :data:`MIN_PERIODIC_LINES` excited lines.
+    that is not periodic); "auto" the latter when every experiment block of the record
+    repeats its excitation at least twice and there are :data:`MIN_PERIODIC_LINES`
+    excited lines.
     """
     if domain not in DOMAINS:
         raise InputError(f"domain: expected one of {DOMAINS}, got {domain!r}")
@@ -743,12 +744,18 @@ def make_problem(data, *, domain: str = "auto"):
         if domain == "time":
             return TimeProblem(data)
         rec = _periodic(data, n_transient=1)
-        if rec is not None and rec.excited.sum() >= MIN_PERIODIC_LINES:
+        # steady state: every experiment block repeats its excitation (a period dropped, one
+        # kept at least), and enough lines to carry the transient terms
+        if (
+            rec is not None
+            and np.all(rec.n_dropped >= 1)
+            and rec.excited.sum() >= MIN_PERIODIC_LINES
+        ):
             return PeriodicProblem(data, rec)
         if domain == "frequency":
             raise InputError(
-                "domain 'frequency': expected a periodic record (period set, >= 2 periods, "
-                f">= {MIN_PERIODIC_LINES} excited lines), got "
+                "domain 'frequency': expected a periodic record (period set, every block "
+                f">= 2 periods, >= {MIN_PERIODIC_LINES} excited lines), got "
                 f"period {data.period} and {data.n_samples} samples"
             )
         return TimeProblem(data)
