@@ -24,52 +24,66 @@ import scipy.signal
 
 from workbench.sim import c2d_zoh, split_delay
 
-__all__ = ["filtered_inputs", "filtered_lines", "simulate", "zoh_filter", "zoh_response"]
+__all__ = [
+    "filtered_inputs",
+    "filtered_lines",
+    "simulate",
+    "zoh_filter",
+    "zoh_response",
+    "zoh_responses",
+]
 
 
 def _channel_filters(model, den, numerator_s: bool):
-    """The filters of :func:`filtered_inputs`: per output group, per input-lag set, per numerator.
+    """The filters of :func:`filtered_inputs`: per output group and input-lag set.
 
     Returns
     -------
-    filters : tuple of (g, cols, k, num, d)
-        Output group ``g``, input columns ``cols``, slot ``k`` (0: ``1/den``, 1: ``s/den``)
-        and the filter ``num(s) / d(s)`` (``d`` = ``den`` times the channel's lags).
+    filters : list of (g, cols, nums, d)
+        Output group ``g``, input columns ``cols``, the numerators (``[1]``, and ``[1, 0]``
+        for ``s/den`` when asked and ``den`` is second order; slot k of X is ``nums[k]``)
+        and the common denominator ``d`` (``den`` times the channel's lags).
     groups : tuple of int arrays
         Output indices sharing one sensor lag.
     """
-    den_bytes = None if den is None else np.asarray(den, float).tobytes()
-    return _channel_filters_of(
-        np.round(model.lags("out"), 15).tobytes(),
-        np.round(model.lags("in"), 15).tobytes(),
-        den_bytes,
-        bool(numerator_s),
+    groups, lag_sets = _channel_layout(
+        np.round(model.lags("out"), 15).tobytes(), np.round(model.lags("in"), 15).tobytes()
     )
-
-
-@functools.lru_cache(maxsize=256)
-def _channel_filters_of(out_bytes: bytes, in_bytes: bytes, den_bytes, numerator_s: bool):
-    """:func:`_channel_filters` from the lags' and ``den``'s bytes (cached: a fit asks again
-    and again for the same few)."""
-    taus, tin = np.frombuffer(out_bytes), np.frombuffer(in_bytes)
-    den = None if den_bytes is None else np.frombuffer(den_bytes)
-    uniq = np.unique(taus)
-    groups = tuple(np.flatnonzero(taus == t) for t in uniq)
     two = den is not None and len(den) == 2 and numerator_s
     base = np.array([1.0]) if den is None else np.concatenate([[1.0], den])
-    nums = [np.array([1.0]), np.array([1.0, 0.0])] if two else [np.array([1.0])]
-    filters = []
+    nums = _NUMS_TWO if two else _NUMS_ONE
+    filters = [
+        (g, cols, nums, base if lag.size == 1 else np.polymul(base, lag))
+        for g, cols, lag in lag_sets
+    ]
+    return filters, groups
+
+
+_NUMS_ONE = (np.array([1.0]),)
+_NUMS_TWO = (np.array([1.0]), np.array([1.0, 0.0]))
+
+
+@functools.lru_cache(maxsize=64)
+def _channel_layout(out_bytes: bytes, in_bytes: bytes):
+    """Output groups of equal sensor lag and, per group and input-lag set, the lags' polynomial.
+
+    From the lags' bytes (cached: a model's lags change far less often than its modes).
+    Returns (groups, [(g, cols, lag_polynomial), ...]).
+    """
+    taus, tin = np.frombuffer(out_bytes), np.frombuffer(in_bytes)
+    uniq = np.unique(taus)
+    groups = tuple(np.flatnonzero(taus == t) for t in uniq)
+    sets = []
     for g, ty in enumerate(uniq):
         for ti in np.unique(tin):
-            cols = np.flatnonzero(tin == ti)
-            d = base
-            for lag in (ty, ti):
-                if lag > 0:
-                    d = np.polymul(d, [lag, 1.0])
-            filters += [(g, cols, k, num, d) for k, num in enumerate(nums)]
-    for x in [a for f in filters for a in (f[1], f[3], f[4])] + list(groups):
+            lag = np.array([1.0])
+            for tau in (ty, ti):
+                if tau > 0:
+                    lag = np.polymul(lag, [tau, 1.0])
+            sets.append((g, np.flatnonzero(tin == ti), lag))
+    for x in list(groups) + [a for _, c, p in sets for a in (c, p)]:
         x.flags.writeable = False
-    return tuple(filters), groups
+    return groups, sets
 
 
 def filtered_inputs(model, den, u: np.ndarray, fs: float, *, numerator_s: bool = True):
@@ -99,8 +113,9 @@ def filtered_inputs(model, den, u: np.ndarray, fs: float, *, numerator_s: bool =
     """
     filters, groups = _channel_filters(model, den, numerator_s)
     X = np.zeros((len(groups), u.shape[0], model.n_u, 2))
-    for g, cols, k, num, d in filters:
-        X[g, :, cols, k] = zoh_filter(num, d, u[:, cols], 1.0 / fs, model.delay_s).T
+    for g, cols, nums, d in filters:
+        for k, num in enumerate(nums):
+            X[g, :, cols, k] = zoh_filter(num, d, u[:, cols], 1.0 / fs, model.delay_s).T
     return X, groups
 
 
@@ -127,9 +142,9 @@ def filtered_lines(model, den, U: np.ndarray, z: np.ndarray, fs: float, *, numer
     """
     filters, groups = _channel_filters(model, den, numerator_s)
     X = np.zeros((len(groups), U.shape[0], model.n_u, 2), complex)
-    for g, cols, k, num, d in filters:
-        h = zoh_response(num, d, z, 1.0 / fs, model.delay_s)
-        X[g, :, cols, k] = (h[:, None] * U[:, cols]).T
+    for g, cols, nums, d in filters:
+        for k, h in enumerate(zoh_responses(nums, d, z, 1.0 / fs, model.delay_s)):
+            X[g, :, cols, k] = (h[:, None] * U[:, cols]).T
     return X, groups
 
 
@@ -252,25 +267,36 @@ def zoh_response(num, den, z: np.ndarray, dt: float, delay_s: float = 0.0) -> np
     state has the DFT ``zoh_response(...) * DFT(u)`` at every bin. ``z`` (n,)
     complex, usually on the unit circle; ``dt``, ``delay_s`` in s. Returns (n,) complex.
     """
-    num = np.atleast_1d(np.asarray(num, float))
+    return zoh_responses([num], den, z, dt, delay_s)[0]
+
+
+def zoh_responses(nums, den, z: np.ndarray, dt: float, delay_s: float = 0.0) -> list:
+    """:func:`zoh_response` of several numerators over one ``den`` (one pole computation)."""
     den = np.atleast_1d(np.asarray(den, float))
-    num, den = num / den[0], den / den[0]
+    den0, den = den[0], den / den[0]
     n = den.size - 1
-    num = np.concatenate([np.zeros(n + 1 - num.size), num])
-    d = num[0]
+    padded = []
+    for num in nums:
+        num = np.atleast_1d(np.asarray(num, float)) / den0
+        padded.append(np.concatenate([np.zeros(n + 1 - num.size), num]))
     m_int, frac = split_delay(delay_s, dt)
     zi = 1.0 / np.asarray(z, complex)
-    h = np.zeros(zi.shape, complex)
+    out = [np.zeros(zi.shape, complex) for _ in padded]
     if n > 0:
-        h = _distinct_pole_response(num[1:] - d * den[1:], den, zi, dt, frac)
-        if h is None:
-            b, a = _zoh_coefficients(num.tobytes(), den.tobytes(), float(dt), float(frac))
-            # b, a are lfilter's coefficients of z^-1, lowest power first
-            h = np.polyval(b[::-1], zi) / np.polyval(a[::-1], zi)
-        h = h * zi**m_int
-    if d:
-        h = h + d * zi ** (m_int + (1 if frac > 0 else 0))
-    return h
+        strict = np.array([num[1:] - num[0] * den[1:] for num in padded])
+        hs = _distinct_pole_response(strict, den, zi, dt, frac)
+        if hs is None:
+            hs = []
+            for num in padded:
+                b, a = _zoh_coefficients(num.tobytes(), den.tobytes(), float(dt), float(frac))
+                # b, a are lfilter's coefficients of z^-1, lowest power first
+                hs.append(np.polyval(b[::-1], zi) / np.polyval(a[::-1], zi))
+        shift = zi**m_int if m_int else 1.0
+        out = [h * shift for h in hs]
+    for i, num in enumerate(padded):
+        if num[0]:
+            out[i] = out[i] + num[0] * zi ** (m_int + (1 if frac > 0 else 0))
+    return out
 
 
 #: poles closer than this (relative) are treated as repeated: partial fractions would lose
@@ -279,14 +305,15 @@ _POLE_SEPARATION = 1e-3
 
 
 def _distinct_pole_response(strict, den, zi, dt: float, frac: float):
-    """ZOH response of ``strict(s)/den(s)`` (monic ``den``, strictly proper) by partial fractions.
+    """ZOH responses of ``strict_i(s) / den(s)`` (monic ``den``) by partial fractions.
 
     Each simple pole ``lam`` with residue ``r`` samples exactly to
     ``r (b0 z^-1 + b1 z^-2) / (1 - exp(lam dt) z^-1)`` with ``b0 = (exp(lam (dt - frac)) - 1)
     / lam`` and ``b1 = exp(lam (dt - frac)) (exp(lam frac) - 1) / lam`` (the scalar case of
-    :func:`workbench.sim.c2d_zoh`). Returns (n_l,) complex, or None when two poles are
-    within :data:`_POLE_SEPARATION` of each other (or a pole is at 0 with another one):
-    then the caller's discretization by the matrix exponential applies.
+    :func:`workbench.sim.c2d_zoh`). ``strict`` (n_num, n) numerator coefficients; returns a
+    (n_num, n_l) complex array, or None when two poles are within :data:`_POLE_SEPARATION`
+    of each other (or a pole is at 0 with another one): then the caller's discretization
+    by the matrix exponential applies.
     """
     if den.size == 3:  # a mode: the quadratic's roots directly (np.roots costs 20x more)
         h, q = 0.5 * den[1], np.sqrt(complex(0.25 * den[1] ** 2 - den[2]))
@@ -298,8 +325,8 @@ def _distinct_pole_response(strict, den, zi, dt: float, frac: float):
         size = np.maximum(np.abs(lam[:, None]), np.abs(lam[None, :]))
         if np.any(diff <= _POLE_SEPARATION * np.maximum(size, 1e-300)):
             return None
-    dden = np.polyder(den)
-    r = np.polyval(strict, lam) / np.polyval(dden, lam)
+    dden = np.polyval(np.polyder(den), lam)
+    r = np.array([np.polyval(st, lam) for st in strict]) / dden  # (n_num, n_poles)
 
     def integral(h):  # int_0^h exp(lam s) ds, its limit h at lam = 0
         small = np.abs(lam * h) < 1e-8
@@ -310,5 +337,7 @@ def _distinct_pole_response(strict, den, zi, dt: float, frac: float):
     b1 = np.exp(lam * (dt - frac)) * integral(frac) if frac > 0 else np.zeros_like(lam)
     p = np.exp(lam * dt)
     zc = zi[:, None]
-    h = (r * (b0 * zc + b1 * zc * zc) / (1.0 - p * zc)).sum(axis=1)
-    return h if np.all(np.isfinite(h)) else None
+    # (n_l, n_poles): each pole's sampled response per unit residue
+    per_pole = (b0 * zc + b1 * zc * zc) / (1.0 - p * zc)
+    hs = r @ per_pole.T
+    return hs if np.all(np.isfinite(hs)) else None
