@@ -5,7 +5,7 @@ Prints one line per case (visibility, top finding, parameter errors,
 error_after / noise floor, seconds) and the confusion table.
 
     python benchmarks/bench_diagnosis_suite.py [--quick] [--seeds 1 2 3] [--kinds frf time]
-        [--plants wafer_stage beam] [--domain auto|time|frequency]
+        [--plants wafer_stage beam] [--domain auto|time|frequency] [--jobs 2]
 
 ``--domain`` is :func:`workbench.diagnosis.diagnose`'s: where a time record is fitted.
 """
@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
@@ -25,28 +26,42 @@ import casegen  # noqa: E402
 from workbench.diagnosis import diagnose  # noqa: E402
 
 
-def run(specs, seeds, *, verbose=True, domain="auto"):
+def one_case(spec, seed: int, domain: str = "auto"):
+    """Make, diagnose and score one case: (case, score, seconds in diagnose)."""
+    case = casegen.make_case(*spec, seed=seed)
+    t0 = time.perf_counter()
+    result = diagnose(case.model, case.data, domain=domain).to_json()
+    dt = time.perf_counter() - t0
+    return case, casegen.score(case, result), dt
+
+
+def run(specs, seeds, *, verbose=True, domain="auto", jobs: int = 1):
+    """Every (spec, seed) case; ``jobs`` worker processes (each with one BLAS thread)."""
+    todo = [(spec, seed) for seed in seeds for spec in specs]
     rows, scores = [], []
     # progress on stderr, silent when stderr is not a terminal (disable=None)
-    bar = tqdm(total=len(seeds) * len(specs), unit="case", disable=None, file=sys.stderr)
-    for seed in seeds:
-        for spec in specs:
-            bar.update()
-            case = casegen.make_case(*spec, seed=seed)
-            t0 = time.perf_counter()
-            result = diagnose(case.model, case.data, domain=domain).to_json()
-            dt = time.perf_counter() - t0
-            s = casegen.score(case, result)
-            scores.append((case, s, dt))
-            rows.append(("+".join(case.effects), s["top"]))
-            if verbose:
-                perr = " ".join(f"{k}={v:.3f}" for k, v in s["param_errors"].items())
-                print(
-                    f"{case.case_id:58s} vis={case.visibility:7.1f} top={s['top']!s:22s} "
-                    f"named={s['named']!s:5} params={s['params_ok']!s:5} "
-                    f"after/floor={s['error_after_ratio']:.2f} {dt:5.1f}s {perr}",
-                    flush=True,
-                )
+    bar = tqdm(total=len(todo), unit="case", disable=None, file=sys.stderr)
+    if jobs > 1:
+        pool = ProcessPoolExecutor(jobs)
+        futures = [pool.submit(one_case, spec, seed, domain) for spec, seed in todo]
+        results = (f.result() for f in futures)  # in the suite's order
+    else:
+        pool = None
+        results = (one_case(spec, seed, domain) for spec, seed in todo)
+    for case, s, dt in results:
+        bar.update()
+        scores.append((case, s, dt))
+        rows.append(("+".join(case.effects), s["top"]))
+        if verbose:
+            perr = " ".join(f"{k}={v:.3f}" for k, v in s["param_errors"].items())
+            print(
+                f"{case.case_id:58s} vis={case.visibility:7.1f} top={s['top']!s:22s} "
+                f"named={s['named']!s:5} params={s['params_ok']!s:5} "
+                f"after/floor={s['error_after_ratio']:.2f} {dt:5.1f}s {perr}",
+                flush=True,
+            )
+    if pool is not None:
+        pool.shutdown()
     bar.close()
     return rows, scores
 
@@ -58,11 +73,14 @@ def main() -> None:
     ap.add_argument("--kinds", nargs="+", default=["frf", "time"], choices=["frf", "time"])
     ap.add_argument("--plants", nargs="+", default=["wafer_stage", "beam"])
     ap.add_argument("--domain", default="auto", choices=["auto", "time", "frequency"])
+    ap.add_argument("--jobs", type=int, default=1, help="worker processes (the machine's cores)")
     args = ap.parse_args()
     specs = [
         s for s in casegen.suite(full=not args.quick) if s[0] in args.plants and s[1] in args.kinds
     ]
-    rows, scores = run(specs, args.seeds, domain=args.domain)
+    t0 = time.perf_counter()
+    rows, scores = run(specs, args.seeds, domain=args.domain, jobs=args.jobs)
+    wall = time.perf_counter() - t0
     n = len(scores)
     named = sum(s["named"] for _, s, _ in scores)
     params = sum(s["params_ok"] for _, s, _ in scores)
@@ -78,6 +96,7 @@ def main() -> None:
     print(f"error_after within 2x noise floor (linear cases): {floor_ok}/{n_lin}")
     times = sorted(d for *_, d in scores)
     print(f"diagnose time: median {times[n // 2]:.2f} s, max {times[-1]:.2f} s")
+    print(f"wall time: {wall:.0f} s for {n} cases with {args.jobs} worker(s)")
 
 
 if __name__ == "__main__":
