@@ -436,7 +436,9 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s, domain
         d_bic = bic0 - _bic(last.cost, n, k_total)
         # significant (BIC), and large: the spec error falls by 15 %, or the noise-weighted
         # misfit by 30 % (with two effects present the first may move the spec error little)
-        large = last.error <= ERROR_RATIO * cur_err or last.cost <= COST_RATIO * cur_cost
+        large = last.error <= ERROR_RATIO * cur_err or problem.record_cost(
+            last.model
+        ) <= COST_RATIO * problem.record_cost(current)
         if not large and d_bic > 0 and per_round_verdict:
             # a small but significant effect that brings the model within noise by compare's
             # criterion (a subtle low suspension: few lines, the rest already right)
