@@ -55,7 +55,7 @@ from workbench.diagnosis.effects import (
     refinements,
 )
 from workbench.diagnosis.explain import explain
-from workbench.diagnosis.fit import FitResult, fit, fit_joint, screen
+from workbench.diagnosis.fit import FitResult, fit, fit_budget, fit_joint, screen
 from workbench.diagnosis.modal import decompose
 from workbench.diagnosis.problem import make_problem
 from workbench.io.formats import FrfData, TimeData, check_model_matches
@@ -381,7 +381,9 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s) -> Dia
                 results.append(fit(s, problem, current, starts=starts))
         for r in list(results):
             for s, start in refinements(r, current):
-                results.append(fit(s, problem, current, starts=[start], n_starts=1))
+                results.append(
+                    fit(s, problem, current, starts=[start], n_starts=1, max_nfev=fit_budget(s))
+                )
         bic0 = _bic(cur_cost, n, sum(a.n_params for a in accepted))
         ranked = sorted(results, key=lambda r: _bic(r.cost, n, r.n_params))
         best = ranked[0]
