@@ -549,13 +549,16 @@ class CoupledSuspension:
     ``n_f`` lowest flexible modes of the model::
 
         K = [[P W^2 P^-1,           a_rj w_max w_j],
-             [g_jr w_max w_j,       w_j^2 (1 + d_j)]]
+             [g_jr w_max w_j,       w_j w_k (delta_jk + d_jk)]]
 
     (rad/s)^2, ``w_max`` the highest suspension frequency, ``a`` (R, n_f), ``g``
-    (n_f, R) dimensionless; ``a`` and ``g`` are separate because the model's modal
-    coordinates have an unknown scale each (mass-normalized, ``K`` would be
-    symmetric: ``a_rj g_jr`` is what the scale leaves). Damping stays as the
-    uncoupled modes have it (the suspension's shared ``z``, each flexible mode's
+    (n_f, R), ``d`` (n_f, n_f) dimensionless (``d_jj >= 0``: a spring stiffens; it
+    couples the flexible modes among themselves too, ``phi_j phi_k k``: left out,
+    2.6x the floor stayed on the three-mass chain of the test); ``a`` and ``g``
+    are separate because the model's modal coordinates have an unknown scale
+    each (mass-normalized, ``K`` would be symmetric: ``a_rj g_jr`` is what the
+    scale leaves). Damping stays as the uncoupled modes have it (the
+    suspension's shared ``z``, each flexible mode's
     own). The coupled modes are the eigen-solution of ``[[0, I], [-K, -D]]``, each
     pair an exact ``(N1 s + N0) / (s^2 + 2 z w s + w^2)``. The flexible modes keep
     their places in the model (structures chained after this one index them); the
@@ -563,14 +566,16 @@ class CoupledSuspension:
 
     Fitted from a rigid suspension's optimum with zero coupling
     (:func:`refinements`), not screened: ``theta`` = (RigidSuspension's theta,
-    ``a`` row-major, ``g`` row-major, ``d``).
+    ``a``, ``g``, ``d`` row-major). Not found from zero coupling on a very lightly
+    damped suspension (z = 0.002 on the test's chain: the search leaves the
+    suspended frequency); at z = 0.02 it is.
     """
 
     effect: str = "suspension_stiffness"
     #: flexible modes coupled: the lowest ones (the coupling's effect falls as 1 / w_j^2)
     n_couple: int = 4
     #: residual evaluations of the least-squares fit (finite-difference Jacobian over
-    #: 2 R n_f + n_f more parameters than the rigid suspension has)
+    #: 2 R n_f + n_f^2 more parameters than the rigid suspension has)
     max_nfev: int = 400
 
     @property
