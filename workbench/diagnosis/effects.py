@@ -921,7 +921,7 @@ def _model_flexible(m: Mode) -> bool:
     return m.kind == "flexible" and not m.effect
 
 
-def refinements(fr: FitResult, base: ModalModel) -> list[tuple]:
+def refinements(fr: FitResult, base: ModalModel, kind: str = "frf") -> list[tuple]:
     """Structures to fit from a fitted one's optimum: (structure, start theta) pairs.
 
     A shared-factor :class:`ModalPattern` is refined mode by mode
@@ -929,7 +929,10 @@ def refinements(fr: FitResult, base: ModalModel) -> list[tuple]:
     own grid would repeat the pattern's grid at the cost of every mode. A rigid
     suspension (:class:`RigidSuspension`, or :class:`SuspensionStiffness` on one
     rigid DOF) is refined with its coupling to the flexible modes
-    (:class:`CoupledSuspension`) from its optimum, the coupling zero.
+    (:class:`CoupledSuspension`) from its optimum, the coupling zero, on FRF data
+    (``kind``, the problem's): on a time record its 2 R n_f + n_f^2 extra parameters
+    by finite differences, each evaluation a simulation, took more than 12 minutes
+    (an indepgen3 planar record, R = 3, n_f = 4: 50 parameters), not yet affordable.
     """
     s = fr.structure
     if type(s) is ModalPattern:
@@ -939,7 +942,7 @@ def refinements(fr: FitResult, base: ModalModel) -> list[tuple]:
     # rigid DOF: the shared-frequency structure is the rigid one, theta (ln f, ln z) alike)
     R = RigidSuspension.rank(base) if any(m.kind == "rigid" for m in base.modes) else 0
     rigid_fit = type(s) is RigidSuspension or (type(s) is SuspensionStiffness and R == 1)
-    if rigid_fit and 1 <= R <= 3:
+    if rigid_fit and 1 <= R <= 3 and kind == "frf":
         cs = CoupledSuspension()
         if cs.flexible(base):
             return [(cs, cs.start(fr.theta, base))]
