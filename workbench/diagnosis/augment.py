@@ -23,7 +23,7 @@ from workbench.core.model import LTIModel, as_model, pade_delay, pade_order, wit
 from workbench.diagnosis import LINEAR_EFFECTS, detect
 from workbench.diagnosis.diagnose import _bic, _spec_error, base_model, model_notes
 from workbench.diagnosis.effects import candidate_structures, refinements
-from workbench.diagnosis.fit import FitResult, fit, screen
+from workbench.diagnosis.fit import FitResult, fit, fit_budget, screen
 from workbench.diagnosis.nonlinear import PortNonlinearity
 from workbench.diagnosis.problem import make_problem
 from workbench.io.formats import FrfData, TimeData, check_model_matches
@@ -136,8 +136,10 @@ def augment(
             _, starts = screen(s, problem, base)
             results.append(fit(s, problem, base, starts=starts))
         for r in list(results):  # a shared modal pattern refined mode by mode
-            for s, start in refinements(r, base):
-                results.append(fit(s, problem, base, starts=[start], n_starts=1))
+            for s, start in refinements(r, base, problem.kind):
+                results.append(
+                    fit(s, problem, base, starts=[start], n_starts=1, max_nfev=fit_budget(s))
+                )
         # the structures differ in their number of parameters: rank as diagnose does (BIC)
         best = min(results, key=lambda r: _bic(r.cost, problem.n_obs, r.n_params))
         params, params_std = best.structure.report(best, problem, base)

@@ -55,7 +55,7 @@ from workbench.diagnosis.effects import (
     refinements,
 )
 from workbench.diagnosis.explain import explain
-from workbench.diagnosis.fit import FitResult, fit, fit_joint, screen
+from workbench.diagnosis.fit import MAX_NFEV, FitResult, fit, fit_budget, fit_joint, screen
 from workbench.diagnosis.modal import decompose
 from workbench.diagnosis.problem import make_problem
 from workbench.io.formats import FrfData, TimeData, check_model_matches
@@ -385,9 +385,16 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s, domain
             # one-parameter structures are cheap and a coarse grid understates them: refine
             if i < n_fits or len(s.bounds(problem, current)[0]) <= 1:
                 results.append(fit(s, problem, current, starts=starts))
+        best_first = min(results, key=lambda r: _bic(r.cost, n, r.n_params), default=None)
         for r in list(results):
-            for s, start in refinements(r, current):
-                results.append(fit(s, problem, current, starts=[start], n_starts=1))
+            for s, start in refinements(r, current, problem.kind):
+                if fit_budget(s) > MAX_NFEV and r is not best_first:
+                    # a costly refinement (a coupled suspension: tens of parameters, hundreds
+                    # of evaluations) only where its structure already explains the data best
+                    continue
+                results.append(
+                    fit(s, problem, current, starts=[start], n_starts=1, max_nfev=fit_budget(s))
+                )
         bic0 = _bic(cur_cost, n, sum(a.n_params for a in accepted))
         ranked = sorted(results, key=lambda r: _bic(r.cost, n, r.n_params))
         best = ranked[0]

@@ -37,6 +37,7 @@ __all__ = [
     "FitResult",
     "Screening",
     "fit",
+    "fit_budget",
     "levenberg_marquardt",
     "parameter_std",
     "screen",
@@ -144,6 +145,19 @@ class Screening:
         return iter((self.cost, self.starts))
 
 
+#: residual evaluations of one least-squares refinement, unless the structure asks for more
+MAX_NFEV = 60
+
+
+def fit_budget(structure) -> int:
+    """Residual evaluations for refining ``structure`` from one start.
+
+    :data:`MAX_NFEV`, or the structure's own ``max_nfev`` (a structure with many
+    parameters and a finite-difference Jacobian needs more evaluations a step).
+    """
+    return int(getattr(structure, "max_nfev", MAX_NFEV))
+
+
 def screen(structure: Structure, problem, base: ModalModel) -> Screening:
     """Projected cost on the structure's grid, grid points sorted by cost, numerical failures.
 
@@ -173,7 +187,7 @@ def fit(
     *,
     starts: list[np.ndarray] | None = None,
     n_starts: int = 2,
-    max_nfev: int = 60,
+    max_nfev: int = MAX_NFEV,
 ) -> FitResult:
     """Fit ``structure`` on top of ``base`` to the data of ``problem``.
 
@@ -192,8 +206,18 @@ def fit(
         Residual evaluations per refinement.
     """
 
+    infeasible: list[np.ndarray] = []
+
     def residual(theta):
-        return problem.residual(structure.build(theta, problem, base).model)
+        try:
+            return problem.residual(structure.build(theta, problem, base).model)
+        except NUMERICAL_FAILURES:
+            # a trial point the structure cannot realize (an overdamped coupled mode): a
+            # residual far above the start's, so the trust region rejects the step and shrinks
+            if not infeasible:
+                r0 = problem.residual(base)
+                infeasible.append(np.full(r0.shape, 1e3 * max(np.sqrt(np.mean(r0**2)), 1e-150)))
+            return infeasible[0]
 
     lo, hi = (np.asarray(b, float) for b in structure.bounds(problem, base))
     n_theta = lo.size
@@ -514,7 +538,7 @@ def stack(parts: list, thetas: list[np.ndarray], problem, base: ModalModel):
 
 
 def fit_joint(
-    parts: list, thetas: list[np.ndarray], problem, base: ModalModel, *, max_nfev: int = 60
+    parts: list, thetas: list[np.ndarray], problem, base: ModalModel, *, max_nfev: int = MAX_NFEV
 ):
     """Refit ``parts`` jointly from ``thetas``; returns one FitResult per part and their bases.
 
