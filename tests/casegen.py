@@ -102,7 +102,7 @@ class Case:
     model: Any  # control.StateSpace, continuous, the nominal model
     data: FrfData | TimeData
     truth: dict[str, Any] = field(default_factory=dict)  # effect -> key parameters
-    noise_floor: float = 0.0  # spec error of the true linear model
+    noise_floor: float = 0.0  # spec error of the noise-free truth (its friction included)
     nominal_error: float = 0.0  # spec error of the nominal model
 
     @property
@@ -357,6 +357,9 @@ class FrictionTruth:
 
 
 def _time_data(true_plant, rng):
+    """(record, noise floor): the floor is the record's error against its noise-free truth
+    driven by the recorded u, the friction included (a FrictionTruth simulated by its own
+    scheme): the linear truth's error would be the friction's share, not the noise's."""
     from workbench.experiments import ExperimentConfig, run_experiment
 
     if true_plant.n_u == true_plant.n_y:
@@ -364,9 +367,12 @@ def _time_data(true_plant, rng):
     else:
         cfg = ExperimentConfig(kind="open_loop_multisine", n_exp=1, period=2048, periods=5)
     data = run_experiment(true_plant, cfg, rng=rng)
-    y_true = sim.simulate_zoh(
-        true_plant.linear_model(), data.u, data.fs, delay_s=true_plant.delay_s
-    )
+    if isinstance(true_plant, FrictionTruth):
+        y_true = true_plant.simulate_noise_free(data.u)
+    else:
+        y_true = sim.simulate_zoh(
+            true_plant.linear_model(), data.u, data.fs, delay_s=true_plant.delay_s
+        )
     return data, lti.relative_error_time(data.y, y_true)
 
 
