@@ -137,6 +137,8 @@ def _truth(fields: dict[str, Any]) -> dict[str, Any]:
         t["cutoff_hz"] = float(np.min(c))
     if "suspension_freq_hz" in fields:
         t["freq_hz"] = float(np.atleast_1d(fields["suspension_freq_hz"])[0])
+    if "friction_force" in fields:  # the same level at every port, N
+        t.update(element="coulomb_friction", friction_force=float(fields["friction_force"]))
     return t
 
 
@@ -459,7 +461,13 @@ def suite(*, full: bool = True, seed: int = 1000) -> list[tuple[str, str, tuple]
 
 # Tolerances of the issue: delay 10 %, frequencies 1 %, damping 30 %, cutoffs
 # 20 %, suspension frequency 10 %.
-TOLERANCES = {"delay_s": 0.10, "freq_hz": 0.01, "damping": 0.30, "cutoff_hz": 0.20}
+TOLERANCES = {
+    "delay_s": 0.10,
+    "freq_hz": 0.01,
+    "damping": 0.30,
+    "cutoff_hz": 0.20,
+    "friction_force": 0.10,  # every port's level (a nonlinearity's fitted element)
+}
 
 
 def _first_finite(value) -> float | None:
@@ -481,11 +489,20 @@ def score(case: Case, result: dict) -> dict[str, Any]:
         if not truth:
             continue
         for key, true_value in truth.items():
+            if key == "element":  # the fitted port element is named, or not
+                got_element = f.get("parameters", {}).get("element")
+                param_err[f"{f['effect']}.element"] = 0.0 if got_element == true_value else np.inf
+                param_ok &= got_element == true_value
+                continue
             tol = TOLERANCES[key]
             if f["effect"] == "suspension_stiffness" and key == "freq_hz":
                 tol = 0.10
             got = _first_finite(f.get("parameters", {}).get(key, np.nan))
             err = np.inf if got is None else abs(got - true_value) / abs(true_value)
+            if key == "friction_force":  # every port where the element acts, not the first
+                lv = np.asarray(f.get("parameters", {}).get(key, np.nan), float).ravel()
+                lv = lv[np.isfinite(lv) & (lv > 0)]
+                err = float(np.max(np.abs(lv - true_value))) / true_value if lv.size else np.inf
             param_err[f"{f['effect']}.{key}"] = err
             param_ok &= bool(err <= tol)
     after = [f.get("error_after") for f in result.get("findings", []) if f["effect"] != "none"]

@@ -752,32 +752,28 @@ def fit_port_element(
         c = scale_levels(name, c, n_sub, None, g, span)
         return c, start_gains(name, c, n_sub)
 
-    def fit_with_gains(name, c):
-        """The element ``name`` from its regressed levels ``c`` with the port gains of a
-        SquarePorts model: per round at n substeps, the levels' common scale
-        (:func:`scale_levels`) and the gains' grid (:func:`start_gains`) at v0's estimate,
-        until the simulation is converged (:func:`converged_substeps`, at most
-        CONVERGE_ROUNDS doublings); then Gauss-Newton on the levels, v0 and the gains
-        jointly there (:func:`refine_levels`). The error is steep in the levels (a from-rest
+    def fit_with_gains(name, c, g):
+        """The element ``name`` from its levels ``c`` and port gains ``g`` (a SquarePorts
+        model; both from :func:`start_with_gains` at ``substeps``): per round at n
+        substeps, the levels' common scale (:func:`scale_levels`) and the gains' grid
+        (:func:`start_gains`) at v0's estimate, n raised to the coarser of the first two
+        counts whose outputs agree (:func:`converged_substeps`, at most CONVERGE_ROUNDS
+        rounds); then Gauss-Newton on the levels, v0 and the gains jointly there
+        (:func:`refine_levels`; the converged rounds after it refit at finer counts if its
+        smaller misfit asks for them). The error is steep in the levels (a from-rest
         simulation of rigid bodies integrates a level error twice: 10 % off is ~100x the
         noise on the stage) and flat in the gains until the levels are close; how far the
         sticking ports hold a non-collocated mode is what the gains set, which a coarse
         simulation misplaces. A list of (error, name, nl, params) like refine_levels."""
-        n_sub, g, out = substeps, None, []
-        for _ in range(CONVERGE_ROUNDS + 1):
+        n_sub, out = substeps, []
+        for _ in range(CONVERGE_ROUNDS):
+            n_new = converged_substeps(name, c, n_sub, None, g)
+            if n_new <= 2 * n_sub:  # n_sub's output moved little on doubling: fit there
+                break
+            n_sub = n_new // 2
             c, g = start_with_gains(name, c, n_sub, g)
             nl, params = make_element(name, c, n_sub, None, g)
             out.append((simulated(nl, g)[0], name, nl, params))
-            n_new = converged_substeps(name, c, n_sub, None, g)
-            if n_new == n_sub or n_sub >= MAX_SUBSTEPS:
-                break
-            converged = n_new == 2 * n_sub
-            n_sub = n_new
-            if converged:  # the doubling moved the output little: refit there and stop
-                c, g = start_with_gains(name, c, n_sub, g)
-                nl, params = make_element(name, c, n_sub, None, g)
-                out.append((simulated(nl, g)[0], name, nl, params))
-                break
         return out + refine_levels(name, c, n_sub, None, g)
 
     # saturation: the linear response to the clipped input, over levels of |u|
@@ -847,7 +843,7 @@ def fit_port_element(
     if best is not None and family is not None and refine:
         # the port gains are fitted with the levels (the regression has no gains: its motion
         # is the measured one), on the converged simulation
-        scored += fit_with_gains(best[1], best[3])
+        scored += fit_with_gains(best[1], best[3], best[5])
     after, element, nl, params = min(scored, key=lambda t: t[0])
     if refine and element != "saturation":
         # the levels above are fitted on a simulation of ``substeps`` substeps; the reported
