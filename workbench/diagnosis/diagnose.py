@@ -21,7 +21,9 @@ compare finds the model within noise (or, without a noise reference, when no
 effect lowers the error). A nonlinearity is a finding only with a fitted port
 element (friction, cubic spring, saturation) whose nonlinear simulation model
 lowers the error (:func:`workbench.diagnosis.nonlinear.fit_port_element`). The
-ports are the outputs of a square model; on a model that is not square, a
+ports are the outputs of a square model (for the modes it sees as its inputs drive them;
+a mode seen with another shape enters the ports with a gain fitted with the element,
+:func:`workbench.diagnosis.nonlinear.square_ports`); on a model that is not square, a
 sensor collocated with an input fixes the mode shapes at every input
 (:func:`workbench.diagnosis.nonlinear.with_ports`, the extended modal model), and
 each pair that may be collocated is a hypothesis the record decides. Without

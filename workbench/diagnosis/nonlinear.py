@@ -16,6 +16,13 @@ its end value (trapezoidal, the friction's end value implicit):
 :func:`workbench.sim.substep_zoh` and its compiled loop, the propagation the
 plants use too; this module supplies the port law.
 
+A square model whose sensors see some modes with other shapes than the actuators drive
+them (a stage's flexible modes in DOF coordinates: residue ``c_k b_k^T`` with ``c_k !=
+b_k``) has its outputs as ports only for the collocated modes (symmetric positive
+semi-definite residue): :func:`square_ports` gives the others the port residue ``g_k v_k
+v_k^T`` (``v_k`` their input direction), one gain ``g_k = |b_k|^2`` each, which
+:func:`fit_port_element` fits with the element (:class:`SquarePorts`).
+
 A model that is not square has no output at most ports. With one sensor i
 collocated with actuator j (methods.md section 4, the extended modal model),
 the residue row of that sensor fixes each mode's mass-normalized shape at
@@ -448,7 +455,9 @@ class ElementFit:
     parameters : dict
         ``friction_force`` (N per port) and ``friction_velocity`` (m/s), or
         ``cubic_stiffness`` (N/m^3 per port), each with the ``substeps`` per sample of its
-        simulation; or ``saturation`` (N per input; inf = none).
+        simulation; or ``saturation`` (N per input; inf = none). On a
+        :class:`SquarePorts` model also ``port_gains`` (m/N, the fitted ``|b_k|^2`` per
+        non-collocated mode) and ``port_gain_freq_hz`` (those modes' frequencies, Hz).
     nonlinearity : PortNonlinearity
         The element as a simulation model.
     error_before, error_after : float
