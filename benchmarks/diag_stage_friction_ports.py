@@ -44,6 +44,14 @@ velocity (2.4e-7) and bounded to [1e-8, 1e-4]: levels 0.045-0.0507 N (0.05), v0 
 g 0.0142 / 0.0777, 12.9x the floor after 25 evaluations (54 s): near the truth, converging
 slowly (Ty's level stuck at 0.045).
 
+Session 25 (helper 22): the port model is in the diagnosis (nonlinear.SquarePorts /
+square_ports, fitted by fit_port_element with the levels and v0; start: a gains grid and a
+search of the levels' common scale per substep count, then joint Gauss-Newton). casegen
+stage friction (floor = the record against its noise-free truth, now casegen's
+noise_floor): clear 7 / 8 and subtle 7 / 8 all coulomb_friction at every DOF, levels
+within 0.1 % (clear) / 1 % (subtle), g within 1-2 % of |b_k|^2, 1.01-1.04x the floor;
+tests/test_diagnose_stage_friction.py (slow).
+
 tests/indepgen.py's stage (rng 1, friction per rigid mode, none on its flexible modes: the
 truth is g = 0): true levels, Cp = C 4.96-5.01 (1040x its floor 0.00477); rigid-only ports
 0.0176 (3.7x, v0 1e-8, hard Coulomb in the record); but fit_port_element on the rigid-only

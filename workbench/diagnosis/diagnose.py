@@ -21,7 +21,9 @@ compare finds the model within noise (or, without a noise reference, when no
 effect lowers the error). A nonlinearity is a finding only with a fitted port
 element (friction, cubic spring, saturation) whose nonlinear simulation model
 lowers the error (:func:`workbench.diagnosis.nonlinear.fit_port_element`). The
-ports are the outputs of a square model; on a model that is not square, a
+ports are the outputs of a square model (for the modes it sees as its inputs drive them;
+a mode seen with another shape enters the ports with a gain fitted with the element,
+:func:`workbench.diagnosis.nonlinear.square_ports`); on a model that is not square, a
 sensor collocated with an input fixes the mode shapes at every input
 (:func:`workbench.diagnosis.nonlinear.with_ports`, the extended modal model), and
 each pair that may be collocated is a hypothesis the record decides. Without
@@ -866,6 +868,16 @@ def _nonlinearity_finding(nl, data, err, linear: list, cur_err: float, *, direct
             f"(workbench.diagnosis.nonlinear) brings the error from {ef.error_before:.4g} "
             f"to {ef.error_after:.4g}."
         )
+        if "port_gains" in ef.parameters:
+            gains = ", ".join(
+                f"{g:.3g} m/N at {f:.0f} Hz"
+                for g, f in zip(ef.parameters["port_gains"], ef.parameters["port_gain_freq_hz"])
+            )
+            note += (
+                " The outputs are the ports' motion for the modes they see as the inputs "
+                "drive them; the modes they see with other shapes enter the ports with a "
+                f"fitted gain |b_k|^2 each ({gains})."
+            )
         if pair is not None:
             note += (
                 f" The ports' motion comes from the model's mode shapes, mass-normalized at "
@@ -928,7 +940,13 @@ def _fit_element(data: TimeData, linear: list):
     by the factor a finding must (``ERROR_RATIO``): they may be only the element's
     linearization. None when no port can be located.
     """
-    from workbench.diagnosis.nonlinear import collocated_pairs, fit_port_element, with_ports
+    from workbench.diagnosis.nonlinear import (
+        SquarePorts,
+        collocated_pairs,
+        fit_port_element,
+        square_ports,
+        with_ports,
+    )
 
     n_y, n_u = data.n_y, data.n_u
     if n_y == n_u:
@@ -949,7 +967,9 @@ def _fit_element(data: TimeData, linear: list):
             motion = simulate_zoh(first.to_lti(), data.u, data.fs)[:, ports]
         for i, m in enumerate(linear):
             if pair is None:
-                hyps.append((i, m.to_lti(), None, pair, None))
+                # the outputs are the ports for the collocated modes; the others' port gains
+                # are fitted with the element (SquarePorts), else Cp = C
+                hyps.append((i, square_ports(m) or m.to_lti(), None, pair, None))
                 continue
             aug = with_ports(m, pair)
             if aug is not None:
@@ -972,7 +992,12 @@ def _fit_element(data: TimeData, linear: list):
         if h[0] not in best or ef.error_after < best[h[0]][0].error_after:
             best[h[0]] = (ef, h)
     chosen = {
-        i: (fit_one(h, True) if several and h[3] is not None else ef, h)
+        i: (
+            fit_one(h, True)
+            if several and (h[3] is not None or isinstance(h[1], SquarePorts))
+            else ef,
+            h,
+        )
         for i, (ef, h) in best.items()
     }
     i_pick = max(chosen)  # the model as given (last), unless the linear findings are needed

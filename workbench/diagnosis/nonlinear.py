@@ -16,6 +16,13 @@ its end value (trapezoidal, the friction's end value implicit):
 :func:`workbench.sim.substep_zoh` and its compiled loop, the propagation the
 plants use too; this module supplies the port law.
 
+A square model whose sensors see some modes with other shapes than the actuators drive
+them (a stage's flexible modes in DOF coordinates: residue ``c_k b_k^T`` with ``c_k !=
+b_k``) has its outputs as ports only for the collocated modes (symmetric positive
+semi-definite residue): :func:`square_ports` gives the others the port residue ``g_k v_k
+v_k^T`` (``v_k`` their input direction), one gain ``g_k = |b_k|^2`` each, which
+:func:`fit_port_element` fits with the element (:class:`SquarePorts`).
+
 A model that is not square has no output at most ports. With one sensor i
 collocated with actuator j (methods.md section 4, the extended modal model),
 the residue row of that sensor fixes each mode's mass-normalized shape at
@@ -31,8 +38,10 @@ driving-point residue positive, as a collocated pair's is).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
+import scipy.linalg
 import scipy.optimize
 
 from workbench import sim
@@ -44,6 +53,8 @@ __all__ = [
     "simulate_nonlinear",
     "collocated_pairs",
     "with_ports",
+    "square_ports",
+    "SquarePorts",
     "fit_friction",
     "fit_port_element",
     "ElementFit",
@@ -146,13 +157,9 @@ def with_ports(model, pair: tuple[int, int]):
         coupling act on the port forces as on the inputs). None when a rigid-body
         cluster holds several rigid modes (their shapes are not fixed by one row).
     """
-    from dataclasses import replace
-
-    import scipy.linalg
-
     i, j = pair
     n_u = model.n_u
-    modes = []
+    rows = []
     for m in model.modes:
         N0, N1 = m.numerator()
         row = N0[i]
@@ -165,12 +172,32 @@ def with_ports(model, pair: tuple[int, int]):
                     return None
             P = np.outer(row, row) / r
         c_port = m.b * (m.c[i] / m.b[j]) if m.b[j] != 0 else np.zeros(n_u)
+        rows.append((c_port, P, np.zeros((n_u, n_u))))
+    return _append_ports(model, rows)
+
+
+def _append_ports(model, rows):
+    """``model`` with its n_u port displacements appended to its outputs.
+
+    ``rows``: per mode ``(c_port (n_u,), P0 (n_u, n_u), P1 (n_u, n_u))``, the port rows of
+    its modal output vector and of its numerator ``N1 s + N0``. Outside the mechanics: no
+    feedthrough, no sensor lag or output coupling on the ports (input lags and coupling act
+    on the port forces as on the inputs).
+    """
+    from dataclasses import replace
+
+    import scipy.linalg
+
+    n_u = model.n_u
+    modes = []
+    for m, (c_port, P0, P1) in zip(model.modes, rows, strict=True):
+        N0, N1 = m.numerator()
         modes.append(
             replace(
                 m,
                 c=np.concatenate([m.c, c_port]),
-                N0=np.vstack([N0, P]),
-                N1=np.vstack([N1, np.zeros((n_u, n_u))]),
+                N0=np.vstack([N0, P0]),
+                N1=np.vstack([N1, P1]),
             )
         )
     tau_out = None if model.tau_out is None else np.concatenate([model.tau_out, np.zeros(n_u)])
@@ -185,6 +212,91 @@ def with_ports(model, pair: tuple[int, int]):
         tau_out=tau_out,
         T_out=T_out,
     )
+
+
+def _collocated(m) -> bool:
+    """Whether mode ``m`` of a square model is seen at the input ports: its residue is
+    symmetric positive semi-definite, ``phi(a) phi(a)^T`` (a rigid body in DOF coordinates).
+    A mode whose sensor shape differs from its actuator shape (``c != b``) is not."""
+    N0, _ = m.numerator()
+    scale = max(float(np.abs(N0).max()), 1e-300)
+    if np.abs(N0 - N0.T).max() > 1e-6 * scale:
+        return False
+    return bool(np.linalg.eigvalsh(0.5 * (N0 + N0.T)).min() >= -1e-9 * scale)
+
+
+@dataclass(frozen=True)
+class SquarePorts:
+    """The port model of a square model whose outputs are not all collocated with its inputs.
+
+    Output j of a square model (DOF coordinates of a stage) measures the port of input j
+    for the modes it sees as the actuators drive them (collocated: symmetric positive
+    semi-definite residue, the rigid bodies); a flexible mode that the sensors see with
+    another shape (``c_k != b_k``) has the port residue ``b_k b_k^T``, which its residue
+    ``c_k b_k^T`` fixes only up to a gain: ``g_k v_k v_k^T`` with ``v_k`` its input
+    direction (in general ``g_k (N0^T N0)^(1/2) / |N0|_2``), ``g_k = |b_k|^2 >= 0``
+    (m/N) one unknown per such mode, fitted on the record with the element
+    (:func:`fit_port_element`). Taking the outputs as the ports (``Cp = C``) instead puts
+    the sensors' shapes in the port velocity: a non-collocated path through which a steep
+    friction law drives those modes.
+
+    Attributes
+    ----------
+    model : ModalModel
+        The square linear model.
+    modes : tuple of int
+        Indices (into ``model.modes``) of the non-collocated modes, one gain each.
+    unit : (n_g,) array
+        ``|N0_k|_2 = |c_k| |b_k|`` per such mode, m/N: the gain if sensor and actuator
+        shapes had the same size (the scale the gains are searched on).
+    """
+
+    model: Any
+    modes: tuple[int, ...]
+    unit: np.ndarray
+
+    @property
+    def port_outputs(self) -> list[int]:
+        """The port displacements' output indices in :meth:`system` (the last n_u)."""
+        return list(range(self.model.n_y, self.model.n_y + self.model.n_u))
+
+    def freq_hz(self) -> list[float]:
+        """The non-collocated modes' frequencies, Hz (one per gain)."""
+        return [float(self.model.modes[k].freq_hz) for k in self.modes]
+
+    def system(self, gains):
+        """The LTIModel with the ports appended (``port_outputs``), gains (n_g,) m/N >= 0."""
+        gains = np.broadcast_to(np.asarray(gains, float), (len(self.modes),))
+        n_u = self.model.n_u
+        zero = np.zeros((n_u, n_u))
+        rows = []
+        for k, m in enumerate(self.model.modes):
+            N0, N1 = m.numerator()
+            if m.kind == "real":  # a lag, no structural mode: not at the ports
+                rows.append((np.zeros(n_u), zero, zero))
+            elif k not in self.modes:
+                rows.append((m.c, N0, N1))
+            else:
+                # (N0^T N0)^(1/2) = V S V^T: g_k v v^T for a rank-one residue
+                _, sv, Vt = np.linalg.svd(N0)
+                P = gains[self.modes.index(k)] / max(sv[0], 1e-300) * (Vt.T * sv) @ Vt
+                bb = float(m.b @ m.b)
+                rows.append((P @ m.b / bb if bb > 0 else np.zeros(n_u), P, zero))
+        return _append_ports(self.model, rows).to_lti()
+
+
+def square_ports(model) -> SquarePorts | None:
+    """The port model of a square ModalModel, or None when every mode is collocated (then
+    the outputs are the ports, ``Cp = C``, as :func:`simulate_nonlinear` takes by default)."""
+    if model.n_y != model.n_u:
+        raise InputError(
+            f"square_ports: expected a square model, got {model.n_y} outputs and {model.n_u} inputs"
+        )
+    modes = tuple(k for k, m in enumerate(model.modes) if m.kind != "real" and not _collocated(m))
+    if not modes:
+        return None
+    unit = np.array([np.linalg.norm(model.modes[k].numerator()[0], 2) for k in modes])
+    return SquarePorts(model=model, modes=modes, unit=unit)
 
 
 def simulate_nonlinear(
@@ -311,6 +423,23 @@ CONVERGED = 0.25
 MAX_SUBSTEPS = 64
 #: rounds of (converge the substeps, refit the levels there)
 CONVERGE_ROUNDS = 3
+#: the friction's v0 is fitted within this factor either way of its estimate (1e-3 of the rms
+#: port velocity): far below it the law is a step the substeps cannot resolve, far above it a
+#: viscous damper (a linear effect); a free v0 may run off to either on a poor start
+VELOCITY_RANGE = 100.0
+#: the port gains of a square model's non-collocated modes (:class:`SquarePorts`) start from
+#: the best of this grid (a common factor on each mode's |N0_k|_2, the gain if the sensor and
+#: actuator shapes had the same size), at the element's regressed levels
+GAIN_GRID = np.logspace(-3.0, 1.0, 9)
+#: ... and are fitted within [GAIN_RANGE[0], GAIN_RANGE[1]] x |N0_k|_2
+GAIN_RANGE = (1e-4, 10.0)
+#: ... and their joint Gauss-Newton stops when a step lowers the error by less than this fraction
+GAIN_STOP = 1e-3
+#: with them, the regressed levels are first scaled by the common factor, within this factor
+#: either way, whose simulation fits best (a grid of this ratio, then a 1-D search)
+LEVEL_SPAN, LEVEL_STEP = 10.0, 10.0**0.1
+#: Gauss-Newton steps on the levels, v0 and the gains (it stops earlier on GAIN_STOP)
+GAIN_ITERATIONS = 10
 
 
 @dataclass(frozen=True)
@@ -326,7 +455,9 @@ class ElementFit:
     parameters : dict
         ``friction_force`` (N per port) and ``friction_velocity`` (m/s), or
         ``cubic_stiffness`` (N/m^3 per port), each with the ``substeps`` per sample of its
-        simulation; or ``saturation`` (N per input; inf = none).
+        simulation; or ``saturation`` (N per input; inf = none). On a
+        :class:`SquarePorts` model also ``port_gains`` (m/N, the fitted ``|b_k|^2`` per
+        non-collocated mode) and ``port_gain_freq_hz`` (those modes' frequencies, Hz).
     nonlinearity : PortNonlinearity
         The element as a simulation model.
     error_before, error_after : float
@@ -359,10 +490,13 @@ def fit_port_element(
 
     Parameters
     ----------
-    sys : LTIModel or control.StateSpace
+    sys : LTIModel, control.StateSpace or SquarePorts
         The linear model (continuous, square: output j measures the displacement where
         input j pushes; or with its port displacements as extra outputs, ``port_outputs``);
-        an LTIModel's delay is part of it.
+        an LTIModel's delay is part of it. A :class:`SquarePorts` (:func:`square_ports`):
+        a square model some of whose modes are not collocated; their port gains are
+        fitted with the element (``parameters["port_gains"]``, m/N per mode, and
+        ``parameters["port_gain_freq_hz"]``, the modes' frequencies).
     u, y : (N, n_u), (N, n_y) arrays
         Recorded input and output.
     fs : float
@@ -401,7 +535,15 @@ def fit_port_element(
     """
     from workbench.core.model import as_model
 
-    lin = as_model(sys)
+    family = sys if isinstance(sys, SquarePorts) else None
+    if family is not None:
+        if port_outputs is not None:
+            raise InputError("fit_port_element: a SquarePorts model sets its own port_outputs")
+        port_outputs = family.port_outputs
+        # any gains: the measured outputs (and the regressors below) do not depend on them
+        lin = as_model(family.system(family.unit))
+    else:
+        lin = as_model(sys)
     _, _, _, _, _, meas = _ports(lin, port_outputs)
     u = np.asarray(u, float)
     y = np.asarray(y, float)
@@ -411,11 +553,22 @@ def fit_port_element(
     before = lti.relative_error_time(y, y_lin)
     e = (y - y_lin).ravel()
     port = lin.without_delay()  # port forces act directly, not through the input delay
-    measured_ports = port_outputs is None and motion is None
+    # a square model's outputs are its ports' motion: exactly for the collocated modes and,
+    # with non-collocated ones (SquarePorts), up to their share of the displacement (small
+    # for modes far above the motion's band); the regression takes them as measured
+    measured_ports = (port_outputs is None or family is not None) and motion is None
     if motion is None:
-        motion = y if port_outputs is None else y_all[:, np.asarray(port_outputs, int)]
+        motion = y if measured_ports else y_all[:, np.asarray(port_outputs, int)]
     motion = np.asarray(motion, float)
     v0 = 1e-3 * float(np.sqrt(np.mean(np.gradient(motion, 1.0 / fs, axis=0) ** 2))) or 1e-12
+    log_v_bounds = np.log(v0) + np.log(VELOCITY_RANGE) * np.array([-1.0, 1.0])
+    log_g_bounds = None
+    if family is not None:
+        log_g_bounds = np.log(family.unit)[None, :] + np.log(GAIN_RANGE)[:, None]  # (2, n_g)
+
+    def system(g):
+        """The linear model the simulation runs: with its port gains ``g`` (SquarePorts)."""
+        return lin if g is None else as_model(family.system(g))
 
     def law(name, p):
         if name == "coulomb_friction":
@@ -446,20 +599,31 @@ def fit_port_element(
         c[c < 0.05 * c.max()] = 0.0
         return c
 
-    def make_element(name, c, n_sub=substeps, v=None):
+    def make_element(name, c, n_sub=substeps, v=None, g=None):
+        """(PortNonlinearity, parameters); ``g``: the port gains (SquarePorts), reported."""
+        gains = {}
+        if g is not None:
+            gains = {
+                "port_gains": [float(x) for x in g],
+                "port_gain_freq_hz": family.freq_hz(),
+            }
         if name == "coulomb_friction":
             v = v0 if v is None else float(v)
             nl = PortNonlinearity(friction_force=c, friction_velocity=v, substeps=n_sub)
             params = {"friction_force": [float(x) for x in c], "friction_velocity": v}
-            return nl, params | {"substeps": n_sub}
+            return nl, params | {"substeps": n_sub} | gains
         nl = PortNonlinearity(friction_force=np.zeros(n_u), cubic_stiffness=c, substeps=n_sub)
-        return nl, {"cubic_stiffness": [float(x) for x in c], "substeps": n_sub}
+        return nl, {"cubic_stiffness": [float(x) for x in c], "substeps": n_sub} | gains
 
-    def simulated(nl, *, residual=False, output=False):
-        """(error, simulated port motion) of the nonlinear simulation model (or its residual,
-        or its output)."""
+    def gains_of(params):
+        g = params.get("port_gains")
+        return None if g is None else np.asarray(g, float)
+
+    def simulated(nl, g=None, *, residual=False, output=False):
+        """(error, simulated port motion) of the nonlinear simulation model with port gains
+        ``g`` (SquarePorts; None otherwise), or its residual, or its output."""
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging trial scores inf
-            y_nl, p_nl = _simulate(lin, u, fs, nl, 0.0, port_outputs)
+            y_nl, p_nl = _simulate(system(g), u, fs, nl, 0.0, port_outputs)
         if not np.all(np.isfinite(y_nl)):
             return np.inf, None
         if residual:
@@ -468,11 +632,11 @@ def fit_port_element(
             return y_nl, p_nl
         return float(lti.relative_error_time(y, y_nl)), p_nl
 
-    def converged_substeps(name, c, n_sub, v=None):
+    def converged_substeps(name, c, n_sub, v=None, g=None):
         """Substeps, from ``n_sub`` up, at which the element's simulation is converged."""
-        y_n = simulated(make_element(name, c, n_sub, v)[0], output=True)[0]
+        y_n = simulated(make_element(name, c, n_sub, v)[0], g, output=True)[0]
         while n_sub < MAX_SUBSTEPS and np.all(np.isfinite(y_n)):
-            y_2n = simulated(make_element(name, c, 2 * n_sub, v)[0], output=True)[0]
+            y_2n = simulated(make_element(name, c, 2 * n_sub, v)[0], g, output=True)[0]
             if not np.all(np.isfinite(y_2n)):
                 break
             n_sub *= 2
@@ -483,32 +647,49 @@ def fit_port_element(
                 break
         return n_sub
 
-    def refine_levels(name, c, n_sub=substeps, v=None):
+    def refine_levels(name, c, n_sub=substeps, v=None, g=None, *, free_gains=True):
         """Gauss-Newton on the log levels of the active ports, through the simulation model;
         for friction on log v0 too (the smooth law's velocity scale: the estimate above only
-        sets its order, and its shape near sticking is what is left of the misfit)."""
+        sets its order, and its shape near sticking is what is left of the misfit), within
+        VELOCITY_RANGE of its estimate; with port gains ``g`` (SquarePorts) on their logs too,
+        within GAIN_RANGE (the levels and the gains are coupled: the gains set how far the
+        sticking ports hold the non-collocated modes, fitted alone at fixed levels they are
+        biased; ``free_gains=False`` holds them). Steps leaving the bounds are cut back to
+        them (projected)."""
         active = np.flatnonzero(c > 0)
         friction = name == "coulomb_friction"
         n_lvl = active.size
+        n_v = int(friction)
+        fit_g = g is not None and free_gains
         out = []
 
         def unpack(theta):
             levels = np.zeros(n_u)
             levels[active] = np.exp(theta[:n_lvl])
-            return levels, (float(np.exp(theta[n_lvl])) if friction else None)
+            vel = float(np.exp(theta[n_lvl])) if friction else None
+            gains = np.exp(theta[n_lvl + n_v :]) if fit_g else g
+            return levels, vel, gains
 
         def resid(theta):
-            levels, vel = unpack(theta)
-            return simulated(make_element(name, levels, n_sub, vel)[0], residual=True)[0]
+            levels, vel, gains = unpack(theta)
+            nl = make_element(name, levels, n_sub, vel)[0]
+            return simulated(nl, gains, residual=True)[0]
 
         theta = np.log(c[active])
+        lo, hi = np.full(n_lvl, -np.inf), np.full(n_lvl, np.inf)
         if friction:
             theta = np.append(theta, np.log(v0 if v is None else v))
+            lo, hi = np.append(lo, log_v_bounds[0]), np.append(hi, log_v_bounds[1])
+        if fit_g:
+            theta = np.append(theta, np.log(np.maximum(g, 1e-300)))
+            lo, hi = np.append(lo, log_g_bounds[0]), np.append(hi, log_g_bounds[1])
+        theta = np.clip(theta, lo, hi)
         r0 = resid(theta)
         if not np.all(np.isfinite(r0)):
             return out
         h = 0.02
-        for _ in range(VELOCITY_ITERATIONS if friction else REFINE_ITERATIONS):
+        n_iter = VELOCITY_ITERATIONS if friction else REFINE_ITERATIONS
+        for _ in range(GAIN_ITERATIONS if fit_g else n_iter):
             J = np.empty((r0.size, theta.size))
             for n in range(theta.size):
                 r = resid(theta + h * np.eye(theta.size)[n])
@@ -519,18 +700,90 @@ def fit_port_element(
             step *= min(1.0, 0.5 / max(np.max(np.abs(step)), 1e-300))  # a trust region
             cost0 = float(r0 @ r0)
             for shrink in (1.0, 0.5):
-                r = resid(theta + shrink * step)
+                trial = np.clip(theta + shrink * step, lo, hi)
+                r = resid(trial)
                 if np.all(np.isfinite(r)) and float(r @ r) < cost0:
-                    theta, r0 = theta + shrink * step, r
+                    theta, r0 = trial, r
                     break
             else:
                 break
-            levels, vel = unpack(theta)
-            nl, params = make_element(name, levels, n_sub, vel)
+            levels, vel, gains = unpack(theta)
+            nl, params = make_element(name, levels, n_sub, vel, gains)
             out.append((float(np.sqrt(r0 @ r0)), name, nl, params))
+            if fit_g and float(r0 @ r0) > (1.0 - 2 * GAIN_STOP) * cost0:
+                break  # the error fell by less than GAIN_STOP: each step costs n + 1 runs
             if np.max(np.abs(step)) < 0.005:
                 break
         return out
+
+    def start_gains(name, c, n_sub=substeps, v=None):
+        """The port gains (SquarePorts; else None) the simulation of element ``name`` at the
+        levels ``c`` fits best on GAIN_GRID: the gains' start (the error is far from
+        quadratic in them: a gain too small leaves a non-collocated mode undamped by the
+        sticking ports, one too large locks it)."""
+        if family is None:
+            return None
+        nl = make_element(name, c, n_sub, v)[0]
+        errs = [simulated(nl, s * family.unit)[0] for s in GAIN_GRID]
+        return GAIN_GRID[int(np.argmin(errs))] * family.unit
+
+    def scale_levels(name, c, n_sub, v, g, span):
+        """The levels ``c`` times the common factor (within ``span`` either way) whose
+        simulation fits best: the best of a grid of ratio LEVEL_STEP, then a bounded 1-D
+        search between its neighbours. The regressed levels may be far off (an equation
+        error on the sampled motion, regressed on a linear model's residual that a rigid
+        body's drift dominates), the error is sharp in their scale (a from-rest simulation
+        of rigid bodies integrates a level error twice: on the stage 25 % off is ~10x the
+        error at the right scale) and a Gauss-Newton step through a stick-slip simulation
+        moves them by a few per cent at a time."""
+
+        def cost(log_s):
+            return simulated(make_element(name, np.exp(log_s) * c, n_sub, v)[0], g)[0]
+
+        step = np.log(LEVEL_STEP)
+        grid = np.arange(-np.log(span), np.log(span) + 0.5 * step, step)
+        errs = [cost(x) for x in grid]
+        i = int(np.argmin(errs))
+        sol = scipy.optimize.minimize_scalar(
+            cost,
+            bounds=(grid[i] - step, grid[i] + step),
+            method="bounded",
+            options={"xatol": 0.005},
+        )
+        return np.exp(sol.x if sol.fun < errs[i] else grid[i]) * c
+
+    def start_with_gains(name, c, n_sub, g=None):
+        """(levels, gains): the gains' grid (from ``g``'s levels if given), the levels' common
+        scale at those gains (within LEVEL_SPAN at the regressed levels, LEVEL_STEP^2 after),
+        the gains' grid again at the scaled levels; v0 its estimate."""
+        span = LEVEL_SPAN if g is None else LEVEL_STEP**2
+        g = start_gains(name, c, n_sub) if g is None else g
+        c = scale_levels(name, c, n_sub, None, g, span)
+        return c, start_gains(name, c, n_sub)
+
+    def fit_with_gains(name, c, g):
+        """The element ``name`` from its levels ``c`` and port gains ``g`` (a SquarePorts
+        model; both from :func:`start_with_gains` at ``substeps``): per round at n
+        substeps, the levels' common scale (:func:`scale_levels`) and the gains' grid
+        (:func:`start_gains`) at v0's estimate, n raised to the coarser of the first two
+        counts whose outputs agree (:func:`converged_substeps`, at most CONVERGE_ROUNDS
+        rounds); then Gauss-Newton on the levels, v0 and the gains jointly there
+        (:func:`refine_levels`; the converged rounds after it refit at finer counts if its
+        smaller misfit asks for them). The error is steep in the levels (a from-rest
+        simulation of rigid bodies integrates a level error twice: 10 % off is ~100x the
+        noise on the stage) and flat in the gains until the levels are close; how far the
+        sticking ports hold a non-collocated mode is what the gains set, which a coarse
+        simulation misplaces. A list of (error, name, nl, params) like refine_levels."""
+        n_sub, out = substeps, []
+        for _ in range(CONVERGE_ROUNDS):
+            n_new = converged_substeps(name, c, n_sub, None, g)
+            if n_new <= 2 * n_sub:  # n_sub's output moved little on doubling: fit there
+                break
+            n_sub = n_new // 2
+            c, g = start_with_gains(name, c, n_sub, g)
+            nl, params = make_element(name, c, n_sub, None, g)
+            out.append((simulated(nl, g)[0], name, nl, params))
+        return out + refine_levels(name, c, n_sub, None, g)
 
     # saturation: the linear response to the clipped input, over levels of |u|
     amp = np.abs(u)
@@ -552,22 +805,33 @@ def fit_port_element(
     # friction and the spring: judged by the nonlinear simulation itself (the regression's
     # motion is the measured or estimated one; a from-rest simulation of a rigid body is far
     # more sensitive), so what is reported is what the simulation model reproduces
-    best = None  # (error, name, common, levels, port motion)
+    best = None  # (error, name, common, levels, port motion, port gains)
     for name in ("coulomb_friction", "cubic_stiffness"):
+        per_port = None
         for common in (False, True):  # one level per port, or one level for all
             c = regress(name, common, motion)
+            if not common:
+                per_port = c
+            elif family is not None and not c.max() > 0 and per_port.max() > 0:
+                # the common level's regression failed (a linear residual that rigid-body
+                # drift dominates): the mean of the per-port levels starts its scale search
+                c = np.full(n_u, per_port[per_port > 0].mean())
             if not c.max() > 0:
                 continue
-            nl, params = make_element(name, c)
-            err, p_nl = simulated(nl)
+            g = None
+            if family is not None:  # the start the gains need (the levels' scale too: the
+                # simulation is too steep in them to judge the element at the regressed ones)
+                c, g = start_with_gains(name, c, substeps)
+            nl, params = make_element(name, c, g=g)
+            err, p_nl = simulated(nl, g)
             scored.append((err, name, nl, params))
             if p_nl is not None and (best is None or err < best[0]):
-                best = (err, name, common, c, p_nl)
+                best = (err, name, common, c, p_nl, g)
     if best is not None and not measured_ports:
         # the motion was an estimate (a linear model's ports): the element changes it. Regress
         # again on the motion the nonlinear simulation model itself gives, while the error falls
         # (at the true level the simulated motion is the true one: a consistent fixed point)
-        err, name, common, c, p_nl = best
+        err, name, common, c, p_nl, _ = best
         for _ in range(MOTION_ITERATIONS):
             c_new = regress(name, common, p_nl)
             if not c_new.max() > 0:
@@ -585,6 +849,10 @@ def fit_port_element(
         # its fixed point is close to, not at, the simulation model's best levels
         if refine:
             scored += refine_levels(name, c)
+    if best is not None and family is not None and refine:
+        # the port gains are fitted with the levels (the regression has no gains: its motion
+        # is the measured one), on the converged simulation
+        scored += fit_with_gains(best[1], best[3], best[5])
     after, element, nl, params = min(scored, key=lambda t: t[0])
     if refine and element != "saturation":
         # the levels above are fitted on a simulation of ``substeps`` substeps; the reported
@@ -592,17 +860,17 @@ def fit_port_element(
         # steep in the level: a level right for a coarse simulation is not right for the motion)
         # Converged is judged against the misfit left, which a level fitted on a coarse
         # simulation inflates: judged again after the levels are refitted at the finer count
-        n_sub = substeps
+        n_sub = params.get("substeps", substeps)
         for _ in range(CONVERGE_ROUNDS):
             levels = np.asarray(next(iter(params.values())), float)
-            vel = params.get("friction_velocity")
-            n_new = converged_substeps(element, levels, n_sub, vel)
+            vel, g = params.get("friction_velocity"), gains_of(params)
+            n_new = converged_substeps(element, levels, n_sub, vel, g)
             if n_new == n_sub:
                 break
             n_sub = n_new
-            nl, params = make_element(element, levels, n_sub, vel)
-            fine = [(simulated(nl)[0], element, nl, params)]
-            fine += refine_levels(element, levels, n_sub, vel)
+            nl, params = make_element(element, levels, n_sub, vel, g)
+            fine = [(simulated(nl, g)[0], element, nl, params)]
+            fine += refine_levels(element, levels, n_sub, vel, g)
             best_fine = min(fine, key=lambda t: t[0])
             if not best_fine[0] <= after:
                 # the record is explained better by the coarse simulation (a record made by
