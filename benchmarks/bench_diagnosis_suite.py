@@ -16,6 +16,7 @@ import argparse
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
@@ -26,13 +27,23 @@ import casegen  # noqa: E402
 from workbench.diagnosis import diagnose  # noqa: E402
 
 
+@dataclass(frozen=True)
+class CaseRow:
+    """What the report needs of a case (a Case holds a StateSpace, which does not pickle)."""
+
+    case_id: str
+    effects: tuple[str, ...]
+    visibility: float
+
+
 def one_case(spec, seed: int, domain: str = "auto"):
-    """Make, diagnose and score one case: (case, score, seconds in diagnose)."""
+    """Make, diagnose and score one case: (CaseRow, score, seconds in diagnose)."""
     case = casegen.make_case(*spec, seed=seed)
     t0 = time.perf_counter()
     result = diagnose(case.model, case.data, domain=domain).to_json()
     dt = time.perf_counter() - t0
-    return case, casegen.score(case, result), dt
+    row = CaseRow(case.case_id, tuple(case.effects), float(case.visibility))
+    return row, casegen.score(case, result), dt
 
 
 def run(specs, seeds, *, verbose=True, domain="auto", jobs: int = 1):
