@@ -983,23 +983,20 @@ def _fit_element(data: TimeData, linear: list):
             sys, data.u, data.y, data.fs, port_outputs=port_outputs, motion=motion, refine=refine
         )
 
-    # the hypotheses compared cheaply, then the best on each linear model refined (the
-    # refinement acts only where the port motion is estimated, not measured)
     several = len(hyps) > 1
-    best: dict[int, tuple] = {}
-    for h in hyps:
-        ef = fit_one(h, not several)
-        if h[0] not in best or ef.error_after < best[h[0]][0].error_after:
-            best[h[0]] = (ef, h)
-    chosen = {
-        i: (
-            fit_one(h, True)
-            if several and (h[3] is not None or isinstance(h[1], SquarePorts))
-            else ef,
-            h,
-        )
-        for i, (ef, h) in best.items()
-    }
+    if pairs == [None]:
+        # a square model: one hypothesis per linear model, nothing to compare cheaply first;
+        # the port gains (SquarePorts) are fitted refined, the outputs as ports are not
+        chosen = {h[0]: (fit_one(h, not several or isinstance(h[1], SquarePorts)), h) for h in hyps}
+    else:
+        # the hypotheses compared cheaply, then the best on each linear model refined (the
+        # refinement acts only where the port motion is estimated, not measured)
+        best: dict[int, tuple] = {}
+        for h in hyps:
+            ef = fit_one(h, not several)
+            if h[0] not in best or ef.error_after < best[h[0]][0].error_after:
+                best[h[0]] = (ef, h)
+        chosen = {i: (fit_one(h, True) if several else ef, h) for i, (ef, h) in best.items()}
     i_pick = max(chosen)  # the model as given (last), unless the linear findings are needed
     if 0 in chosen and i_pick != 0:
         if chosen[0][0].error_after <= ERROR_RATIO * chosen[i_pick][0].error_after:
