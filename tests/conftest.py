@@ -62,3 +62,15 @@ def beam_measured_truth():
 
     p = beam()
     return LTIModel.from_statespace(p.linear_model()[[0, 1, 4], :], delay_s=p.delay_s)
+
+
+def run_scenario(tmp_path_factory, scenario: Path, name: str) -> tuple[Path, dict]:
+    """``workbench run`` of a scenario into a fresh folder: (the folder, its inferential.json)."""
+    import json
+
+    from workbench.cli.main import main
+
+    out = tmp_path_factory.mktemp(name)
+    status = main(["run", str(scenario), "--results", str(out), "--quiet"])
+    assert status == 0
+    return out, json.loads((out / "inferential.json").read_text())

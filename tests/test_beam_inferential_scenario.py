@@ -15,13 +15,11 @@ beam simulations); tests/test_scenarios.py runs the same scenario in CI.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 import pytest
-
-from workbench.cli.main import main
+from conftest import run_scenario
 
 SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "beam_inferential.toml"
 
@@ -30,10 +28,7 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("beam_inferential")
-    status = main(["run", str(SCENARIO), "--results", str(out), "--quiet"])
-    assert status == 0
-    return out, json.loads((out / "inferential.json").read_text())
+    return run_scenario(tmp_path_factory, SCENARIO, "beam_inferential")
 
 
 def test_files_next_to_the_json(run):

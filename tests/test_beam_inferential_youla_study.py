@@ -14,12 +14,10 @@ Slow (about 10 minutes: the Youla design solves ~10 cone programs).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import pytest
-
-from workbench.cli.main import main
+from conftest import run_scenario
 
 SCENARIO = (
     Path(__file__).resolve().parents[1] / "scenarios" / "studies" / "beam_inferential_youla.toml"
@@ -30,10 +28,7 @@ pytestmark = pytest.mark.slow
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("beam_inferential_youla")
-    status = main(["run", str(SCENARIO), "--results", str(out), "--quiet"])
-    assert status == 0
-    return out, json.loads((out / "inferential.json").read_text())
+    return run_scenario(tmp_path_factory, SCENARIO, "beam_inferential_youla")
 
 
 @pytest.mark.parametrize("design", ["pid-notch", "youla-band"])

@@ -311,6 +311,14 @@ def moving_start(data: TimeData) -> bool:
     return bool(np.any(np.abs(y[0, ok]) > bound))
 
 
+def _remove(Q: np.ndarray | None, X: np.ndarray) -> np.ndarray:
+    """X (n_rows, ...) minus its projection on the orthonormal columns Q (n_rows, r); None: X."""
+    if Q is None:
+        return X
+    flat = X.reshape(X.shape[0], -1)
+    return (flat - Q @ (Q.T @ flat)).reshape(X.shape)
+
+
 class _FilteredProblem:
     """The time-record problems' shared part: the model's output as filtered inputs mixed by
     the modes' numerators, on *rows* (time samples, or the real and imaginary parts of DFT
@@ -327,11 +335,7 @@ class _FilteredProblem:
 
     def _project(self, model: ModalModel, X: np.ndarray) -> np.ndarray:
         """X (n_rows, ...) with its component along the free responses removed."""
-        Q = self._start_basis(model)
-        if Q is None:
-            return X
-        flat = X.reshape(X.shape[0], -1)
-        return (flat - Q @ (Q.T @ flat)).reshape(X.shape)
+        return _remove(self._start_basis(model), X)
 
     def _filtered(self, model: ModalModel, den, u_in):
         """``_filter``, cached by what it depends on: a fit's linear parts and its cost see
@@ -373,8 +377,9 @@ class _FilteredProblem:
             y += self._part(model, m.denominator(), *m.numerator(), u_in)
         if model.T_out is not None:
             y = y @ model.T_out.T
-        if self._start_basis(model) is not None:
-            y = self.target - self._project(model, self.target - y)
+        Q = self._start_basis(model)
+        if Q is not None:
+            y = self.target - _remove(Q, self.target - y)
         return y
 
     def residual(self, model: ModalModel) -> np.ndarray:
@@ -611,7 +616,6 @@ class PeriodicProblem(_FilteredProblem):
         self.transient = self.time.transient
         self.has_var = False
         self.noise_floor = None
-        self.period = rec.period
         # samples every kept period lies after its block's start: a free response that falls
         # below SETTLED of its start value within them leaks nothing the noise would not hide
         self.settle = int(rec.period * rec.n_dropped.min())

@@ -229,16 +229,24 @@ def _zoh_coefficients(num_bytes: bytes, den_bytes: bytes, dt: float, frac: float
     return b, a
 
 
+def _monic(nums, den):
+    """Numerators over a monic ``den``, each padded to ``den``'s length (highest power first)."""
+    den = np.atleast_1d(np.asarray(den, float))
+    den0, den = den[0], den / den[0]
+    padded = []
+    for num in nums:
+        num = np.atleast_1d(np.asarray(num, float)) / den0
+        padded.append(np.concatenate([np.zeros(den.size - num.size), num]))
+    return padded, den
+
+
 def zoh_filter(num, den, u: np.ndarray, dt: float, delay_s: float = 0.0) -> np.ndarray:
     """Exact ZOH response of ``num(s)/den(s)`` (proper) to ``u`` (N, ...), input delay, from rest.
 
     ``dt`` and ``delay_s`` in s; the delay may be any fraction of a sample.
     """
-    num = np.atleast_1d(np.asarray(num, float))
-    den = np.atleast_1d(np.asarray(den, float))
-    num, den = num / den[0], den / den[0]
+    (num,), den = _monic([num], den)
     n = den.size - 1
-    num = np.concatenate([np.zeros(n + 1 - num.size), num])
     d = num[0]
     m_int, frac = split_delay(delay_s, dt)
     u = np.asarray(u, float)
@@ -272,13 +280,8 @@ def zoh_response(num, den, z: np.ndarray, dt: float, delay_s: float = 0.0) -> np
 
 def zoh_responses(nums, den, z: np.ndarray, dt: float, delay_s: float = 0.0) -> list:
     """:func:`zoh_response` of several numerators over one ``den`` (one pole computation)."""
-    den = np.atleast_1d(np.asarray(den, float))
-    den0, den = den[0], den / den[0]
+    padded, den = _monic(nums, den)
     n = den.size - 1
-    padded = []
-    for num in nums:
-        num = np.atleast_1d(np.asarray(num, float)) / den0
-        padded.append(np.concatenate([np.zeros(n + 1 - num.size), num]))
     m_int, frac = split_delay(delay_s, dt)
     zi = 1.0 / np.asarray(z, complex)
     out = [np.zeros(zi.shape, complex) for _ in padded]
