@@ -511,7 +511,7 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s, domain
                 band_hz=problem.band_hz,
             )
             finding, _ = _nonlinearity_finding(
-                ev, data, error_before, [current, base], cur_err, direct=False
+                ev, data, error_before, [current, base], cur_err, direct=False, only_given=True
             )
             if finding is not None and finding.model is base:
                 notes.append(
@@ -821,7 +821,9 @@ def _above_band(params: dict, problem) -> bool:
     return f * (1 - min(z, 0.5)) > problem.band_hz[1]
 
 
-def _nonlinearity_finding(nl, data, err, linear: list, cur_err: float, *, direct: bool):
+def _nonlinearity_finding(
+    nl, data, err, linear: list, cur_err: float, *, direct: bool, only_given: bool = False
+):
     """The nonlinearity finding with its fitted port element, or (None, alternative).
 
     ``err`` is the error of the model as given, ``cur_err`` that of the final linear
@@ -832,11 +834,22 @@ def _nonlinearity_finding(nl, data, err, linear: list, cur_err: float, *, direct
     ``cur_err`` (it adds nothing to that model, so it cannot lower the error), and only
     ``direct`` evidence (distortion on unexcited lines) makes it a finding: a residual
     the linear search merely left is what any linear effect it missed leaves too.
+
+    ``only_given``: only a finding on the model as given (``linear[-1]``) is wanted; the
+    element is fitted on the other linear models only when it is one there (the same
+    answer, one element fit instead of two when it is not).
     """
     params: dict[str, Any] = {"level": nl.level, "f_stat": nl.f_stat}
     ins, outs = tuple(range(data.n_u)), tuple(range(data.n_y))
     error_after, model, note = cur_err, None, ""
-    fitted = _fit_element(data, linear) if isinstance(data, TimeData) else None
+    # distortion on unexcited lines is direct evidence: the element must only lower the
+    # error; a residual that is merely not explained needs the element to explain it
+    needed = cur_err if direct else ERROR_RATIO * cur_err
+    fitted = (
+        _fit_element(data, linear, stop_above=needed if only_given else None)
+        if isinstance(data, TimeData)
+        else None
+    )
     if fitted is not None:
         ef, model, pair = fitted
         params.update(element=ef.element, ports=list(ef.ports), **ef.parameters)
@@ -844,9 +857,6 @@ def _nonlinearity_finding(nl, data, err, linear: list, cur_err: float, *, direct
         if pair is not None:
             params["collocated"] = list(pair)
         error_after = ef.error_after
-        # distortion on unexcited lines is direct evidence: the element must only lower the
-        # error; a residual that is merely not explained needs the element to explain it
-        needed = cur_err if direct else ERROR_RATIO * cur_err
         if not error_after < needed:
             alt = {
                 "effect": "nonlinearity",
@@ -929,7 +939,7 @@ def _nonlinearity_finding(nl, data, err, linear: list, cur_err: float, *, direct
     return finding, None
 
 
-def _fit_element(data: TimeData, linear: list):
+def _fit_element(data: TimeData, linear: list, stop_above: float | None = None):
     """The port element that explains the record best: (ElementFit, linear model, pair) or None.
 
     ``linear``: the final linear model first, then the model as given. The ports are the
@@ -939,6 +949,11 @@ def _fit_element(data: TimeData, linear: list):
     element on the model as given wins unless the linear findings below it lower its error
     by the factor a finding must (``ERROR_RATIO``): they may be only the element's
     linearization. None when no port can be located.
+
+    ``stop_above``: when the element on the model as given (fitted first) leaves an error
+    at or above it, that fit is returned and the other linear models are not tried (a
+    caller that wants only a finding on the model as given, below this error). Each
+    model's fit does not depend on the others', so what is returned otherwise is the same.
     """
     from workbench.diagnosis.nonlinear import (
         SquarePorts,
@@ -984,19 +999,28 @@ def _fit_element(data: TimeData, linear: list):
         )
 
     several = len(hyps) > 1
-    if pairs == [None]:
-        # a square model: one hypothesis per linear model, nothing to compare cheaply first;
-        # the port gains (SquarePorts) are fitted refined, the outputs as ports are not
-        chosen = {h[0]: (fit_one(h, not several or isinstance(h[1], SquarePorts)), h) for h in hyps}
-    else:
-        # the hypotheses compared cheaply, then the best on each linear model refined (the
-        # refinement acts only where the port motion is estimated, not measured)
-        best: dict[int, tuple] = {}
-        for h in hyps:
-            ef = fit_one(h, not several)
-            if h[0] not in best or ef.error_after < best[h[0]][0].error_after:
-                best[h[0]] = (ef, h)
-        chosen = {i: (fit_one(h, True) if several else ef, h) for i, (ef, h) in best.items()}
+    given = len(linear) - 1
+
+    def fit_on(i):
+        """The element's fit on linear model ``i``: (ElementFit, hypothesis)."""
+        mine = [h for h in hyps if h[0] == i]
+        if pairs == [None]:
+            # a square model: one hypothesis per linear model, nothing to compare cheaply
+            # first; the port gains (SquarePorts) are fitted refined, the outputs as ports not
+            (h,) = mine
+            return fit_one(h, not several or isinstance(h[1], SquarePorts)), h
+        # the hypotheses compared cheaply, then the best refined (the refinement acts only
+        # where the port motion is estimated, not measured)
+        ef, h = min(((fit_one(h, not several), h) for h in mine), key=lambda t: t[0].error_after)
+        return (fit_one(h, True) if several else ef), h
+
+    order = sorted({h[0] for h in hyps}, key=lambda i: i != given)  # the model as given first
+    chosen: dict[int, tuple] = {}
+    for i in order:
+        chosen[i] = fit_on(i)
+        if i == given and stop_above is not None and chosen[i][0].error_after >= stop_above:
+            ef, h = chosen[i]
+            return ef, linear[h[0]], h[3]
     i_pick = max(chosen)  # the model as given (last), unless the linear findings are needed
     if 0 in chosen and i_pick != 0:
         if chosen[0][0].error_after <= ERROR_RATIO * chosen[i_pick][0].error_after:
