@@ -26,6 +26,7 @@ crosstalk              (I + E) G or G (I + E), E off-diagonal            -      
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -457,6 +458,8 @@ class RigidSuspension:
     """
 
     effect: str = "suspension_stiffness"
+    #: the box of P's off-diagonal entries
+    coupling_bound: float = 10.0
 
     @property
     def theta_names(self) -> tuple[str, ...]:
@@ -484,9 +487,47 @@ class RigidSuspension:
         R = self.rank(base)
         lo, hi = SuspensionStiffness().bounds(problem, base)
         return (
-            np.concatenate([[lo[0]] * R, [lo[1]], np.full(R * (R - 1), -10.0)]),
-            np.concatenate([[hi[0]] * R, [hi[1]], np.full(R * (R - 1), 10.0)]),
+            np.concatenate([[lo[0]] * R, [lo[1]], np.full(R * (R - 1), -self.coupling_bound)]),
+            np.concatenate([[hi[0]] * R, [hi[1]], np.full(R * (R - 1), self.coupling_bound)]),
         )
+
+    def rechart(self, theta, base) -> np.ndarray | None:
+        """The same stiffness ``K = P W^2 P^-1`` in a chart the box does not limit, or None.
+
+        Every assignment of the modes to the rigid coordinates is a chart of the same
+        K (unit-diagonal P: mode k's shape divided by its entry at its coordinate). The
+        fit starts from one shared frequency and splits it in whichever order the first
+        steps take; when that order is not the stiffness's, a mode's shape has a small
+        entry at its coordinate, P's entries grow and stop at the box while K is still
+        far from the optimum (an indepgen3 planar record: the right frequencies on the
+        wrong coordinates, P at +-10, 37x the noise floor; the same K in its own chart,
+        refitted: 1.06x). Returned only when the fit stopped at the box: theta of the
+        chart whose shapes are largest at their coordinates (normalized shapes, the
+        product of those entries over the R! assignments), P inside the box.
+        """
+        R = self.rank(base)
+        theta = np.asarray(theta, float)
+        if R < 2 or np.max(np.abs(theta[R + 1 :])) < 0.99 * self.coupling_bound:
+            return None
+        w = 2 * np.pi * np.exp(theta[:R])
+        P = np.eye(R)
+        P[~np.eye(R, dtype=bool)] = theta[R + 1 :]
+        lam, V = np.linalg.eig(P @ np.diag(w**2) @ np.linalg.inv(P))
+        if np.any(np.abs(lam.imag) > 1e-9 * np.abs(lam)) or np.any(lam.real <= 0):
+            return None
+        V = V.real / np.linalg.norm(V.real, axis=0)
+        best = max(
+            itertools.permutations(range(R)),
+            key=lambda a: sum(np.log(abs(V[a[k], k]) + 1e-300) for k in range(R)),
+        )
+        P_new, w_new = np.zeros((R, R)), np.zeros(R)
+        for k, j in enumerate(best):  # mode k on coordinate j
+            P_new[:, j] = V[:, k] / V[j, k]
+            w_new[j] = np.sqrt(lam[k].real)
+        off = P_new[~np.eye(R, dtype=bool)]
+        if np.max(np.abs(off)) >= 0.99 * self.coupling_bound:
+            return None
+        return np.concatenate([np.log(w_new / (2 * np.pi)), [theta[R]], off])
 
     def build(self, theta, problem, base):
         k, C, B = self._factors(base)
@@ -921,18 +962,22 @@ def _model_flexible(m: Mode) -> bool:
     return m.kind == "flexible" and not m.effect
 
 
-def refinements(fr: FitResult, base: ModalModel, kind: str = "frf") -> list[tuple]:
+def refinements(fr: FitResult, base: ModalModel, domain: str = "frequency") -> list[tuple]:
     """Structures to fit from a fitted one's optimum: (structure, start theta) pairs.
 
     A shared-factor :class:`ModalPattern` is refined mode by mode
     (:class:`ModalModes`) from its optimum: screening the per-mode structure on its
     own grid would repeat the pattern's grid at the cost of every mode. A rigid
-    suspension (:class:`RigidSuspension`, or :class:`SuspensionStiffness` on one
-    rigid DOF) is refined with its coupling to the flexible modes
-    (:class:`CoupledSuspension`) from its optimum, the coupling zero, on FRF data
-    (``kind``, the problem's): on a time record its 2 R n_f + n_f^2 extra parameters
-    by finite differences, each evaluation a simulation, took more than 12 minutes
-    (an indepgen3 planar record, R = 3, n_f = 4: 50 parameters), not yet affordable.
+    suspension whose couplings stopped at their box is refitted from the same
+    stiffness in another chart (:meth:`RigidSuspension.rechart`). A rigid suspension
+    (:class:`RigidSuspension`, or :class:`SuspensionStiffness` on one rigid DOF) is
+    refined with its coupling to the flexible modes (:class:`CoupledSuspension`) from
+    its optimum (or the rechart), the coupling zero, where the problem evaluates the
+    model at frequency lines (``domain``, the problem's: an FRF, or a periodic
+    record's steady-state lines): there an evaluation costs about as much as on an
+    FRF. On a record fitted as a simulation its 2 R n_f + n_f^2 extra parameters by
+    finite differences took more than 12 minutes (an indepgen3 planar record, R = 3,
+    n_f = 4: 50 parameters).
     """
     s = fr.structure
     if type(s) is ModalPattern:
@@ -942,11 +987,18 @@ def refinements(fr: FitResult, base: ModalModel, kind: str = "frf") -> list[tupl
     # rigid DOF: the shared-frequency structure is the rigid one, theta (ln f, ln z) alike)
     R = RigidSuspension.rank(base) if any(m.kind == "rigid" for m in base.modes) else 0
     rigid_fit = type(s) is RigidSuspension or (type(s) is SuspensionStiffness and R == 1)
-    if rigid_fit and 1 <= R <= 3 and kind == "frf":
+    out: list = []
+    theta = fr.theta
+    if type(s) is RigidSuspension:
+        moved = s.rechart(fr.theta, base)
+        if moved is not None:
+            out.append((s, moved))
+            theta = moved
+    if rigid_fit and 1 <= R <= 3 and domain == "frequency":
         cs = CoupledSuspension()
         if cs.flexible(base):
-            return [(cs, cs.start(fr.theta, base))]
-    return []
+            out.append((cs, cs.start(theta, base)))
+    return out
 
 
 def candidate_structures(base: ModalModel, problem, *, exclude=()) -> list:
