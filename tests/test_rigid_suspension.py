@@ -139,7 +139,10 @@ def test_a_fit_stopped_at_the_box_of_its_chart_is_continued_in_another():
     base = decompose(nominal)
     s = RigidSuspension()
     first = fit(s, problem, base)
-    again = [fit(r, problem, base, starts=[th], n_starts=1) for r, th in refinements(first, base)]
+    again = [
+        fit(r, problem, base, starts=[th], n_starts=1)
+        for r, th in refinements(first, base, problem)
+    ]
     best = min([first] + again, key=lambda r: r.cost)
     freqs = sorted(m["freq_hz"] for m in s.report(best, problem, base)[0]["modes"])
     assert np.allclose(freqs, f_true, rtol=1e-3), (freqs, f_true)
