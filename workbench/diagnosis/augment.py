@@ -136,7 +136,7 @@ def augment(
             _, starts = screen(s, problem, base)
             results.append(fit(s, problem, base, starts=starts))
         for r in list(results):  # a shared modal pattern refined mode by mode
-            for s, start in refinements(r, base, problem.kind):
+            for s, start in refinements(r, base, problem):
                 results.append(
                     fit(s, problem, base, starts=[start], n_starts=1, max_nfev=fit_budget(s))
                 )

@@ -389,7 +389,7 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s, domain
                 results.append(fit(s, problem, current, starts=starts))
         best_first = min(results, key=lambda r: _bic(r.cost, n, r.n_params), default=None)
         for r in list(results):
-            for s, start in refinements(r, current, problem.kind):
+            for s, start in refinements(r, current, problem):
                 if fit_budget(s) > MAX_NFEV and r is not best_first:
                     # a costly refinement (a coupled suspension: tens of parameters, hundreds
                     # of evaluations) only where its structure already explains the data best

@@ -66,6 +66,9 @@ class FrfProblem:
     """Fit to a measured FRF (spec 1b)."""
 
     kind = "frf"
+    #: where a fit evaluates the model: "frequency" (a response at lines, cheap) or "time" (a
+    #: simulation of the record); structures with many parameters are offered by it
+    domain = "frequency"
 
     def __init__(self, data: FrfData):
         self.data = data
@@ -332,6 +335,7 @@ class _FilteredProblem:
     """
 
     kind = "time"
+    domain = "time"
 
     def _project(self, model: ModalModel, X: np.ndarray) -> np.ndarray:
         """X (n_rows, ...) with its component along the free responses removed."""
@@ -607,6 +611,9 @@ class PeriodicProblem(_FilteredProblem):
     fewer rows than the record and no recursive filter: a 10,000-sample record's
     fit evaluates in a fraction of the simulation's time.
     """
+
+    #: the record's data, its costs on the lines (FrfProblem's domain; ``kind`` stays "time")
+    domain = "frequency"
 
     def __init__(self, data: TimeData, rec):
         self.data = data
