@@ -85,3 +85,38 @@ def test_one_finding_with_each_suspension_frequency_at_the_noise_floor():
     problem = FrfProblem(data)
     shared = fit(SuspensionStiffness(), problem, decompose(nominal))
     assert shared.error > 10 * floor
+
+
+#: a damping ratio per suspension mode: dampers placed otherwise than the springs
+ZETAS = np.array([0.15, 0.03])
+
+
+def _case_own_damping(noise=1e-3, seed=1):
+    """The body of :func:`_case` with modal damping diag(2 z_k w_k), z_k = ZETAS."""
+    lam, phi = scipy.linalg.eigh(K, M)  # phi^T M phi = I, lowest mode first
+    w = np.sqrt(lam)
+    D = np.linalg.inv(phi.T) @ np.diag(2 * ZETAS * w) @ np.linalg.inv(phi)
+    freq = np.geomspace(1.0, 300.0, 400)
+    G = _frf(freq, D, K)
+    rng = np.random.default_rng(seed)
+    sd = noise * np.abs(G) + 1e-12
+    Gm = G + sd / np.sqrt(2) * (rng.standard_normal(G.shape) + 1j * rng.standard_normal(G.shape))
+    nominal = _case()[0]
+    return nominal, FrfData(freq=freq, G=Gm, G_var=sd**2, fs=5000.0), w / (2 * np.pi), G
+
+
+def test_each_suspension_mode_its_own_damping_at_the_noise_floor():
+    nominal, data, f_true, G = _case_own_damping()
+    floor = np.mean(np.linalg.norm(data.G - G, axis=(1, 2)) / np.linalg.norm(G, axis=(1, 2)))
+    found = diagnose(nominal, data).to_json()["findings"]
+    top = found[0]
+    assert top["effect"] == "suspension_stiffness"
+    modes = sorted(top["parameters"]["modes"], key=lambda m: m["freq_hz"])
+    assert np.allclose([m["freq_hz"] for m in modes], f_true, rtol=1e-3), (modes, f_true)
+    assert np.allclose([m["damping"] for m in modes], ZETAS, rtol=0.05), (modes, ZETAS)
+    assert top["parameters"]["damping"] == modes[0]["damping"]  # the lowest mode's
+    assert top["error_after"] < 2 * floor
+    assert [f["effect"] for f in found].count("suspension_stiffness") == 1
+    # one shared damping ratio (RigidSuspension, the structure before) cannot
+    shared = fit(RigidSuspension(), FrfProblem(data), decompose(nominal))
+    assert shared.error > 5 * floor
