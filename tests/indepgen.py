@@ -349,8 +349,14 @@ def apply_effect(truth: Truth, nominal: Plant, effect: str, p: dict, s: float) -
             # the model has the suspended beam as free-free: rigid bodies where truth has springs
             for i in P.suspended:
                 nominal.modes[i] = (0.0, 0.0, nominal.modes[i][2], nominal.modes[i][3])
-            f = P.modes[P.suspended[0]][0]
-            return {"freq_hz": f, "damping": P.modes[P.suspended[0]][1]}
+            # the spec's freq_hz / damping: the lowest suspension mode (bounce or rocking,
+            # whichever is softer), and every suspension mode listed
+            sus = sorted(P.modes[i][:2] for i in P.suspended)
+            return {
+                "freq_hz": sus[0][0],
+                "damping": sus[0][1],
+                "modes": [{"freq_hz": f, "damping": z} for f, z in sus],
+            }
         return {"freq_hz": f, "damping": p["damping"]}
     if effect == "crosstalk":
         T = np.eye(p["E"].shape[0]) + s * p["E"]

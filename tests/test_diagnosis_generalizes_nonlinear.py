@@ -142,3 +142,53 @@ def test_cubic_spring_on_the_stage_is_named_with_its_element():
     # fitted on top of it (the from-rest simulation without that mode drifts)
     k3 = np.asarray(p["cubic_stiffness"])[:3]  # the translation ports (N/m^3)
     assert np.all((k3 > 0.1 * k3_true) & (k3 < 2 * k3_true)), k3
+
+
+def _closed_loop_saturated(levels, rng, n=4000):
+    """Two free masses (1 kg, 3 kg: rigid bodies, no spring) under PD control, the
+    controller's command ``u`` clipped at ``levels`` (N per port) before the plant; exact
+    ZOH (scipy's matrix exponential), written here. Returns (sys, u, y, noise-free y)."""
+    import scipy.linalg
+
+    m = np.array([1.0, 3.0])
+    A = np.block([[np.zeros((2, 2)), np.eye(2)], [np.zeros((2, 2)), np.zeros((2, 2))]])
+    B = np.vstack([np.zeros((2, 2)), np.diag(1 / m)])
+    C = np.hstack([np.eye(2), np.zeros((2, 2))])
+    E = scipy.linalg.expm(np.block([[A, B], [np.zeros((2, 6))]]) / FS)
+    Ad, Bd = E[:4, :4], E[:4, 4:]
+    w = 2 * np.pi * 10.0
+    kp, kd = m * w**2, 2 * 0.7 * m * w
+    r = 20.0 * rng.standard_normal((n, 2))
+    x, y_prev = np.zeros(4), np.zeros(2)
+    u, y0 = np.zeros((n, 2)), np.zeros((n, 2))
+    sd = None
+    noise = rng.standard_normal((n, 2))
+    for k in range(n):
+        y0[k] = C @ x
+        meas = y0[k] + (0.0 if sd is None else sd * noise[k])
+        u[k] = r[k] - kp * meas - kd * (meas - y_prev) * FS
+        y_prev = meas
+        x = Ad @ x + Bd @ np.clip(u[k], -levels, levels)
+        if k == 200:  # the noise level once the loop has some motion
+            sd = 1e-3 * np.std(y0[:k], axis=0)
+    y = y0 + np.concatenate([np.zeros((201, 2)), sd * noise[201:]])
+    return control.ss(A, B, C, 0), u, y, y0
+
+
+def test_saturation_levels_per_port_in_a_closed_loop_reach_the_noise():
+    """Levels that clip a different share of each port's command: one common quantile of |u|
+    cannot hold both, and a from-rest simulation of the free masses integrates a level error
+    twice (the quantile scan alone: far above the noise). Fitted per port through the
+    simulation (growing horizons), the levels are the true ones and the error the noise's."""
+    from workbench.core.lti import relative_error_time
+
+    rng = np.random.default_rng(5)
+    levels = np.array([30.0, 40.0])
+    sys, u, y, y0 = _closed_loop_saturated(levels, rng)
+    clipped = np.mean(np.abs(u) > levels, axis=0)
+    assert clipped.min() > 0.02 and clipped.max() / clipped.min() > 1.5, clipped
+    floor = relative_error_time(y, y0)
+    fit = fit_port_element(sys, u, y, FS, substeps=2)
+    assert fit.element == "saturation", fit.candidates
+    np.testing.assert_allclose(fit.parameters["saturation"], levels, rtol=1e-3)
+    assert fit.error_after <= 1.2 * floor, (fit.error_after, floor)

@@ -10,11 +10,17 @@ from __future__ import annotations
 
 import control
 import numpy as np
+import pytest
 import scipy.linalg
 import scipy.signal
 
 from workbench.diagnosis import diagnose
-from workbench.diagnosis.effects import RigidSuspension, SuspensionStiffness, refinements
+from workbench.diagnosis.effects import (
+    RigidSuspension,
+    SuspensionModes,
+    SuspensionStiffness,
+    refinements,
+)
 from workbench.diagnosis.fit import fit
 from workbench.diagnosis.modal import decompose
 from workbench.diagnosis.problem import FrfProblem, make_problem
@@ -149,17 +155,60 @@ def test_a_fit_stopped_at_the_box_of_its_chart_is_continued_in_another():
     assert best.error < 2 * floor, best.error / floor
 
 
-def test_a_rechart_is_the_same_stiffness():
-    """The chart moves the modes to other coordinates; the model stays the same."""
+@pytest.mark.parametrize("per_mode", [False, True])
+def test_a_rechart_is_the_same_stiffness(per_mode):
+    """The chart moves the modes to other coordinates; the model stays the same (with a
+    damping per mode too: each travels with its mode)."""
     nominal, data, _, _ = _planar_time_case(5, n=512)
     problem = make_problem(data)
     base = decompose(nominal)
-    s = RigidSuspension()
+    s = SuspensionModes() if per_mode else RigidSuspension()
+    damping = np.log([0.05, 0.2, 0.1]) if per_mode else np.log([0.05])
     # P at its box: mode 1's shape small at its own coordinate
-    theta = np.r_[np.log([14.0, 11.0, 16.0]), np.log(0.05), [-10.0, 0.3, 0.2, 10.0, -0.4, 0.1]]
+    theta = np.r_[np.log([14.0, 11.0, 16.0]), damping, [-10.0, 0.3, 0.2, 10.0, -0.4, 0.1]]
     moved = s.rechart(theta, base)
-    assert moved is not None and np.max(np.abs(moved[4:])) < 10.0
+    nz = damping.size
+    assert moved is not None and np.max(np.abs(moved[3 + nz :])) < 10.0
     a, b = (s.build(t, problem, base).model for t in (theta, moved))
     assert np.allclose(sorted(m.freq_hz for m in a.modes), sorted(m.freq_hz for m in b.modes))
+    assert np.allclose(
+        sorted((m.freq_hz, m.damping) for m in a.modes),
+        sorted((m.freq_hz, m.damping) for m in b.modes),
+    )
     assert np.isclose(problem.cost(a), problem.cost(b), rtol=1e-9)
     assert s.rechart(moved, base) is None  # inside the box: nothing to continue
+
+
+#: a damping ratio per suspension mode: dampers placed otherwise than the springs
+ZETAS = np.array([0.15, 0.03])
+
+
+def _case_own_damping(noise=1e-3, seed=1):
+    """The body of :func:`_case` with modal damping diag(2 z_k w_k), z_k = ZETAS."""
+    lam, phi = scipy.linalg.eigh(K, M)  # phi^T M phi = I, lowest mode first
+    w = np.sqrt(lam)
+    D = np.linalg.inv(phi.T) @ np.diag(2 * ZETAS * w) @ np.linalg.inv(phi)
+    freq = np.geomspace(1.0, 300.0, 400)
+    G = _frf(freq, D, K)
+    rng = np.random.default_rng(seed)
+    sd = noise * np.abs(G) + 1e-12
+    Gm = G + sd / np.sqrt(2) * (rng.standard_normal(G.shape) + 1j * rng.standard_normal(G.shape))
+    nominal = _case()[0]
+    return nominal, FrfData(freq=freq, G=Gm, G_var=sd**2, fs=5000.0), w / (2 * np.pi), G
+
+
+def test_each_suspension_mode_its_own_damping_at_the_noise_floor():
+    nominal, data, f_true, G = _case_own_damping()
+    floor = np.mean(np.linalg.norm(data.G - G, axis=(1, 2)) / np.linalg.norm(G, axis=(1, 2)))
+    found = diagnose(nominal, data).to_json()["findings"]
+    top = found[0]
+    assert top["effect"] == "suspension_stiffness"
+    modes = sorted(top["parameters"]["modes"], key=lambda m: m["freq_hz"])
+    assert np.allclose([m["freq_hz"] for m in modes], f_true, rtol=1e-3), (modes, f_true)
+    assert np.allclose([m["damping"] for m in modes], ZETAS, rtol=0.05), (modes, ZETAS)
+    assert top["parameters"]["damping"] == modes[0]["damping"]  # the lowest mode's
+    assert top["error_after"] < 2 * floor
+    assert [f["effect"] for f in found].count("suspension_stiffness") == 1
+    # one shared damping ratio (RigidSuspension, the structure before) cannot
+    shared = fit(RigidSuspension(), FrfProblem(data), decompose(nominal))
+    assert shared.error > 5 * floor
