@@ -158,6 +158,71 @@ def fit_budget(structure) -> int:
     return int(getattr(structure, "max_nfev", MAX_NFEV))
 
 
+#: relative finite-difference step of a Jacobian column (scipy's ``diff_step``)
+DIFF_STEP = 1e-4
+
+#: how fit() refines a structure without analytic hooks on FRF data: "lm" (Levenberg-Marquardt
+#: on the normal equations of a finite-difference Jacobian, or of the structure's analytic
+#: ``jacobian``) or "trf" (scipy's trust-region reflective with finite differences, which
+#: takes an SVD of the tall Jacobian every iteration: the engine before, kept as the
+#: reference of benchmarks/bench_speed.py --frf)
+FRF_SOLVER = "lm"
+
+
+class _Normal:
+    """``normal(theta, r) -> (J^T J, J^T r)`` for :func:`levenberg_marquardt`, with its stops."""
+
+    def __init__(self, fn, tolerances: dict):
+        self.fn = fn
+        self.tolerances = tolerances
+
+    def __call__(self, theta, r):
+        return self.fn(theta, r)
+
+
+def _normal_equations(structure, problem, base, residual, lo, hi) -> _Normal | None:
+    """The normal equations fit() solves for ``structure``, or None for scipy's trf.
+
+    A structure's ``normal_equations`` hook (analytic, the modal fit) comes first, with
+    :func:`levenberg_marquardt`'s tight stops. On FRF data (``FRF_SOLVER == "lm"``) every
+    other structure: its ``jacobian`` hook (analytic; it returns None where it has none for
+    the problem), else :func:`finite_difference_jacobian`, with scipy's default stops (1e-8:
+    what the trust-region search used, and all a difference quotient resolves). Elsewhere
+    (time records, or the reference ``FRF_SOLVER == "trf"``): None.
+    """
+    if callable(getattr(structure, "normal_equations", None)):
+        return _Normal(lambda th, r: structure.normal_equations(th, problem, base, r), {})
+    if problem.kind != "frf" or FRF_SOLVER != "lm":
+        return None
+    jac = getattr(structure, "jacobian", None)
+
+    def normal(theta, r):
+        J = jac(theta, problem, base) if callable(jac) else None
+        if J is None:
+            J = finite_difference_jacobian(residual, theta, r, lo, hi)
+        return J.T @ J, J.T @ r
+
+    return _Normal(normal, {"ftol": 1e-8, "xtol": 1e-8, "gtol": 1e-8})
+
+
+def finite_difference_jacobian(residual, x, r, lo, hi, *, rel_step: float = DIFF_STEP):
+    """Forward-difference Jacobian (n_obs, n_x) of ``residual`` at ``x``, where it is ``r``.
+
+    The step is scipy's ``2-point`` rule, ``rel_step sign(x) max(1, |x|)`` (sign(0) = 1),
+    taken backwards where the forward point leaves the bounds ``lo``, ``hi``.
+    """
+    x = np.asarray(x, float)
+    h = rel_step * np.where(x >= 0, 1.0, -1.0) * np.maximum(1.0, np.abs(x))
+    out = (x + h < lo) | (x + h > hi)
+    h = np.where(out & (x - h >= lo) & (x - h <= hi), -h, h)
+    J = np.empty((np.size(r), x.size))
+    for i in range(x.size):
+        xi = x.copy()
+        xi[i] += h[i]
+        J[:, i] = (residual(xi) - r) / (xi[i] - x[i])
+    return J
+
+
 def screen(structure: Structure, problem, base: ModalModel) -> Screening:
     """Projected cost on the structure's grid, grid points sorted by cost, numerical failures.
 
@@ -234,25 +299,18 @@ def fit(
         inner = np.where(np.isfinite(hi - lo), 1e-3 * (hi - lo), 0.0)
         # optional hooks (workbench.modal.fit.ModalStructure): normal_equations(theta, problem,
         # base, r) -> (J^T J, J^T r), or jacobian(theta, problem, base) -> J, analytic; they run
-        # Levenberg-Marquardt on the normal equations. Others: finite differences in scipy
-        normal = None
-        if callable(getattr(structure, "normal_equations", None)):
-
-            def normal(theta, r):
-                return structure.normal_equations(theta, problem, base, r)
-
-        elif callable(getattr(structure, "jacobian", None)):
-
-            def normal(theta, r):
-                J = structure.jacobian(theta, problem, base)
-                return J.T @ J, J.T @ r
-
+        # Levenberg-Marquardt on the normal equations. On FRF data every other structure runs
+        # it too, on finite differences (a jacobian hook may return None: none for this
+        # problem); elsewhere finite differences in scipy's trust-region reflective
+        normal = _normal_equations(structure, problem, base, residual, lo, hi)
         for th0 in starts:
             th0 = np.clip(th0, lo + inner, hi - inner)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
                 if normal is not None:
-                    res = levenberg_marquardt(residual, normal, th0, lo, hi, max_nfev=max_nfev)
+                    res = levenberg_marquardt(
+                        residual, normal, th0, lo, hi, max_nfev=max_nfev, **normal.tolerances
+                    )
                 else:
                     res = scipy.optimize.least_squares(
                         residual,
@@ -262,7 +320,7 @@ def fit(
                         method="trf",
                         x_scale="jac",
                         max_nfev=max_nfev,
-                        diff_step=1e-4,
+                        diff_step=DIFF_STEP,
                     )
             if best is None or res.cost < best.cost:
                 best = res
