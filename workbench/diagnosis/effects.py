@@ -58,6 +58,34 @@ def _freq_damping(theta) -> tuple[float, float]:
     return float(np.exp(theta[0])), float(np.exp(theta[1]))
 
 
+def _mode_derivatives(problem, mode: Mode) -> tuple[np.ndarray, np.ndarray]:
+    """d response / d ln f and d ln z of a flexible ``mode`` at the FRF lines, residues kept.
+
+    ``response = (N0 + s N1) / den``, ``den = s^2 + 2 z w s + w^2``: ``d den / d ln w =
+    2 z w s + 2 w^2``, ``d den / d ln z = 2 z w s``, and ``d(1/den) = -d den / den^2``.
+    Returns two (n_f, n_y, n_u) complex arrays.
+    """
+    s, w, z = problem.s, mode.omega, mode.damping
+    den = s**2 + 2 * z * w * s + w * w
+    N0, N1 = mode.numerator()
+    num = N0[None] + s[:, None, None] * N1[None]
+    q = -num / (den**2)[:, None, None]
+    return q * (2 * z * w * s + 2 * w * w)[:, None, None], q * (2 * z * w * s)[:, None, None]
+
+
+def _residual_columns(problem, model: ModalModel, dcores: list) -> np.ndarray:
+    """Jacobian columns (n_obs, n) of the FRF residual for derivatives of the core response.
+
+    The outer factors (lags, coupling, delay) are linear in the core, so a column is
+    ``-w outer(dcore)``, stacked as :meth:`FrfProblem.residual` stacks the residual.
+    """
+    J = np.empty((problem.n_obs, len(dcores)))
+    for i, dG in enumerate(dcores):
+        dr = model.outer(problem.freq, dG) * problem.w
+        J[:, i] = -dr.view(float).ravel()
+    return J
+
+
 def _mode_std(fr: FitResult) -> tuple[float, float, float, float]:
     f, z = np.exp(fr.theta)
     return float(f), float(z), float(f * fr.theta_std[0]), float(z * fr.theta_std[1])
@@ -117,6 +145,17 @@ class TimeDelay:
 
     def n_linear(self, base):
         return 0
+
+    def jacobian(self, theta, problem, base):
+        """d residual / d theta (n_obs, 1) on FRF data: ``-w s 1e-3 G`` (theta in ms); else None.
+
+        The delay multiplies every channel by ``exp(-s tau)`` last (outside the coupling).
+        """
+        if problem.kind != "frf":
+            return None
+        P = problem.predict(self.build(theta, problem, base).model)
+        dr = P * (problem.s * 1e-3)[:, None, None] * problem.w  # -(-s 1e-3 P) w
+        return dr.view(float).reshape(-1, 1)
 
     def report(self, fr, problem, base):
         return {"delay_s": float(fr.theta[0] * 1e-3)}, {"delay_s": float(fr.theta_std[0] * 1e-3)}
@@ -210,6 +249,15 @@ class ModalMismatch:
         modes[self.index] = modes[self.index].moved(*_freq_damping(theta))
         return Realized(replace(base, modes=tuple(modes)))
 
+    def jacobian(self, theta, problem, base):
+        """Analytic on FRF data (:func:`_mode_derivatives`), else None."""
+        if problem.kind != "frf":
+            return None
+        model = self.build(theta, problem, base).model
+        return _residual_columns(
+            problem, model, _mode_derivatives(problem, model.modes[self.index])
+        )
+
     def n_linear(self, base):
         return 0
 
@@ -263,6 +311,22 @@ class ModalPattern:
             m = modes[k]
             modes[k] = m.moved(m.freq_hz * sf, min(m.damping * sz, 0.9))
         return Realized(replace(base, modes=tuple(modes)))
+
+    def jacobian(self, theta, problem, base):
+        """Analytic on FRF data: the modes' derivatives summed (a damping held at its 0.9
+        cap does not move), else None."""
+        if problem.kind != "frf":
+            return None
+        sz = float(np.exp(theta[1]))
+        model = self.build(theta, problem, base).model
+        dF, dZ = 0.0, 0.0
+        for k in self.indices(base):
+            df, dz = _mode_derivatives(problem, model.modes[k])
+            dF = dF + df
+            if base.modes[k].damping * sz < 0.9:
+                dZ = dZ + dz
+        dZ = dZ if np.ndim(dZ) else np.zeros_like(dF)
+        return _residual_columns(problem, model, [dF, dZ])
 
     def n_linear(self, base):
         return 0
@@ -342,6 +406,14 @@ class ModalModes(ModalPattern):
         for j, k in enumerate(ks):
             modes[k] = modes[k].moved(float(np.exp(theta[j])), float(np.exp(theta[n + j])))
         return Realized(replace(base, modes=tuple(modes)))
+
+    def jacobian(self, theta, problem, base):
+        """Analytic on FRF data (:func:`_mode_derivatives` per mode), else None."""
+        if problem.kind != "frf":
+            return None
+        model = self.build(theta, problem, base).model
+        pairs = [_mode_derivatives(problem, model.modes[k]) for k in self.indices(base)]
+        return _residual_columns(problem, model, [d[0] for d in pairs] + [d[1] for d in pairs])
 
     def report(self, fr, problem, base):
         ks = self.indices(base)
@@ -429,6 +501,15 @@ class SuspensionStiffness:
         k = self._rigid(base)
         modes[k] = modes[k].moved(*_freq_damping(theta), effect=self.effect)
         return Realized(replace(base, modes=tuple(modes)))
+
+    def jacobian(self, theta, problem, base):
+        """Analytic on FRF data (:func:`_mode_derivatives` of the suspended mode), else None."""
+        if problem.kind != "frf":
+            return None
+        model = self.build(theta, problem, base).model
+        return _residual_columns(
+            problem, model, _mode_derivatives(problem, model.modes[self._rigid(base)])
+        )
 
     def n_linear(self, base):
         return 0
@@ -859,6 +940,33 @@ class _Lag:
 
     def n_linear(self, base):
         return 0
+
+    def jacobian(self, theta, problem, base):
+        """d residual / d theta (n_obs, n) on FRF data, else None (finite differences).
+
+        A lag on input j scales column j of the response by ``L_j = 1/(1 + s tau_j)``
+        (``tau_j = tau0_j + theta_j / scale``) when no coupling mixes the inputs after it
+        (``T_in`` None; on the output side rows and ``T_out``): ``dG/dtheta_j = G_j (-s L_j /
+        scale)`` on that column, zero elsewhere, and the residual's derivative is ``-w dG``.
+        """
+        coupling = base.T_in if self.side == "in" else base.T_out
+        if problem.kind != "frf" or coupling is not None:
+            return None
+        model = self.build(theta, problem, base).model
+        P = problem.predict(model)
+        L = 1.0 / (1.0 + problem.s[:, None] * model.lags(self.side)[None, :])  # (n_f, n)
+        dlog = problem.s[:, None] * L / self._scale(problem)  # -(d ln L / d theta)
+        n = self._n(base)
+        J = np.zeros(P.shape + (2, n))
+        for j in range(n):
+            at = (
+                (slice(None), slice(None), j)
+                if self.side == "in"
+                else (slice(None), j, slice(None))
+            )
+            dr = P[at] * problem.w[at] * (dlog[:, j, None])
+            J[at + (slice(None), j)] = dr.view(float).reshape(dr.shape + (2,))
+        return J.reshape(-1, n)
 
     def report(self, fr, problem, base):
         f_hi = problem.band_hz[1]

@@ -110,7 +110,7 @@ class FrfProblem:
         self.band_hz = (float(data.freq[0]), float(data.freq[-1]))
         self._cache: dict = {}  # mode key -> its response
         self._core_cache: dict = {}  # (mode keys, D) -> core, oldest first
-        self._anchors: dict = {}  # mode keys -> sum of their responses, summed directly
+        self._anchors: dict = {}  # mode keys -> (modes, sum of responses summed directly)
         self._linear_last = None  # (model, w2 |h|^2, w2 conj(h) e), see _linear_data
 
     # ------------------------------------------------------------ prediction
@@ -120,9 +120,7 @@ class FrfProblem:
         if out is None:
             out = m.response(self.s)
             if len(self._cache) > 400:
-                # the anchors' modes stay: a derived sum subtracts them
-                pinned = {q for keys in self._anchors for q in keys}
-                self._cache = {q: v for q, v in self._cache.items() if q in pinned}
+                self._cache.clear()
             self._cache[k] = out
         return out
 
@@ -150,13 +148,13 @@ class FrfProblem:
 
     def _modes_sum(self, model: ModalModel, keys: tuple) -> np.ndarray:
         """``sum_k`` mode responses, (n_f, n_y, n_u), from a near anchor or directly."""
-        for anchor, S in reversed(self._anchors.items()):
+        for anchor, (modes, S) in reversed(self._anchors.items()):
             if len(anchor) <= len(keys) and len(keys) - len(anchor) <= 2:
                 changed = [k for k in range(len(anchor)) if anchor[k] != keys[k]]
                 if len(changed) + len(keys) - len(anchor) <= 2:
                     out = S.copy()
                     for k in changed:
-                        out -= self._cache[anchor[k]]
+                        out -= self._mode_response(modes[k])
                         out += self._mode_response(model.modes[k])
                     for m in model.modes[len(anchor) :]:
                         out += self._mode_response(m)
@@ -166,7 +164,7 @@ class FrfProblem:
             out += self._mode_response(m)  # in place: one array, not one per mode
         if len(self._anchors) >= CORE_ANCHORS:
             self._anchors.pop(next(iter(self._anchors)))
-        self._anchors[keys] = out.copy()
+        self._anchors[keys] = (model.modes, out.copy())
         return out
 
     def predict(self, model: ModalModel) -> np.ndarray:
