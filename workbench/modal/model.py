@@ -196,12 +196,20 @@ class Mode:
             den = s - self.pole.real
         else:
             den = s**2 + 2 * z * w * s + w**2
-        inv = (1.0 / den)[:, None, None]  # one division per line, not per channel
-        if self.N1 is None or not np.any(self.N1):
-            N0 = np.outer(self.c, self.b) if self.N0 is None else self.N0
-            return N0[None] * inv
+        inv = 1.0 / den  # one division per line, not per channel
         N0, N1 = self.numerator()
-        return (N0[None] + s[:, None, None] * N1[None]) * inv
+        # (N0 + s N1) / den = p N0 + q N1 (p = 1/den, q = s/den) as one real product
+        # (n_f, 4) @ (4, 2 n_y n_u) whose rows are (Re, Im) interleaved: the complex array
+        # is written once (the broadcast form wrote three; the diagnosis calls this
+        # thousands of times)
+        k = N0.size
+        B = np.zeros((4, k, 2))
+        B[0, :, 0] = B[1, :, 1] = N0.ravel()
+        B[2, :, 0] = B[3, :, 1] = N1.ravel()
+        q = s * inv
+        coef = np.stack([inv.real, inv.imag, q.real, q.imag], -1)
+        out = coef @ B.reshape(4, 2 * k)
+        return out.view(complex).reshape(s.size, *N0.shape)
 
 
 @dataclass(frozen=True)
