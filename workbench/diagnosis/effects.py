@@ -67,10 +67,11 @@ def _mode_derivatives(problem, mode: Mode) -> tuple[np.ndarray, np.ndarray]:
     """
     s, w, z = problem.s, mode.omega, mode.damping
     den = s**2 + 2 * z * w * s + w * w
-    N0, N1 = mode.numerator()
-    num = N0[None] + s[:, None, None] * N1[None]
-    q = -num / (den**2)[:, None, None]
-    return q * (2 * z * w * s + 2 * w * w)[:, None, None], q * (2 * z * w * s)[:, None, None]
+    d_lnz = 2 * z * w * s
+    return (
+        mode.numerator_times(s, -(d_lnz + 2 * w * w) / den**2),
+        mode.numerator_times(s, -d_lnz / den**2),
+    )
 
 
 def _residual_columns(problem, model: ModalModel, dcores: list) -> np.ndarray:

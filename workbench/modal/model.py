@@ -196,18 +196,26 @@ class Mode:
             den = s - self.pole.real
         else:
             den = s**2 + 2 * z * w * s + w**2
-        inv = 1.0 / den  # one division per line, not per channel
+        return self.numerator_times(s, 1.0 / den)  # one division per line, not per channel
+
+    def numerator_times(self, s: np.ndarray, phi: np.ndarray) -> np.ndarray:
+        """``(N0 + s N1) phi(s)``, (n_f, n_y, n_u) complex, for per-line factors ``phi`` (n_f,).
+
+        :meth:`response` with ``phi = 1/den``; a derivative of the response with respect to
+        the denominator's parameters with ``phi = -d den / den^2``. Computed as
+        ``p N0 + q N1`` (``p = phi``, ``q = s phi``) in one real product (n_f, 4) @
+        (4, 2 n_y n_u) whose columns are (Re, Im) interleaved: the complex array is written
+        once (the broadcast form wrote three; the diagnosis calls this thousands of times).
+        """
+        s = np.asarray(s, complex)
+        phi = np.asarray(phi, complex)
         N0, N1 = self.numerator()
-        # (N0 + s N1) / den = p N0 + q N1 (p = 1/den, q = s/den) as one real product
-        # (n_f, 4) @ (4, 2 n_y n_u) whose rows are (Re, Im) interleaved: the complex array
-        # is written once (the broadcast form wrote three; the diagnosis calls this
-        # thousands of times)
         k = N0.size
         B = np.zeros((4, k, 2))
         B[0, :, 0] = B[1, :, 1] = N0.ravel()
         B[2, :, 0] = B[3, :, 1] = N1.ravel()
-        q = s * inv
-        coef = np.stack([inv.real, inv.imag, q.real, q.imag], -1)
+        q = s * phi
+        coef = np.stack([phi.real, phi.imag, q.real, q.imag], -1)
         out = coef @ B.reshape(4, 2 * k)
         return out.view(complex).reshape(s.size, *N0.shape)
 
