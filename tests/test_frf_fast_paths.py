@@ -112,9 +112,36 @@ def test_cached_core_equals_the_direct_sum(plant, params):
     moved[k - 1] = moved[k - 1].moved(moved[k - 1].freq_hz * 0.99, 0.02)
     models.append(replace(base, modes=tuple(moved)))
     for m in models + models[::-1]:  # twice: cache hits too
-        direct = m.core_frf(problem.freq)
+        direct = _direct_core(m, problem.s)
         got = problem.core(m)
         assert np.max(np.abs(got - direct)) <= 1e-12 * np.max(np.abs(direct))
+
+
+def _direct_core(model, s):
+    """``D + sum_k (N0_k + s N1_k) / den_k(s)`` by broadcasting, mode by mode (the oracle)."""
+    G = np.zeros((s.size,) + model.D.shape, complex) + model.D
+    for m in model.modes:
+        N0, N1 = m.numerator()
+        if m.kind == "rigid":
+            den = s**2
+        elif m.kind == "real":
+            den = s - m.pole.real
+        else:
+            den = s**2 + 2 * m.damping * m.omega * s + m.omega**2
+        G += (N0[None] + s[:, None, None] * N1[None]) / den[:, None, None]
+    return G
+
+
+def test_mode_responses_match_the_closed_form_off_the_axis_too():
+    problem, base = _problem(stage, stage_params, "modal_mismatch")
+    modes = base.modes + (replace(base.modes[-1], N1=0.3 * base.modes[-1].numerator()[0]),)
+    model = replace(base, modes=modes)
+    for s in (problem.s, problem.s * (1 + 0.2j) - 50.0):  # the jw axis and a general s
+        ref = _direct_core(model, s) - model.D
+        assert np.max(np.abs(sum(m.response(s) for m in modes) - ref)) < 1e-13 * np.max(np.abs(ref))
+    f = problem.freq
+    ref = _direct_core(model, problem.s)
+    assert np.max(np.abs(model.core_frf(f) - ref)) < 1e-13 * np.max(np.abs(ref))
 
 
 def _lstsq_channel(problem, columns, target, i, j):

@@ -31,7 +31,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from workbench.diagnosis.fit import FitResult, Realized
-from workbench.modal.model import ModalModel, Mode
+from workbench.modal.model import ModalModel, Mode, numerators_times
 
 __all__ = [
     "TimeDelay",
@@ -58,20 +58,23 @@ def _freq_damping(theta) -> tuple[float, float]:
     return float(np.exp(theta[0])), float(np.exp(theta[1]))
 
 
-def _mode_derivatives(problem, mode: Mode) -> tuple[np.ndarray, np.ndarray]:
-    """d response / d ln f and d ln z of a flexible ``mode`` at the FRF lines, residues kept.
+def _den_factors(problem, mode: Mode) -> tuple[np.ndarray, np.ndarray]:
+    """Per-line factors ``phi`` (n_f,) with ``d response / d ln f = (N0 + s N1) phi_f`` and
+    ``d / d ln z = (N0 + s N1) phi_z`` for a flexible ``mode``, residues kept.
 
     ``response = (N0 + s N1) / den``, ``den = s^2 + 2 z w s + w^2``: ``d den / d ln w =
     2 z w s + 2 w^2``, ``d den / d ln z = 2 z w s``, and ``d(1/den) = -d den / den^2``.
-    Returns two (n_f, n_y, n_u) complex arrays.
     """
     s, w, z = problem.s, mode.omega, mode.damping
-    den = s**2 + 2 * z * w * s + w * w
+    den2 = (s**2 + 2 * z * w * s + w * w) ** 2
     d_lnz = 2 * z * w * s
-    return (
-        mode.numerator_times(s, -(d_lnz + 2 * w * w) / den**2),
-        mode.numerator_times(s, -d_lnz / den**2),
-    )
+    return -(d_lnz + 2 * w * w) / den2, -d_lnz / den2
+
+
+def _mode_derivatives(problem, mode: Mode) -> tuple[np.ndarray, np.ndarray]:
+    """d response / d ln f and d ln z of a flexible ``mode`` (:func:`_den_factors`), two
+    (n_f, n_y, n_u) complex arrays."""
+    return tuple(mode.numerator_times(problem.s, phi) for phi in _den_factors(problem, mode))
 
 
 def _residual_columns(problem, model: ModalModel, dcores: list) -> np.ndarray:
@@ -320,13 +323,13 @@ class ModalPattern:
             return None
         sz = float(np.exp(theta[1]))
         model = self.build(theta, problem, base).model
-        dF, dZ = 0.0, 0.0
-        for k in self.indices(base):
-            df, dz = _mode_derivatives(problem, model.modes[k])
-            dF = dF + df
-            if base.modes[k].damping * sz < 0.9:
-                dZ = dZ + dz
-        dZ = dZ if np.ndim(dZ) else np.zeros_like(dF)
+        ks = self.indices(base)
+        modes = [model.modes[k] for k in ks]
+        phi = [_den_factors(problem, m) for m in modes]
+        moves = np.array([base.modes[k].damping * sz < 0.9 for k in ks], float)
+        # every mode's derivative summed in one product per column
+        dF = numerators_times(modes, problem.s, np.stack([p[0] for p in phi], -1))
+        dZ = numerators_times(modes, problem.s, np.stack([p[1] for p in phi], -1) * moves)
         return _residual_columns(problem, model, [dF, dZ])
 
     def n_linear(self, base):
