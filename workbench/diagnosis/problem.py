@@ -138,8 +138,8 @@ class FrfProblem:
         full = (keys, _key(model.D))
         G = self._core_cache.get(full)
         if G is None:
-            S = self._modes_sum(model, keys)
-            G = S + model.D
+            G = self._modes_sum(model, keys)  # a new array: D added in place
+            G += model.D
             G.flags.writeable = False
             if len(self._core_cache) >= CORE_CACHE:
                 self._core_cache.pop(next(iter(self._core_cache)))
