@@ -22,6 +22,11 @@ suspension_stiffness   rigid-body 1/s^2 -> 1/(s^2 + 2 z w s + w^2)       ln f, l
   (CoupledSuspension)    + the springs' coupling to the flexible modes    + a_rj, g_jr, d_j
 crosstalk              (I + E) G or G (I + E), E off-diagonal            -           (E linear)
 =====================  ===============================================  ==========================
+
+On FRF data the structures whose model derivative is explicit (the delay, the lags, the
+moved modes of ModalMismatch / ModalPattern / ModalModes / SuspensionStiffness) give the
+fit engine their residual's ``jacobian`` (``None`` elsewhere: finite differences); the
+ones with linear parts solved by projection use finite differences.
 """
 
 from __future__ import annotations

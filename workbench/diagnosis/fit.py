@@ -2,11 +2,13 @@
 
 A :class:`Structure` is a parameterized model on top of a base model: its
 nonlinear parameters ``theta`` (a delay, a frequency and damping, cutoffs) are
-found by Levenberg-Marquardt-type trust-region least squares
-(``scipy.optimize.least_squares``, finite-difference Jacobian: ``theta`` has at
-most a handful of entries; a structure with an analytic Jacobian or normal
-equations, the modal fit's dozens of parameters, runs :func:`levenberg_marquardt`
-on them instead), while the parameters that enter linearly (mode
+found by Levenberg-Marquardt least squares. On FRF data :func:`levenberg_marquardt`
+solves the small normal equations of the structure's analytic ``jacobian`` (a delay,
+lags, moved modes) or of a finite-difference Jacobian (``theta`` has at most a
+handful of entries, or the modal fit's dozens with its own ``normal_equations``);
+on time records ``scipy.optimize.least_squares`` (trust-region reflective, finite
+differences; :data:`FRF_SOLVER` selects it on FRF data too, the reference of
+``benchmarks/bench_speed.py --frf``), while the parameters that enter linearly (mode
 residues, compliance and coupling matrices) are solved inside every residual
 evaluation by the problem's closed-form linear fits (variable projection,
 Golub & Pereyra 1973). Start points come from a coarse grid of ``theta``
