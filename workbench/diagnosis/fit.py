@@ -2,11 +2,13 @@
 
 A :class:`Structure` is a parameterized model on top of a base model: its
 nonlinear parameters ``theta`` (a delay, a frequency and damping, cutoffs) are
-found by Levenberg-Marquardt-type trust-region least squares
-(``scipy.optimize.least_squares``, finite-difference Jacobian: ``theta`` has at
-most a handful of entries; a structure with an analytic Jacobian or normal
-equations, the modal fit's dozens of parameters, runs :func:`levenberg_marquardt`
-on them instead), while the parameters that enter linearly (mode
+found by Levenberg-Marquardt least squares. On FRF data :func:`levenberg_marquardt`
+solves the small normal equations of the structure's analytic ``jacobian`` (a delay,
+lags, moved modes) or of a finite-difference Jacobian (``theta`` has at most a
+handful of entries, or the modal fit's dozens with its own ``normal_equations``);
+on time records ``scipy.optimize.least_squares`` (trust-region reflective, finite
+differences; :data:`FRF_SOLVER` selects it on FRF data too, the reference of
+``benchmarks/bench_speed.py --frf``), while the parameters that enter linearly (mode
 residues, compliance and coupling matrices) are solved inside every residual
 evaluation by the problem's closed-form linear fits (variable projection,
 Golub & Pereyra 1973). Start points come from a coarse grid of ``theta``
@@ -158,6 +160,73 @@ def fit_budget(structure) -> int:
     return int(getattr(structure, "max_nfev", MAX_NFEV))
 
 
+#: relative finite-difference step of a Jacobian column (scipy's ``diff_step``)
+DIFF_STEP = 1e-4
+
+#: how fit() refines a structure without analytic hooks on FRF data: "lm" (Levenberg-Marquardt
+#: on the normal equations of a finite-difference Jacobian, or of the structure's analytic
+#: ``jacobian``) or "trf" (scipy's trust-region reflective with finite differences, which
+#: takes an SVD of the tall Jacobian every iteration: the engine before, kept as the
+#: reference of benchmarks/bench_speed.py --frf)
+FRF_SOLVER = "lm"
+
+
+class _Normal:
+    """``normal(theta, r) -> (J^T J, J^T r)`` for :func:`levenberg_marquardt`, with its stops."""
+
+    def __init__(self, fn, tolerances: dict):
+        self.fn = fn
+        self.tolerances = tolerances
+
+    def __call__(self, theta, r):
+        return self.fn(theta, r)
+
+
+def _normal_equations(structure, problem, base, residual, lo, hi) -> _Normal | None:
+    """The normal equations fit() solves for ``structure``, or None for scipy's trf.
+
+    A structure's ``normal_equations`` hook (analytic, the modal fit) comes first, with
+    :func:`levenberg_marquardt`'s tight stops. On FRF data (``FRF_SOLVER == "lm"``) every
+    other structure: its ``jacobian`` hook (analytic; it returns None where it has none for
+    the problem), else :func:`finite_difference_jacobian`, with scipy's default stops (1e-8:
+    what the trust-region search used, and all a difference quotient resolves). Elsewhere
+    (time records, or the reference ``FRF_SOLVER == "trf"``): None.
+    """
+    if callable(getattr(structure, "normal_equations", None)):
+        return _Normal(lambda th, r: structure.normal_equations(th, problem, base, r), {})
+    if problem.kind != "frf" or FRF_SOLVER != "lm":
+        return None
+    if getattr(structure, "solver", None) == "trf":
+        return None  # the structure asks for scipy's trust region (see RigidSuspension)
+    jac = getattr(structure, "jacobian", None)
+
+    def normal(theta, r):
+        J = jac(theta, problem, base) if callable(jac) else None
+        if J is None:
+            J = finite_difference_jacobian(residual, theta, r, lo, hi)
+        return J.T @ J, J.T @ r
+
+    return _Normal(normal, {"ftol": 1e-8, "xtol": 1e-8, "gtol": 1e-8})
+
+
+def finite_difference_jacobian(residual, x, r, lo, hi, *, rel_step: float = DIFF_STEP):
+    """Forward-difference Jacobian (n_obs, n_x) of ``residual`` at ``x``, where it is ``r``.
+
+    The step is scipy's ``2-point`` rule, ``rel_step sign(x) max(1, |x|)`` (sign(0) = 1),
+    taken backwards where the forward point leaves the bounds ``lo``, ``hi``.
+    """
+    x = np.asarray(x, float)
+    h = rel_step * np.where(x >= 0, 1.0, -1.0) * np.maximum(1.0, np.abs(x))
+    out = (x + h < lo) | (x + h > hi)
+    h = np.where(out & (x - h >= lo) & (x - h <= hi), -h, h)
+    J = np.empty((np.size(r), x.size))
+    for i in range(x.size):
+        xi = x.copy()
+        xi[i] += h[i]
+        J[:, i] = (residual(xi) - r) / (xi[i] - x[i])
+    return J
+
+
 def screen(structure: Structure, problem, base: ModalModel) -> Screening:
     """Projected cost on the structure's grid, grid points sorted by cost, numerical failures.
 
@@ -234,25 +303,18 @@ def fit(
         inner = np.where(np.isfinite(hi - lo), 1e-3 * (hi - lo), 0.0)
         # optional hooks (workbench.modal.fit.ModalStructure): normal_equations(theta, problem,
         # base, r) -> (J^T J, J^T r), or jacobian(theta, problem, base) -> J, analytic; they run
-        # Levenberg-Marquardt on the normal equations. Others: finite differences in scipy
-        normal = None
-        if callable(getattr(structure, "normal_equations", None)):
-
-            def normal(theta, r):
-                return structure.normal_equations(theta, problem, base, r)
-
-        elif callable(getattr(structure, "jacobian", None)):
-
-            def normal(theta, r):
-                J = structure.jacobian(theta, problem, base)
-                return J.T @ J, J.T @ r
-
+        # Levenberg-Marquardt on the normal equations. On FRF data every other structure runs
+        # it too, on finite differences (a jacobian hook may return None: none for this
+        # problem); elsewhere finite differences in scipy's trust-region reflective
+        normal = _normal_equations(structure, problem, base, residual, lo, hi)
         for th0 in starts:
             th0 = np.clip(th0, lo + inner, hi - inner)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
                 if normal is not None:
-                    res = levenberg_marquardt(residual, normal, th0, lo, hi, max_nfev=max_nfev)
+                    res = levenberg_marquardt(
+                        residual, normal, th0, lo, hi, max_nfev=max_nfev, **normal.tolerances
+                    )
                 else:
                     res = scipy.optimize.least_squares(
                         residual,
@@ -262,7 +324,7 @@ def fit(
                         method="trf",
                         x_scale="jac",
                         max_nfev=max_nfev,
-                        diff_step=1e-4,
+                        diff_step=DIFF_STEP,
                     )
             if best is None or res.cost < best.cost:
                 best = res

@@ -42,17 +42,30 @@ def _solve_channels(M: np.ndarray, r: np.ndarray) -> np.ndarray:
     return np.linalg.solve(M + ridge + 1e-300 * np.eye(p), r[..., None])[..., 0]
 
 
-def _solve_basis(basis: list, e: np.ndarray, w2: np.ndarray):
-    """Real coefficients x[..., p] per channel minimizing sum_f w2 |e - sum_p x_p basis_p|^2.
+def _normal_parts(phi: np.ndarray, hw: np.ndarray, ew: np.ndarray):
+    """Normal equations of real coefficients per channel for the basis ``phi_p(f) h(f)``.
 
-    ``basis``: p complex arrays (n_f, n_y, n_u); returns x and its unit-noise std, (n_y, n_u, p).
+    The weighted least squares ``min sum_f w2 |e - sum_p x_p phi_p h|^2`` per channel, with
+    the per-line factors ``phi`` (n_f, p) complex shared by the channels and, per channel,
+    ``hw = w2 |h|^2`` (n_f, n_y, n_u) real and ``ew = w2 conj(h) e`` (n_f, n_y, n_u) complex
+    (they do not depend on ``phi``: a screening computes them once per model). Since
+    ``w2 |h|^2`` is real, ``M_pq = sum_f hw Re(conj(phi_p) phi_q)`` and
+    ``r_p = Re sum_f conj(phi_p) ew``: two products over the lines.
+
+    Returns M (n_y, n_u, p, p) and r (n_y, n_u, p).
     """
-    n_f, n_y, n_u = e.shape
-    # per channel (n_y n_u batches): A (n_f, p), M = A^H W A, r = A^H W e by batched matmul
-    A = np.stack(basis, -1).reshape(n_f, n_y * n_u, -1).transpose(1, 0, 2)
-    Aw = A.conj().transpose(0, 2, 1) * w2.reshape(n_f, -1).T[:, None, :]
-    M = (Aw @ A).real.reshape(n_y, n_u, A.shape[2], A.shape[2])
-    r = (Aw @ e.reshape(n_f, -1).T[:, :, None])[..., 0].real.reshape(n_y, n_u, -1)
+    n_f, n_y, n_u = hw.shape
+    p = phi.shape[1]
+    P = (np.conj(phi)[:, :, None] * phi[:, None, :]).real.reshape(n_f, p * p)
+    M = (hw.reshape(n_f, -1).T @ P).reshape(n_y, n_u, p, p)
+    r = (ew.reshape(n_f, -1).T @ np.conj(phi)).real.reshape(n_y, n_u, p)
+    return M, r
+
+
+def _solve_basis(M: np.ndarray, r: np.ndarray):
+    """Solution x (n_y, n_u, p) of the normal equations (:func:`_normal_parts`) per channel
+    and its unit-noise std, by the diagonally scaled system (the columns' scales differ
+    by orders of magnitude)."""
     d = np.sqrt(np.maximum(np.einsum("ijpp->ijp", M), 1e-300))
     Ms = M / (d[..., :, None] * d[..., None, :])
     x = _solve_channels(Ms, r / d) / d
@@ -60,6 +73,11 @@ def _solve_basis(basis: list, e: np.ndarray, w2: np.ndarray):
     cov = np.linalg.inv(Ms + 1e-12 * np.eye(p))
     std = np.sqrt(np.abs(np.einsum("ijpp->ijp", cov))) / d
     return x, std
+
+
+#: cores kept by FrfProblem (each n_f n_y n_u complex), and mode sums summed directly
+CORE_CACHE = 16
+CORE_ANCHORS = 4
 
 
 class FrfProblem:
@@ -93,7 +111,10 @@ class FrfProblem:
         self.w2 = self.w**2
         self.n_obs = 2 * G.size
         self.band_hz = (float(data.freq[0]), float(data.freq[-1]))
-        self._cache: dict = {}
+        self._cache: dict = {}  # mode key -> its response
+        self._core_cache: dict = {}  # (mode keys, D) -> core, oldest first
+        self._anchors: dict = {}  # mode keys -> (modes, sum of responses summed directly)
+        self._linear_last = None  # (model, w2 |h|^2, w2 conj(h) e), see _linear_data
 
     # ------------------------------------------------------------ prediction
     def _mode_response(self, m: Mode) -> np.ndarray:
@@ -107,23 +128,60 @@ class FrfProblem:
         return out
 
     def core(self, model: ModalModel) -> np.ndarray:
-        G = np.empty((self.freq.size,) + model.D.shape, complex)
-        G[...] = model.D
-        for m in model.modes:
-            G += self._mode_response(m)  # in place: one (n_f, n_y, n_u) array, not one per mode
+        """``D + sum_k modes`` at the measured lines, (n_f, n_y, n_u), read-only.
+
+        Cached by the modes' and D's values: a fit that moves the delay, a lag or the
+        coupling reuses it. A model whose modes differ from an :data:`CORE_ANCHORS` sum
+        summed directly in a few places (a moved mode, an added one: most of a fit's
+        evaluations) starts from that sum: the changed modes' responses are subtracted
+        and added (rounding ~1e-16 of the anchor's largest line, never chained: a sum
+        derived so is not an anchor).
+        """
+        keys = tuple(_key(m.denominator(), *m.numerator()) for m in model.modes)
+        full = (keys, _key(model.D))
+        G = self._core_cache.get(full)
+        if G is None:
+            G = self._modes_sum(model, keys)  # a new array: D added in place
+            G += model.D
+            G.flags.writeable = False
+            if len(self._core_cache) >= CORE_CACHE:
+                self._core_cache.pop(next(iter(self._core_cache)))
+            self._core_cache[full] = G
         return G
+
+    def _modes_sum(self, model: ModalModel, keys: tuple) -> np.ndarray:
+        """``sum_k`` mode responses, (n_f, n_y, n_u), from a near anchor or directly."""
+        for anchor, (modes, S) in reversed(self._anchors.items()):
+            if len(anchor) <= len(keys) and len(keys) - len(anchor) <= 2:
+                changed = [k for k in range(len(anchor)) if anchor[k] != keys[k]]
+                if len(changed) + len(keys) - len(anchor) <= 2:
+                    out = S.copy()
+                    for k in changed:
+                        out -= self._mode_response(modes[k])
+                        out += self._mode_response(model.modes[k])
+                    for m in model.modes[len(anchor) :]:
+                        out += self._mode_response(m)
+                    return out
+        # every mode in one product (model.core_frf): a new anchor is mostly a model whose
+        # modes all moved (a shared frequency scale), their responses not cached
+        out = model.core_frf(self.freq, with_d=False)
+        if len(self._anchors) >= CORE_ANCHORS:
+            self._anchors.pop(next(iter(self._anchors)))
+        self._anchors[keys] = (model.modes, out.copy())
+        return out
 
     def predict(self, model: ModalModel) -> np.ndarray:
         """Model FRF at the measured lines, (n_f, n_y, n_u)."""
         return model.outer(self.freq, self.core(model))
 
     def residual(self, model: ModalModel) -> np.ndarray:
-        e = (self.data.G - self.predict(model)) * self.w
+        e = self.data.G - self.predict(model)
+        e *= self.w  # in place: the residual is evaluated thousands of times a diagnosis
         return e.view(float).ravel()
 
     def cost(self, model: ModalModel) -> float:
-        e = (self.data.G - self.predict(model)) * self.w
-        return float(np.sum(e.real**2 + e.imag**2))
+        r = self.residual(model)
+        return float(r @ r)
 
     def record_cost(self, model: ModalModel) -> float:
         """The cost on the measurement as recorded (here the fitted cost itself)."""
@@ -138,25 +196,26 @@ class FrfProblem:
         return np.sum(e.real**2 + e.imag**2, axis=(1, 2))
 
     # --------------------------------------------------------- linear parts
+    def _linear_data(self, model: ModalModel):
+        """``(w2 |h|^2, w2 conj(h) e)`` of the misfit ``e`` and channel factor ``h`` of
+        ``model`` (:func:`_normal_parts`), kept for the last model asked (a grid screens
+        hundreds of added terms on one model)."""
+        last = self._linear_last
+        if last is None or last[0] is not model:
+            e = self.data.G - self.predict(model)
+            h = model.channel_factor(self.freq)
+            last = (model, self.w2 * (h.real**2 + h.imag**2), self.w2 * np.conj(h) * e)
+            self._linear_last = last
+        return last[1], last[2]
+
     def fit_new_term(self, model: ModalModel, den: np.ndarray):
         """Real numerators N0, N1 of an added mode (N1 s + N0)/den(s), per channel.
 
         Returns N0, N1 (n_y, n_u) and their standard deviations (unit noise scale).
         """
-        e = self.data.G - self.predict(model)
-        h = model.channel_factor(self.freq)
         d = self.s**2 + den[0] * self.s + den[1]
         wr = np.sqrt(max(den[1], 1e-300))
-        p0 = h / d[:, None, None]
-        p1 = p0 * (self.s / wr)[:, None, None]
-        W = self.w2
-        M = np.empty(e.shape[1:] + (2, 2))
-        M[..., 0, 0] = np.sum(W * np.abs(p0) ** 2, axis=0)
-        M[..., 1, 1] = np.sum(W * np.abs(p1) ** 2, axis=0)
-        M[..., 0, 1] = M[..., 1, 0] = np.sum(W * (np.conj(p0) * p1).real, axis=0)
-        r = np.stack(
-            [np.sum(W * (np.conj(p0) * e).real, 0), np.sum(W * (np.conj(p1) * e).real, 0)], -1
-        )
+        M, r = _normal_parts(np.stack([1.0 / d, self.s / (wr * d)], -1), *self._linear_data(model))
         x = _solve_channels(M, r)
         cov = np.linalg.inv(M + 1e-300 * np.eye(2))
         std = np.sqrt(np.abs(np.stack([cov[..., 0, 0], cov[..., 1, 1]], -1)))
@@ -168,12 +227,10 @@ class FrfProblem:
         ``den`` = (a1, a0) of a pseudo-mode above the band (``s^2 + a1 s + a0``).
         Returns dD, N0, N1 (n_y, n_u) and their standard deviations (unit noise scale).
         """
-        e = self.data.G - self.predict(model)
-        h = model.channel_factor(self.freq)
         d = self.s**2 + den[0] * self.s + den[1]
         wr = np.sqrt(max(den[1], 1e-300))
-        basis = [h, h * (wr**2 / d)[:, None, None], h * (self.s * wr / d)[:, None, None]]
-        x, std = _solve_basis(basis, e, self.w2)
+        phi = np.stack([np.ones_like(d), wr**2 / d, self.s * wr / d], -1)
+        x, std = _solve_basis(*_normal_parts(phi, *self._linear_data(model)))
         scale = np.array([1.0, wr**2, wr])  # N0 = x_1 w^2, N1 = x_2 w
         return tuple(x[..., k] * scale[k] for k in range(3)) + tuple(
             std[..., k] * scale[k] for k in range(3)

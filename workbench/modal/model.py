@@ -186,22 +186,31 @@ class Mode:
             return complex(-z * w)
         return complex(-z * w, w * np.sqrt(max(0.0, 1 - z * z)))
 
-    def response(self, s: np.ndarray) -> np.ndarray:
-        """This mode's contribution ``c b^T / den(s)``, (n_f, n_y, n_u) complex."""
+    def den(self, s: np.ndarray) -> np.ndarray:
+        """The denominator at complex frequencies ``s`` (n_f,): ``s^2``, ``s - p`` or
+        ``s^2 + 2 z w s + w^2``."""
         s = np.asarray(s, complex)
         w, z = self.omega, self.damping
         if self.kind == "rigid":
-            den = s**2
-        elif self.kind == "real":
-            den = s - self.pole.real
-        else:
-            den = s**2 + 2 * z * w * s + w**2
-        inv = (1.0 / den)[:, None, None]  # one division per line, not per channel
-        if self.N1 is None or not np.any(self.N1):
-            N0 = np.outer(self.c, self.b) if self.N0 is None else self.N0
-            return N0[None] * inv
-        N0, N1 = self.numerator()
-        return (N0[None] + s[:, None, None] * N1[None]) * inv
+            return s**2
+        if self.kind == "real":
+            return s - self.pole.real
+        return s**2 + 2 * z * w * s + w**2
+
+    def response(self, s: np.ndarray) -> np.ndarray:
+        """This mode's contribution ``c b^T / den(s)``, (n_f, n_y, n_u) complex."""
+        return self.numerator_times(s, 1.0 / self.den(s))  # one division per line
+
+    def numerator_times(self, s: np.ndarray, phi: np.ndarray) -> np.ndarray:
+        """``(N0 + s N1) phi(s)``, (n_f, n_y, n_u) complex, for per-line factors ``phi`` (n_f,).
+
+        :meth:`response` with ``phi = 1/den``; a derivative of the response with respect to
+        the denominator's parameters with ``phi = -d den / den^2``. Computed as
+        ``p N0 + q N1`` (``p = phi``, ``q = s phi``) in one real product (n_f, 4) @
+        (4, 2 n_y n_u) whose columns are (Re, Im) interleaved: the complex array is written
+        once (the broadcast form wrote three; the diagnosis calls this thousands of times).
+        """
+        return numerators_times((self,), s, np.asarray(phi, complex)[:, None])
 
 
 @dataclass(frozen=True)
@@ -390,11 +399,13 @@ class ModalModel:
         Without lags, coupling or delay (see :meth:`frf`).
         """
         s = 2j * np.pi * np.atleast_1d(np.asarray(freq_hz, float))
-        G = np.zeros((s.size, self.n_y, self.n_u), complex)
+        modes = self.modes if modes is None else tuple(modes)
+        if modes:
+            G = numerators_times(modes, s, 1.0 / np.stack([m.den(s) for m in modes], -1))
+        else:
+            G = np.zeros((s.size, self.n_y, self.n_u), complex)
         if with_d:
             G += self.D[None]
-        for m in self.modes if modes is None else modes:
-            G += m.response(s)
         return G
 
     def channel_factor(self, freq_hz) -> np.ndarray:
@@ -646,6 +657,28 @@ class ModalModel:
             },
             indent=2,
         )
+
+
+def numerators_times(modes, s: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """``sum_k (N0_k + s N1_k) phi_k(s)``, (n_f, n_y, n_u) complex; ``phi`` (n_f, n_modes).
+
+    ``p N0 + q N1`` (``p = phi``, ``q = s phi``) for every mode in one real product
+    (n_f, 4 n_modes) @ (4 n_modes, 2 n_y n_u) whose columns are (Re, Im) interleaved:
+    the complex result is written once (a sum of broadcast products wrote three arrays
+    a mode; the diagnosis evaluates such sums thousands of times).
+    """
+    s = np.asarray(s, complex)
+    nums = [m.numerator() for m in modes]
+    shape = nums[0][0].shape
+    k = nums[0][0].size
+    B = np.zeros((len(modes), 4, k, 2))
+    for i, (N0, N1) in enumerate(nums):
+        B[i, 0, :, 0] = B[i, 1, :, 1] = N0.ravel()
+        B[i, 2, :, 0] = B[i, 3, :, 1] = N1.ravel()
+    q = s[:, None] * phi
+    coef = np.stack([phi.real, phi.imag, q.real, q.imag], -1)  # (n_f, n_modes, 4)
+    out = coef.reshape(s.size, -1) @ B.reshape(-1, 2 * k)
+    return out.view(complex).reshape(s.size, *shape)
 
 
 # ------------------------------------------------- lags, coupling, delay (outer)

@@ -1,0 +1,190 @@
+"""The FRF diagnosis's fast paths against independent oracles.
+
+- every analytic structure Jacobian against central differences of the residual;
+- the cached / anchor-derived core response against the model's own direct sum;
+- the added-term linear fits against a per-channel ``numpy.linalg.lstsq``;
+- Levenberg-Marquardt on finite-difference normal equations against scipy's trust-region
+  reflective search (the engine's reference path, ``fit.FRF_SOLVER = "trf"``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from test_diagnose_gen import beam, beam_params, frf_case, stage, stage_params
+
+import workbench.diagnosis.fit as fit_engine
+from workbench.diagnosis.effects import (
+    ActuatorDynamics,
+    ModalMismatch,
+    ModalModes,
+    ModalPattern,
+    SensorDynamics,
+    SuspensionStiffness,
+    TimeDelay,
+)
+from workbench.diagnosis.modal import decompose
+from workbench.diagnosis.problem import FrfProblem
+
+
+def _problem(plant, params, effect: str):
+    case = frf_case(
+        plant(), effect, params(effect, "clear"), rel=0.005, rng=np.random.default_rng(3)
+    )
+    return FrfProblem(case.data), decompose(case.nominal)
+
+
+def _central(structure, theta, problem, base, h: float = 1e-6) -> np.ndarray:
+    cols = []
+    for i in range(theta.size):
+        e = np.zeros_like(theta)
+        e[i] = h
+        hi = problem.residual(structure.build(theta + e, problem, base).model)
+        lo = problem.residual(structure.build(theta - e, problem, base).model)
+        cols.append((hi - lo) / (2 * h))
+    return np.stack(cols, -1)
+
+
+def _with_outer(base, *, T_in=True, T_out=False):
+    """The base with a delay, lags on both sides and static coupling on one side."""
+    n_u, n_y = base.n_u, base.n_y
+    return replace(
+        base,
+        delay_s=1.5e-4,
+        tau_in=np.linspace(1e-5, 4e-5, n_u),
+        tau_out=np.linspace(2e-5, 3e-5, n_y),
+        T_in=np.eye(n_u) + 0.02 * np.ones((n_u, n_u)) if T_in else None,
+        T_out=np.eye(n_y) + 0.01 * np.ones((n_y, n_y)) if T_out else None,
+    )
+
+
+@pytest.mark.parametrize("plant,params", [(stage, stage_params), (beam, beam_params)])
+def test_analytic_jacobians_match_central_differences(plant, params):
+    problem, base0 = _problem(plant, params, "modal_mismatch")
+    base = _with_outer(base0, T_in=False, T_out=True)
+    structures = [
+        (TimeDelay(), np.array([0.07]), base),
+        (ActuatorDynamics(), np.linspace(0.2, 1.5, base.n_u), base),  # T_out allowed
+        (SensorDynamics(), np.linspace(0.3, 2.0, base.n_y), _with_outer(base0)),
+        (ModalMismatch(index=1), None, base),
+        (ModalPattern(), None, base),
+        (ModalModes(), None, base),
+    ]
+    if any(m.kind == "rigid" for m in base.modes):
+        structures.append((SuspensionStiffness(), None, base))
+    for s, theta, b in structures:
+        if theta is None:
+            grid = s.grid(problem, b)
+            theta = np.asarray(grid[len(grid) // 3], float) + 0.013
+        J = s.jacobian(theta, problem, b)
+        Jc = _central(s, theta, problem, b)
+        assert J.shape == Jc.shape == (problem.n_obs, theta.size)
+        err = np.max(np.abs(J - Jc)) / np.max(np.abs(Jc))
+        assert err < 1e-5, (type(s).__name__, err)
+
+
+def test_jacobians_step_aside_where_they_do_not_apply():
+    problem, base0 = _problem(stage, stage_params, "actuator_dynamics")
+    theta = np.full(base0.n_u, 0.5)
+    # coupling after the lag mixes the channels: finite differences instead
+    assert ActuatorDynamics().jacobian(theta, problem, _with_outer(base0, T_in=True)) is None
+    assert SensorDynamics().jacobian(theta, problem, _with_outer(base0, T_out=True)) is None
+    time_problem = SimpleNamespace(kind="time")
+    for s in (TimeDelay(), ActuatorDynamics(), ModalMismatch(index=1), ModalModes()):
+        assert s.jacobian(np.zeros(2), time_problem, base0) is None
+
+
+@pytest.mark.parametrize("plant,params", [(stage, stage_params), (beam, beam_params)])
+def test_cached_core_equals_the_direct_sum(plant, params):
+    problem, base = _problem(plant, params, "modal_mismatch")
+    base = _with_outer(base)
+    models = [base]
+    for s in (ModalMismatch(index=1), ModalPattern()):
+        models += [s.build(g, problem, base).model for g in s.grid(problem, base)[::7]]
+    # an added mode (one more than the anchor) and two moved ones
+    k = len(base.modes) - 1
+    models.append(replace(base, modes=base.modes + (base.modes[k].moved(1234.5, 0.02),)))
+    moved = list(base.modes)
+    moved[k] = moved[k].moved(moved[k].freq_hz * 1.01, 0.03)
+    moved[k - 1] = moved[k - 1].moved(moved[k - 1].freq_hz * 0.99, 0.02)
+    models.append(replace(base, modes=tuple(moved)))
+    for m in models + models[::-1]:  # twice: cache hits too
+        direct = _direct_core(m, problem.s)
+        got = problem.core(m)
+        assert np.max(np.abs(got - direct)) <= 1e-12 * np.max(np.abs(direct))
+
+
+def _direct_core(model, s):
+    """``D + sum_k (N0_k + s N1_k) / den_k(s)`` by broadcasting, mode by mode (the oracle)."""
+    G = np.zeros((s.size,) + model.D.shape, complex) + model.D
+    for m in model.modes:
+        N0, N1 = m.numerator()
+        if m.kind == "rigid":
+            den = s**2
+        elif m.kind == "real":
+            den = s - m.pole.real
+        else:
+            den = s**2 + 2 * m.damping * m.omega * s + m.omega**2
+        G += (N0[None] + s[:, None, None] * N1[None]) / den[:, None, None]
+    return G
+
+
+def test_mode_responses_match_the_closed_form_off_the_axis_too():
+    problem, base = _problem(stage, stage_params, "modal_mismatch")
+    modes = base.modes + (replace(base.modes[-1], N1=0.3 * base.modes[-1].numerator()[0]),)
+    model = replace(base, modes=modes)
+    for s in (problem.s, problem.s * (1 + 0.2j) - 50.0):  # the jw axis and a general s
+        ref = _direct_core(model, s) - model.D
+        assert np.max(np.abs(sum(m.response(s) for m in modes) - ref)) < 1e-13 * np.max(np.abs(ref))
+    f = problem.freq
+    ref = _direct_core(model, problem.s)
+    assert np.max(np.abs(model.core_frf(f) - ref)) < 1e-13 * np.max(np.abs(ref))
+
+
+def _lstsq_channel(problem, columns, target, i, j):
+    """Real coefficients of complex ``columns`` (n_f, p) for channel (i, j), weighted."""
+    w = problem.w[:, i, j]
+    A = columns * w[:, None]
+    b = target[:, i, j] * w
+    A_r = np.vstack([A.real, A.imag])
+    b_r = np.concatenate([b.real, b.imag])
+    return np.linalg.lstsq(A_r, b_r, rcond=None)[0]
+
+
+def test_added_term_fits_match_per_channel_least_squares():
+    problem, base0 = _problem(beam, beam_params, "missing_mode")
+    base = _with_outer(base0)
+    e = problem.data.G - problem.predict(base)
+    h = base.channel_factor(problem.freq)
+    s = problem.s
+    w0, z0 = 2 * np.pi * 530.0, 0.01
+    den = np.array([2 * z0 * w0, w0 * w0])
+    d = s**2 + den[0] * s + den[1]
+    N0, N1, _, _ = problem.fit_new_term(base, den)
+    wu = 2 * np.pi * 1.2 * problem.band_hz[1]  # near the band: a well-posed 3-column fit
+    den_u = np.array([2 * 0.05 * wu, wu * wu])
+    d_u = s**2 + den_u[0] * s + den_u[1]
+    dD, U0, U1, *_ = problem.fit_upper_residual(base, den_u)
+    for i, j in ((0, 0), (2, 1), (4, 2)):
+        ref = _lstsq_channel(problem, np.stack([h[:, i, j] / d, h[:, i, j] * s / d], -1), e, i, j)
+        assert np.allclose([N0[i, j], N1[i, j]], ref, rtol=1e-7, atol=0)
+        cols = np.stack([h[:, i, j], h[:, i, j] / d_u, h[:, i, j] * s / d_u], -1)
+        ref = _lstsq_channel(problem, cols, e, i, j)
+        assert np.allclose([dD[i, j], U0[i, j], U1[i, j]], ref, rtol=1e-6, atol=0)
+
+
+@pytest.mark.parametrize(
+    "structure,effect", [(ModalMismatch(index=1), "modal_mismatch"), (TimeDelay(), "time_delay")]
+)
+def test_levenberg_marquardt_path_matches_trust_region_reference(structure, effect, monkeypatch):
+    problem, base = _problem(stage, stage_params, effect)
+    ours = fit_engine.fit(structure, problem, base)
+    monkeypatch.setattr(fit_engine, "FRF_SOLVER", "trf")
+    ref = fit_engine.fit(structure, FrfProblem(problem.data), base)
+    assert ours.cost <= ref.cost * (1 + 1e-6)
+    assert np.allclose(ours.theta, ref.theta, rtol=1e-4, atol=1e-6)
+    # standard deviations from the Gram matrix agree with the reference's Jacobian
+    assert np.allclose(ours.theta_std, ref.theta_std, rtol=0.05)
