@@ -687,6 +687,8 @@ class PeriodicProblem(_FilteredProblem):
         self.block_of = np.concatenate([np.full(ln.size, b) for b, ln in enumerate(blocks)])
         lines = np.concatenate(blocks)
         self.z = np.exp(2j * np.pi * lines / rec.period)
+        #: the excited lines' frequencies (every block's), Hz, ascending
+        self.line_hz = np.unique(lines) * self.fs / rec.period
         U = np.concatenate([rec.U[b, ln] for b, ln in enumerate(blocks)])
         Y = np.concatenate([rec.Y[b, ln] for b, ln in enumerate(blocks)])
         self.u_rows = U
