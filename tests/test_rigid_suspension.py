@@ -33,11 +33,12 @@ B = np.array([[1.0, 1.0, 0.0], [0.1, -0.1, 0.05]])  # 3 forces -> (force, torque
 C = np.array([[1.0, 0.2], [1.0, -0.2], [0.0, 1.0]])  # 3 sensors <- (x, theta)
 
 
-def _truth():
-    lam, phi = scipy.linalg.eigh(K, M)  # phi^T M phi = I
+def _truth(zeta=ZETA):
+    """(frequencies Hz, damping matrix): modal damping ``zeta``, one a mode or shared."""
+    lam, phi = scipy.linalg.eigh(K, M)  # phi^T M phi = I, lowest mode first
     w = np.sqrt(lam)
     Minv_phiT = np.linalg.inv(phi.T)  # modal damping: phi^T D phi = diag(2 zeta w)
-    D = Minv_phiT @ np.diag(2 * ZETA * w) @ np.linalg.inv(phi)
+    D = Minv_phiT @ np.diag(2 * zeta * w) @ np.linalg.inv(phi)
     return w / (2 * np.pi), D
 
 
@@ -46,8 +47,8 @@ def _frf(freq, D, K_):
     return np.stack([C @ np.linalg.solve(si * si * M + si * D + K_, B) for si in s])
 
 
-def _case(noise=1e-3, seed=0):
-    f_true, D = _truth()
+def _case(noise=1e-3, seed=0, zeta=ZETA):
+    f_true, D = _truth(zeta)
     freq = np.geomspace(1.0, 300.0, 400)
     G = _frf(freq, D, K)
     rng = np.random.default_rng(seed)
@@ -185,16 +186,7 @@ ZETAS = np.array([0.15, 0.03])
 
 def _case_own_damping(noise=1e-3, seed=1):
     """The body of :func:`_case` with modal damping diag(2 z_k w_k), z_k = ZETAS."""
-    lam, phi = scipy.linalg.eigh(K, M)  # phi^T M phi = I, lowest mode first
-    w = np.sqrt(lam)
-    D = np.linalg.inv(phi.T) @ np.diag(2 * ZETAS * w) @ np.linalg.inv(phi)
-    freq = np.geomspace(1.0, 300.0, 400)
-    G = _frf(freq, D, K)
-    rng = np.random.default_rng(seed)
-    sd = noise * np.abs(G) + 1e-12
-    Gm = G + sd / np.sqrt(2) * (rng.standard_normal(G.shape) + 1j * rng.standard_normal(G.shape))
-    nominal = _case()[0]
-    return nominal, FrfData(freq=freq, G=Gm, G_var=sd**2, fs=5000.0), w / (2 * np.pi), G
+    return _case(noise, seed, zeta=ZETAS)
 
 
 def test_each_suspension_mode_its_own_damping_at_the_noise_floor():

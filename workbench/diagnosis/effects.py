@@ -580,7 +580,8 @@ class RigidSuspension:
         return RigidSuspension._factors(base)[1].shape[1]
 
     def grid(self, problem, base):
-        R, nz = self.rank(base), self.n_damping(self.rank(base))
+        R = self.rank(base)
+        nz = self.n_damping(R)
         single = SuspensionStiffness().grid(problem, base)
         if nz == 1:
             return [np.concatenate([[g[0]] * R, [g[1]], np.zeros(R * (R - 1))]) for g in single]
@@ -596,7 +597,8 @@ class RigidSuspension:
         return out
 
     def bounds(self, problem, base):
-        R, nz = self.rank(base), self.n_damping(self.rank(base))
+        R = self.rank(base)
+        nz = self.n_damping(R)
         lo, hi = SuspensionStiffness().bounds(problem, base)
         return (
             np.concatenate([[lo[0]] * R, [lo[1]] * nz, np.full(R * (R - 1), -self.coupling_bound)]),
@@ -696,11 +698,6 @@ class RigidSuspension:
         )
 
 
-#: the finest relative frequency step of the stiffening screen (ln sqrt(2) / 0.002: at most
-#: 173 points a mode)
-MIN_STIFFENING_STEP = 0.002
-
-
 @dataclass(frozen=True)
 class SuspensionModes(RigidSuspension):
     """:class:`RigidSuspension` with a damping ratio per suspension mode.
@@ -722,6 +719,11 @@ class SuspensionModes(RigidSuspension):
 
     def n_damping(self, R: int) -> int:
         return R
+
+
+#: the finest relative frequency step of the stiffening screen (ln sqrt(2) / 0.002: at most
+#: 173 points a mode)
+MIN_STIFFENING_STEP = 0.002
 
 
 @dataclass(frozen=True)
