@@ -95,20 +95,27 @@ def test_one_finding_with_each_suspension_frequency_at_the_noise_floor():
     assert shared.error > 10 * floor
 
 
-def _planar_time_case(seed: int, n: int = 4096, fs: float = 2000.0, noise: float = 1e-3):
+def _planar_time_case(
+    seed: int,
+    n: int = 4096,
+    fs: float = 2000.0,
+    noise: float = 1e-3,
+    f_range: tuple[float, float] = (10.0, 16.0),
+):
     """(nominal, TimeData, true frequencies (3,) Hz, noise floor error): a planar body.
 
     ``M = diag(2, 2, 0.02)`` (kg, kg, kg m^2: x, y, Rz) on a general spring matrix (modes
-    at 10-16 Hz, random shapes), modal damping 0.05, four forces, three sensors; the
-    record from rest by scipy's ZOH discretization and ``dlsim``, a low-passed random
-    input, sensor noise ``noise`` of each output's rms. The truth's frequencies from
-    scipy's generalized symmetric eigenproblem; the nominal is the free body.
+    drawn uniformly in ``f_range`` Hz, random shapes), modal damping 0.05, four forces,
+    three sensors; the record from rest by scipy's ZOH discretization and ``dlsim``, a
+    low-passed random input, sensor noise ``noise`` of each output's rms. The truth's
+    frequencies from scipy's generalized symmetric eigenproblem; the nominal is the free
+    body.
     """
     rng = np.random.default_rng(seed)
     Mp = np.diag([2.0, 2.0, 0.02])
     Qr, _ = np.linalg.qr(rng.standard_normal((3, 3)))
     Mh = np.sqrt(Mp)
-    Kp = Mh @ Qr @ np.diag((2 * np.pi * rng.uniform(10.0, 16.0, 3)) ** 2) @ Qr.T @ Mh
+    Kp = Mh @ Qr @ np.diag((2 * np.pi * rng.uniform(*f_range, 3)) ** 2) @ Qr.T @ Mh
     lam, phi = scipy.linalg.eigh(Kp, Mp)
     w = np.sqrt(lam)
     inv = np.linalg.inv(phi)
@@ -154,6 +161,20 @@ def test_a_fit_stopped_at_the_box_of_its_chart_is_continued_in_another():
     freqs = sorted(m["freq_hz"] for m in s.report(best, problem, base)[0]["modes"])
     assert np.allclose(freqs, f_true, rtol=1e-3), (freqs, f_true)
     assert best.error < 2 * floor, best.error / floor
+
+
+def test_spread_suspension_frequencies_on_a_time_record_one_finding_at_the_floor():
+    """Springs far apart (5.6 / 15.8 / 20.1 Hz, seed 1 of draws in 5-25 Hz): the whole
+    diagnosis names one suspension with every frequency. Before 65474ed (a damping per
+    suspension mode, its starts with one DOF raised) it found 5.6 / 6.9 / 9.5 Hz and
+    ended at 1584x the floor with two extra findings."""
+    nominal, data, f_true, floor = _planar_time_case(1, f_range=(5.0, 25.0))
+    assert f_true[1] / f_true[0] > 2  # spread, not three close springs
+    top = diagnose(nominal, data).findings[0]
+    assert top.effect == "suspension_stiffness"
+    freqs = sorted(m["freq_hz"] for m in top.parameters["modes"])
+    assert np.allclose(freqs, f_true, rtol=1e-3), (freqs, f_true)
+    assert top.error_after < 2 * floor, top.error_after / floor
 
 
 @pytest.mark.parametrize("per_mode", [False, True])
