@@ -50,6 +50,7 @@ from workbench.core.jsonutil import jsonable
 from workbench.core.lti import as_matrices, frf, relative_error_frf, relative_error_time
 from workbench.diagnosis import detect
 from workbench.diagnosis.effects import (
+    AliasedMode,
     _rank_one,
     backfit,
     candidate_structures,
@@ -68,6 +69,10 @@ __all__ = ["Finding", "Diagnosis", "diagnose"]
 
 #: a finding must lower the spec error by at least this factor
 ERROR_RATIO = 0.85
+#: a mode's image above Nyquist is reported when its fit is this close to the mode's
+IMAGE_TIE = 1.01
+#: lighter images are not tried: no structure is that lightly damped
+IMAGE_MIN_DAMPING = 2e-3
 #: ... or the weighted misfit by at least this factor
 COST_RATIO = 0.7
 #: the error counts as at the noise floor below this multiple of it
@@ -575,6 +580,8 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s, domain
             found.insert(0, finding)
         else:
             found.append(finding)
+    if isinstance(data, TimeData):
+        found = [_with_image(f, current, problem) for f in found]
     remaining = _remaining(current, data)
     if not any(f.effect != "nonlinearity" for f in found):
         if remaining is None or remaining["within_noise"]:
@@ -855,6 +862,45 @@ def _merge_compliance(found: list[Finding]) -> list[Finding]:
             out.append(merged)
             done = True
     return out
+
+
+def _with_image(finding: Finding, model: ModalModel, problem) -> Finding:
+    """A missing mode on a sampled record, with its image above Nyquist where that fits as well.
+
+    The mode at ``f`` is taken out of ``model`` and an :class:`AliasedMode` fitted from
+    its image (``fs - f``, damping ``z f / (fs - f)``). When that reaches the error of the
+    mode in the band (within ``IMAGE_TIE``), the record cannot tell the two apart: the
+    finding keeps its rank (the resonance the data show) and reports the image
+    (``image_freq_hz``, ``image_damping``, ``image_error_after``) with a sentence saying
+    so. Images lighter than ``IMAGE_MIN_DAMPING`` are not tried (no structure that light).
+    """
+    if finding.effect != "missing_mode":
+        return finding
+    f0 = finding.parameters["freq_hz"]
+    added = [m for m in model.modes if m.effect == "missing_mode"]
+    if not added:
+        return finding
+    mode = min(added, key=lambda m: abs(math.log(m.freq_hz / f0)))
+    fs = problem.data.fs
+    f_img = fs - mode.freq_hz
+    z_img = mode.damping * mode.freq_hz / f_img
+    if z_img < IMAGE_MIN_DAMPING or f_img >= 0.99 * fs:
+        return finding
+    rest = replace(model, modes=tuple(m for m in model.modes if m is not mode))
+    fr = fit(AliasedMode(), problem, rest, starts=[np.log([f_img, z_img])], n_starts=1)
+    if not fr.error <= IMAGE_TIE * problem.error(model):
+        return finding
+    f_fit, z_fit = (float(x) for x in np.exp(fr.theta))
+    p = dict(finding.parameters)
+    p.update(image_freq_hz=f_fit, image_damping=z_fit, image_error_after=float(fr.error))
+    note = (
+        f" Sampled at {fs:g} Hz, this resonance cannot be told from its image: a mode at "
+        f"{f_fit:.5g} Hz above Nyquist (damping {z_fit:.3g}) fits the record as well (error "
+        f"{fr.error:.4g}). If the structure has no mode near {mode.freq_hz:.4g} Hz, it is a "
+        "truncated mode above Nyquist (residual compliance with its dynamics); a record "
+        "sampled faster tells them apart."
+    )
+    return replace(finding, parameters=p, explanation=finding.explanation + note)
 
 
 def _above_band(params: dict, problem) -> bool:

@@ -221,6 +221,25 @@ class MissingMode:
 
 
 @dataclass(frozen=True)
+class AliasedMode(MissingMode):
+    """A mode between Nyquist and the sampling frequency of a sampled record.
+
+    Sampled (ZOH), a mode at ``f`` and its image at ``fs - f`` with the damping scaled by
+    ``f / (fs - f)`` have the same discrete poles, and with the free numerator of
+    :class:`MissingMode` (``N0``, ``N1``) their responses on the record agree to the
+    noise: a resonance found in the band may be a truncated mode above Nyquist. Fitted
+    only from the image of a found mode (no grid of its own).
+    """
+
+    def grid(self, problem, base):
+        return []
+
+    def bounds(self, problem, base):
+        fs = problem.data.fs
+        return np.array([np.log(0.5 * fs), _LOG_Z[0]]), np.array([np.log(fs), _LOG_Z[1]])
+
+
+@dataclass(frozen=True)
 class ModalMismatch:
     index: int = 0
     effect: str = "modal_mismatch"

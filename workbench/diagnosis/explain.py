@@ -34,7 +34,13 @@ def explain(effect: str, ev: dict) -> str:
     if ev.get("noise_floor"):
         fall += f" (noise floor {ev['noise_floor']:.4g})"
     alt = ev.get("alternative")
-    tail = f"; the next best explanation, {alt[0]}, only reaches {alt[1]:.4g}." if alt else "."
+    if not alt:
+        tail = "."
+    elif alt[1] <= ev["error_after"]:
+        # ranked by BIC: a runner-up at least as close has more parameters
+        tail = f"; {alt[0]} fits as closely ({alt[1]:.4g}) but with more parameters."
+    else:
+        tail = f"; the next best explanation, {alt[0]}, only reaches {alt[1]:.4g}."
     if effect == "time_delay":
         tau = p["delay_s"]
         fs = ev.get("fs")
