@@ -82,7 +82,10 @@ def save_bode_overlay(
     """
     n_f, n_y, n_u = G_meas.shape
     fig = new_figure(2.6 * n_u + 1, 2.6 * n_y + 1)
-    axes = fig.subplots(2 * n_y, n_u, squeeze=False, sharex=True)
+    # no sharex: 72 shared axes propagate every limit change to each other (quadratic,
+    # most of the figure's time); one fixed frequency range is set on each instead
+    axes = fig.subplots(2 * n_y, n_u, squeeze=False)
+    f_lim = (freq_hz[freq_hz > 0].min(), freq_hz.max()) if np.any(freq_hz > 0) else None
     for i in range(n_y):
         for j in range(n_u):
             am, ap = axes[2 * i, j], axes[2 * i + 1, j]
@@ -105,6 +108,12 @@ def save_bode_overlay(
             am.set_title(f"{output_names[i]} / {input_names[j]}", fontsize=8)
             am.tick_params(labelsize=6)
             ap.tick_params(labelsize=6)
+            if f_lim is not None:
+                am.set_xlim(f_lim)
+                ap.set_xlim(f_lim)
+            am.tick_params(labelbottom=False)
+            if i < n_y - 1:
+                ap.tick_params(labelbottom=False)
             lean_axes(am)
             lean_axes(ap)
             if j == 0:
