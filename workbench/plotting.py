@@ -51,6 +51,24 @@ def lean_axes(ax) -> None:
             axis.set_major_locator(MaxNLocator(4))
 
 
+def frequency_grid(fig, n_rows: int, n_cols: int, freq_hz) -> np.ndarray:
+    """(n_rows, n_cols) axes over one frequency range, x tick labels on the bottom row.
+
+    Not ``sharex``: on a grid of dozens of axes every limit change propagates to all the
+    others (quadratic; on the 12 x 6 Bode overlay most of the figure's time). The same
+    range set on each axes looks the same.
+    """
+    axes = fig.subplots(n_rows, n_cols, squeeze=False)
+    f = np.asarray(freq_hz, float)
+    pos = f[f > 0]
+    for k, ax in enumerate(axes.flat):
+        if pos.size:
+            ax.set_xlim(pos.min(), pos.max())
+        if k < (n_rows - 1) * n_cols:
+            ax.tick_params(labelbottom=False)
+    return axes
+
+
 def save_png(fig, path: str | os.PathLike) -> None:
     """Write ``fig`` as PNG atomically (temporary file in the same folder, then rename)."""
     with atomic_path(path, suffix=".png") as tmp:
@@ -82,10 +100,7 @@ def save_bode_overlay(
     """
     n_f, n_y, n_u = G_meas.shape
     fig = new_figure(2.6 * n_u + 1, 2.6 * n_y + 1)
-    # no sharex: 72 shared axes propagate every limit change to each other (quadratic,
-    # most of the figure's time); one fixed frequency range is set on each instead
-    axes = fig.subplots(2 * n_y, n_u, squeeze=False)
-    f_lim = (freq_hz[freq_hz > 0].min(), freq_hz.max()) if np.any(freq_hz > 0) else None
+    axes = frequency_grid(fig, 2 * n_y, n_u, freq_hz)
     for i in range(n_y):
         for j in range(n_u):
             am, ap = axes[2 * i, j], axes[2 * i + 1, j]
@@ -108,12 +123,6 @@ def save_bode_overlay(
             am.set_title(f"{output_names[i]} / {input_names[j]}", fontsize=8)
             am.tick_params(labelsize=6)
             ap.tick_params(labelsize=6)
-            if f_lim is not None:
-                am.set_xlim(f_lim)
-                ap.set_xlim(f_lim)
-            am.tick_params(labelbottom=False)
-            if i < n_y - 1:
-                ap.tick_params(labelbottom=False)
             lean_axes(am)
             lean_axes(ap)
             if j == 0:

@@ -300,11 +300,17 @@ def stage_model(st: RunState, table: dict) -> None:
 # ---------------------------------------------------------------- plotting
 def _plot_frf_grid(path: Path, frf, *, mark_hz=(), title: str = "", G_model=None) -> None:
     """Magnitude of every element on one page, modes marked by vertical lines."""
-    from workbench.plotting import draw_noise_level, lean_axes, new_figure, save_png
+    from workbench.plotting import (
+        draw_noise_level,
+        frequency_grid,
+        lean_axes,
+        new_figure,
+        save_png,
+    )
 
     n_y, n_u = frf.n_y, frf.n_u
     fig = new_figure(2.2 * n_u + 1, 1.8 * n_y + 1)
-    axes = fig.subplots(n_y, n_u, squeeze=False, sharex=True)
+    axes = frequency_grid(fig, n_y, n_u, frf.freq)
     for i in range(n_y):
         for j in range(n_u):
             ax = axes[i, j]

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from workbench.plotting import lean_axes, new_figure, save_png
+from workbench.plotting import frequency_grid, lean_axes, new_figure, save_png
 
 __all__ = ["plot_update", "plot_prediction", "plot_mode_shapes"]
 
@@ -67,7 +67,7 @@ def plot_prediction(
     """
     n_f, n_y, n_u = G_meas.shape
     fig = new_figure(2.8 * n_u + 1, 2.3 * n_y + 1, dpi=90)
-    axes = fig.subplots(n_y, n_u, squeeze=False, sharex=True)
+    axes = frequency_grid(fig, n_y, n_u, freq_hz)
     colors = ("tab:red", "tab:blue", "tab:green", "tab:orange")
     for i in range(n_y):
         for j in range(n_u):

@@ -1022,12 +1022,12 @@ def plot_model_bode(model: ModalModel, path, *, freq_hz=None, title: str = "") -
     from matplotlib.figure import Figure
 
     from workbench.core.atomic import atomic_path
-    from workbench.plotting import lean_axes
+    from workbench.plotting import frequency_grid, lean_axes
 
     f = _freq_axis(model, freq_hz)
     G = model.frf(f)
     fig = Figure(figsize=(2.2 * model.n_u + 1, 1.8 * model.n_y + 1))
-    axes = fig.subplots(model.n_y, model.n_u, squeeze=False, sharex=True)
+    axes = frequency_grid(fig, model.n_y, model.n_u, f)
     for i in range(model.n_y):
         for j in range(model.n_u):
             ax = axes[i, j]
