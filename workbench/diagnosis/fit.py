@@ -194,7 +194,7 @@ def _normal_equations(structure, problem, base, residual, lo, hi) -> _Normal | N
     """
     if callable(getattr(structure, "normal_equations", None)):
         return _Normal(lambda th, r: structure.normal_equations(th, problem, base, r), {})
-    if problem.kind != "frf" or FRF_SOLVER != "lm":
+    if getattr(problem, "domain", "time") != "frequency" or FRF_SOLVER != "lm":
         return None
     if getattr(structure, "solver", None) == "trf":
         return None  # the structure asks for scipy's trust region (see RigidSuspension)

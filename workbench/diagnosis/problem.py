@@ -398,10 +398,19 @@ class _FilteredProblem:
         """X (n_rows, ...) with its component along the free responses removed."""
         return _remove(self._start_basis(model), X)
 
-    def _filtered(self, model: ModalModel, den, u_in):
+    @staticmethod
+    def _channels_key(model: ModalModel) -> tuple:
+        """What a mode's filtered inputs depend on besides its denominator: the delay, the
+        lags and the input coupling (one key per model, shared by its modes' parts)."""
+        return _key([model.delay_s], model.lags("in"), model.lags("out"), model.T_in)
+
+    def _filtered(self, model: ModalModel, den, u_in, channels: tuple | None = None):
         """``_filter``, cached by what it depends on: a fit's linear parts and its cost see
-        the same denominator with different numerators."""
-        k = _key(den, [model.delay_s], model.lags("in"), model.lags("out"), model.T_in)
+        the same denominator with different numerators. ``channels``: the model's
+        :meth:`_channels_key`, when the caller has it."""
+        if channels is None:
+            channels = self._channels_key(model)
+        k = _key(den) + channels
         out = self._filter_cache.get(k)
         if out is None:
             out = self._filter(model, den, u_in)
@@ -410,11 +419,13 @@ class _FilteredProblem:
             self._filter_cache[k] = out
         return out
 
-    def _part(self, model: ModalModel, den, N0, N1, u_in) -> np.ndarray:
-        k = _key(den, N0, N1, [model.delay_s], model.lags("in"), model.lags("out"), model.T_in)
+    def _part(self, model: ModalModel, den, N0, N1, u_in, channels: tuple) -> np.ndarray:
+        """One mode's (or D's) output on the rows, cached; ``channels`` is the model's
+        :meth:`_channels_key`."""
+        k = _key(den, N0, N1) + channels
         out = self._cache.get(k)
         if out is None:
-            X, groups = self._filtered(model, den, u_in)
+            X, groups = self._filtered(model, den, u_in, channels)
             out = np.zeros(self.target.shape)
             for g, rows in enumerate(groups):
                 out[:, rows] = X[g, :, :, 0] @ N0[rows].T
@@ -431,11 +442,12 @@ class _FilteredProblem:
     def fitted(self, model: ModalModel) -> np.ndarray:
         """The model's output on the rows (n_rows, n_y), its start fitted when there is a basis."""
         u_in = self._u_in(model)
+        channels = self._channels_key(model)
         y = np.zeros(self.target.shape)
         if np.any(model.D):
-            y += self._part(model, None, model.D, None, u_in)
+            y += self._part(model, None, model.D, None, u_in, channels)
         for m in model.modes:
-            y += self._part(model, m.denominator(), *m.numerator(), u_in)
+            y += self._part(model, m.denominator(), *m.numerator(), u_in, channels)
         if model.T_out is not None:
             y = y @ model.T_out.T
         Q = self._start_basis(model)
@@ -699,9 +711,10 @@ class PeriodicProblem(_FilteredProblem):
         self._filter_cache: dict = {}
         self._basis_cache: dict = {}
         self._basis_key: dict = {}
+        self._responses: dict = {}  # filter -> its responses at z (filtered_lines' cache)
 
     def _filter(self, model, den, u_in):
-        X, groups = filtered_lines(model, den, u_in, self.z, self.fs)
+        X, groups = filtered_lines(model, den, u_in, self.z, self.fs, responses=self._responses)
         return np.concatenate([X.real, X.imag], axis=1), groups
 
     def _start_basis(self, model: ModalModel) -> np.ndarray:
