@@ -25,7 +25,7 @@ from workbench.diagnosis.diagnose import base_model, diagnose
 from workbench.diagnosis.effects import ActuatorDynamics, ModalMismatch, TimeDelay
 from workbench.diagnosis.problem import SETTLED, PeriodicProblem, TimeProblem, make_problem
 from workbench.io.formats import TimeData
-from workbench.modal.model import ModalModel
+from workbench.modal.model import ModalModel, Mode
 from workbench.modal.simulate import (
     filtered_inputs,
     filtered_lines,
@@ -303,3 +303,30 @@ def test_cached_line_responses_are_the_responses_computed_afresh():
             assert np.array_equal(X, X_ref)
             assert all(np.array_equal(a, b) for a, b in zip(groups, groups_ref))
     assert len(responses) < 5 * len(base.modes) * 4  # filters reused across the models
+
+
+def test_transient_basis_extended_by_a_moved_or_added_pole_spans_the_basis_afresh():
+    """The basis a fit's moved (or added) slow mode gets from the other poles' basis
+    (:meth:`PeriodicProblem._basis_near`) projects as the basis computed afresh does."""
+    data = _open_loop_record(_two_mode_plant(), periods=3)
+    problem = make_problem(data)
+    base = base_model(_two_mode_plant(), data)
+    k = min(range(len(base.modes)), key=lambda i: base.modes[i].freq_hz)  # 3 Hz, unsettled
+    fresh = []
+    problem._basis_of = lambda key, f=problem._basis_of: fresh.append(key) or f(key)
+    models = []
+    for j in range(5):
+        modes = list(base.modes)
+        modes[k] = modes[k].moved(3.0 * (1 + 0.01 * j), 0.005 * (1 + 0.1 * j))
+        models.append(replace(base, modes=tuple(modes)))
+    extra = Mode("flexible", 7.0, 0.004, np.zeros(2), np.zeros(2))
+    models.append(replace(base, modes=base.modes + (extra,)))
+    for model in models:
+        Q = problem._start_basis(model)
+        key = problem._basis_key[tuple((m.kind, m.freq_hz, m.damping) for m in model.modes)]
+        C = problem._columns(key, drift=True)
+        Q_ref = np.linalg.qr(np.concatenate([C.real, C.imag]))[0]
+        assert Q.shape == Q_ref.shape
+        assert np.max(np.abs(Q @ Q.T - Q_ref @ Q_ref.T)) <= 1e-9
+    # computed afresh: the first model, the rest of the second; the others were extended
+    assert len(fresh) == 2
