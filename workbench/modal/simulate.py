@@ -65,7 +65,7 @@ _NUMS_ONE = (np.array([1.0]),)
 _NUMS_TWO = (np.array([1.0]), np.array([1.0, 0.0]))
 
 
-@functools.lru_cache(maxsize=64)
+@functools.lru_cache(maxsize=256)  # a lag fit's Jacobian: one layout per perturbed channel
 def _channel_layout(out_bytes: bytes, in_bytes: bytes):
     """Output groups of equal sensor lag and, per group and input-lag set, the lags' polynomial.
 
@@ -81,7 +81,7 @@ def _channel_layout(out_bytes: bytes, in_bytes: bytes):
             lag = np.array([1.0])
             for tau in (ty, ti):
                 if tau > 0:
-                    lag = np.polymul(lag, [tau, 1.0])
+                    lag = np.convolve(lag, [tau, 1.0])  # np.polymul, without poly1d
             sets.append((g, np.flatnonzero(tin == ti), lag))
     for x in list(groups) + [a for _, c, p in sets for a in (c, p)]:
         x.flags.writeable = False
