@@ -684,7 +684,12 @@ class PeriodicProblem(_FilteredProblem):
     the spec's error measure, the detectors' simulated record), so every number a
     finding reports is the same measure as before. About N / (2 n_lines) times
     fewer rows than the record and no recursive filter: a 10,000-sample record's
-    fit evaluates in a fraction of the simulation's time.
+    fit evaluates in a fraction of the simulation's time. A fit's evaluations reuse
+    what did not change: each filter's line responses (a lag moved on one channel
+    recomputes that channel's filters), each mode's output, and the transient basis
+    of the other poles when one pole moves or is added (:meth:`_basis_near`); the
+    fit engine refines on these rows as on FRF data (Levenberg-Marquardt on normal
+    equations, :func:`workbench.diagnosis.fit.levenberg_marquardt`).
     """
 
     #: the record's data, its costs on the lines (FrfProblem's domain; ``kind`` stays "time")
