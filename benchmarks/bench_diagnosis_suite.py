@@ -6,6 +6,7 @@ error_after / noise floor, seconds) and the confusion table.
 
     python benchmarks/bench_diagnosis_suite.py [--quick] [--seeds 1 2 3] [--kinds frf time]
         [--plants wafer_stage beam] [--domain auto|time|frequency] [--jobs 2]
+        [--skip wafer_stage:time:nonlinearity]
 
 ``--domain`` is :func:`workbench.diagnosis.diagnose`'s: where a time record is fitted.
 """
@@ -85,9 +86,21 @@ def main() -> None:
     ap.add_argument("--plants", nargs="+", default=["wafer_stage", "beam"])
     ap.add_argument("--domain", default="auto", choices=["auto", "time", "frequency"])
     ap.add_argument("--jobs", type=int, default=1, help="worker processes (the machine's cores)")
+    ap.add_argument(
+        "--skip",
+        nargs="+",
+        default=[],
+        metavar="PLANT:KIND:EFFECT",
+        help="leave out that plant, kind and effect (wafer_stage:time:nonlinearity)",
+    )
     args = ap.parse_args()
+    skip = {tuple(s.split(":")) for s in args.skip}
     specs = [
-        s for s in casegen.suite(full=not args.quick) if s[0] in args.plants and s[1] in args.kinds
+        s
+        for s in casegen.suite(full=not args.quick)
+        if s[0] in args.plants
+        and s[1] in args.kinds
+        and not any((s[0], s[1], effect) in skip for effect, _ in s[2])
     ]
     t0 = time.perf_counter()
     rows, scores = run(specs, args.seeds, domain=args.domain, jobs=args.jobs)

@@ -19,12 +19,20 @@ import pytest
 import scipy.linalg
 import scipy.signal
 
+import workbench.diagnosis.fit as fit_engine
 from workbench.core.errors import InputError
 from workbench.diagnosis.diagnose import base_model, diagnose
+from workbench.diagnosis.effects import ActuatorDynamics, ModalMismatch, TimeDelay
 from workbench.diagnosis.problem import SETTLED, PeriodicProblem, TimeProblem, make_problem
 from workbench.io.formats import TimeData
-from workbench.modal.model import ModalModel
-from workbench.modal.simulate import filtered_inputs, filtered_lines, zoh_filter, zoh_response
+from workbench.modal.model import ModalModel, Mode
+from workbench.modal.simulate import (
+    filtered_inputs,
+    filtered_lines,
+    simulate,
+    zoh_filter,
+    zoh_response,
+)
 
 FS = 1000.0
 PERIOD = 1000
@@ -237,3 +245,88 @@ def test_modes_between_the_excited_lines_are_refitted_on_the_record():
     found = sorted(m["freq_hz"] for m in top.parameters["modes"])
     assert np.allclose(found, f_true, rtol=2e-3), (found, f_true)
     assert top.error_after < 1.2 * floor, top.error_after / floor
+
+
+def _noisy_periodic_record(truth: ModalModel, periods: int = 4, seed: int = 7) -> TimeData:
+    """The record of ``truth`` (exact ZOH simulation, :func:`simulate`) to the multisine, 0.5 %
+    output noise."""
+    rng = np.random.default_rng(seed)
+    u = _multisine(rng, truth.n_u, periods)
+    y = simulate(truth, u, FS)
+    y = y + 0.005 * y.std(axis=0) * rng.standard_normal(y.shape)
+    return TimeData(FS, u, y, period=PERIOD)
+
+
+@pytest.mark.parametrize("effect", ["modal_mismatch", "time_delay", "actuator_dynamics"])
+def test_levenberg_marquardt_on_the_lines_matches_trust_region_reference(effect, monkeypatch):
+    """A periodic record's fits (Levenberg-Marquardt on finite-difference normal equations)
+    reach the optimum scipy's trust-region reflective search (``FRF_SOLVER = "trf"``, the
+    engine before) reaches from the same starts, with the same standard deviations."""
+    base = base_model(_two_mode_plant(), TimeData(FS, np.zeros((4, 2)), np.zeros((4, 2))))
+    k = max(range(len(base.modes)), key=lambda i: base.modes[i].freq_hz)  # the 120 Hz mode
+    if effect == "modal_mismatch":
+        modes = list(base.modes)
+        modes[k] = modes[k].moved(114.0, 0.03)
+        truth, structure = replace(base, modes=tuple(modes)), ModalMismatch(index=k)
+    elif effect == "time_delay":
+        truth, structure = replace(base, delay_s=1.37e-3), TimeDelay()
+    else:  # a 90 Hz lag on input 0, none on input 1
+        truth = replace(base, tau_in=np.array([1 / (2 * np.pi * 90.0), 0.0]))
+        structure = ActuatorDynamics()
+    data = _noisy_periodic_record(truth)
+    problem = make_problem(data)
+    assert isinstance(problem, PeriodicProblem)
+    ours = fit_engine.fit(structure, problem, base)
+    monkeypatch.setattr(fit_engine, "FRF_SOLVER", "trf")
+    ref = fit_engine.fit(structure, make_problem(data), base)
+    assert ours.cost <= ref.cost * (1 + 1e-6)
+    assert np.allclose(ours.theta, ref.theta, rtol=1e-4, atol=1e-6)
+    assert np.allclose(ours.theta_std, ref.theta_std, rtol=0.05)
+    # and the optimum is the truth's, within the noise
+    assert ours.cost <= 1.1 * problem.cost(truth)
+
+
+def test_cached_line_responses_are_the_responses_computed_afresh():
+    """filtered_lines with a response cache shared by models whose lags differ on one input:
+    every filter the cache gives is the one computed without it, bit for bit."""
+    base = replace(ModalModel.from_statespace(_two_mode_plant(), exact=True), delay_s=0.37e-3)
+    lines = np.arange(1, 301)
+    z = np.exp(2j * np.pi * lines / PERIOD)
+    U = np.exp(2j * np.pi * np.random.default_rng(4).random((lines.size, 2)))
+    responses: dict = {}
+    for tau_in in ([0.0, 0.0], [1e-3, 0.0], [1e-3, 2e-4], [1e-3, 0.0], [0.0, 2e-4]):
+        model = replace(base, tau_in=np.array(tau_in), tau_out=np.array([0.0, 5e-4]))
+        for m in model.modes:
+            den = m.denominator()
+            X, groups = filtered_lines(model, den, U, z, FS, responses=responses)
+            X_ref, groups_ref = filtered_lines(model, den, U, z, FS)
+            assert np.array_equal(X, X_ref)
+            assert all(np.array_equal(a, b) for a, b in zip(groups, groups_ref))
+    assert len(responses) < 5 * len(base.modes) * 4  # filters reused across the models
+
+
+def test_transient_basis_extended_by_a_moved_or_added_pole_spans_the_basis_afresh():
+    """The basis a fit's moved (or added) slow mode gets from the other poles' basis
+    (:meth:`PeriodicProblem._basis_near`) projects as the basis computed afresh does."""
+    data = _open_loop_record(_two_mode_plant(), periods=3)
+    problem = make_problem(data)
+    base = base_model(_two_mode_plant(), data)
+    k = min(range(len(base.modes)), key=lambda i: base.modes[i].freq_hz)  # 3 Hz, unsettled
+    fresh = []
+    problem._basis_of = lambda key, f=problem._basis_of: fresh.append(key) or f(key)
+    models = []
+    for j in range(5):
+        modes = list(base.modes)
+        modes[k] = modes[k].moved(3.0 * (1 + 0.01 * j), 0.005 * (1 + 0.1 * j))
+        models.append(replace(base, modes=tuple(modes)))
+    extra = Mode("flexible", 7.0, 0.004, np.zeros(2), np.zeros(2))
+    models.append(replace(base, modes=base.modes + (extra,)))
+    for model in models:
+        Q = problem._start_basis(model)
+        key = problem._basis_key[tuple((m.kind, m.freq_hz, m.damping) for m in model.modes)]
+        C = problem._columns(key, drift=True)
+        Q_ref = np.linalg.qr(np.concatenate([C.real, C.imag]))[0]
+        assert Q.shape == Q_ref.shape
+        assert np.max(np.abs(Q @ Q.T - Q_ref @ Q_ref.T)) <= 1e-9
+    # computed afresh: the first model, the rest of the second; the others were extended
+    assert len(fresh) == 2

@@ -2,14 +2,15 @@
 
 A :class:`Structure` is a parameterized model on top of a base model: its
 nonlinear parameters ``theta`` (a delay, a frequency and damping, cutoffs) are
-found by Levenberg-Marquardt least squares. On FRF data :func:`levenberg_marquardt`
-solves the small normal equations of the structure's analytic ``jacobian`` (a delay,
-lags, moved modes) or of a finite-difference Jacobian (``theta`` has at most a
+found by Levenberg-Marquardt least squares. On FRF data and on a periodic record's
+excited lines (the problems whose ``domain`` is "frequency") :func:`levenberg_marquardt`
+solves the small normal equations of the structure's analytic ``jacobian`` (FRF data: a
+delay, lags, moved modes) or of a finite-difference Jacobian (``theta`` has at most a
 handful of entries, or the modal fit's dozens with its own ``normal_equations``);
-on time records ``scipy.optimize.least_squares`` (trust-region reflective, finite
-differences; :data:`FRF_SOLVER` selects it on FRF data too, the reference of
-``benchmarks/bench_speed.py --frf``), while the parameters that enter linearly (mode
-residues, compliance and coupling matrices) are solved inside every residual
+on a simulated time record ``scipy.optimize.least_squares`` (trust-region reflective,
+finite differences; :data:`FRF_SOLVER` selects it on the lines too, the reference of
+``benchmarks/bench_speed.py --frf`` and of the tests), while the parameters that enter
+linearly (mode residues, compliance and coupling matrices) are solved inside every residual
 evaluation by the problem's closed-form linear fits (variable projection,
 Golub & Pereyra 1973). Start points come from a coarse grid of ``theta``
 evaluated by the same projected cost.
@@ -163,11 +164,12 @@ def fit_budget(structure) -> int:
 #: relative finite-difference step of a Jacobian column (scipy's ``diff_step``)
 DIFF_STEP = 1e-4
 
-#: how fit() refines a structure without analytic hooks on FRF data: "lm" (Levenberg-Marquardt
-#: on the normal equations of a finite-difference Jacobian, or of the structure's analytic
-#: ``jacobian``) or "trf" (scipy's trust-region reflective with finite differences, which
-#: takes an SVD of the tall Jacobian every iteration: the engine before, kept as the
-#: reference of benchmarks/bench_speed.py --frf)
+#: how fit() refines a structure without analytic hooks on FRF data and on a periodic
+#: record's lines: "lm" (Levenberg-Marquardt on the normal equations of a finite-difference
+#: Jacobian, or of the structure's analytic ``jacobian``) or "trf" (scipy's trust-region
+#: reflective with finite differences, which takes an SVD of the tall Jacobian every
+#: iteration: the engine before, kept as the reference of benchmarks/bench_speed.py --frf
+#: and of the tests' cross-checks)
 FRF_SOLVER = "lm"
 
 
@@ -186,15 +188,17 @@ def _normal_equations(structure, problem, base, residual, lo, hi) -> _Normal | N
     """The normal equations fit() solves for ``structure``, or None for scipy's trf.
 
     A structure's ``normal_equations`` hook (analytic, the modal fit) comes first, with
-    :func:`levenberg_marquardt`'s tight stops. On FRF data (``FRF_SOLVER == "lm"``) every
-    other structure: its ``jacobian`` hook (analytic; it returns None where it has none for
-    the problem), else :func:`finite_difference_jacobian`, with scipy's default stops (1e-8:
-    what the trust-region search used, and all a difference quotient resolves). Elsewhere
-    (time records, or the reference ``FRF_SOLVER == "trf"``): None.
+    :func:`levenberg_marquardt`'s tight stops. On FRF data and a periodic record's lines
+    (``problem.domain == "frequency"``, ``FRF_SOLVER == "lm"``) every other structure: its
+    ``jacobian`` hook (analytic; it returns None where it has none for the problem: the
+    lines of a periodic record), else :func:`finite_difference_jacobian`, with scipy's
+    default stops (1e-8: what the trust-region search used, and all a difference quotient
+    resolves). Elsewhere (a record simulated in the time domain, or the reference
+    ``FRF_SOLVER == "trf"``): None.
     """
     if callable(getattr(structure, "normal_equations", None)):
         return _Normal(lambda th, r: structure.normal_equations(th, problem, base, r), {})
-    if problem.kind != "frf" or FRF_SOLVER != "lm":
+    if getattr(problem, "domain", "time") != "frequency" or FRF_SOLVER != "lm":
         return None
     if getattr(structure, "solver", None) == "trf":
         return None  # the structure asks for scipy's trust region (see RigidSuspension)
