@@ -978,8 +978,9 @@ def fit_port_element(
             if n_new == n_sub:
                 break
             n_sub = n_new
-            nl, params = make_element(element, levels, n_sub, vel, g)
-            fine = [(simulated(nl, g)[0], element, nl, params)]
+            # (own names: when the coarse simulation is kept below, so is its model)
+            nl_n, params_n = make_element(element, levels, n_sub, vel, g)
+            fine = [(simulated(nl_n, g)[0], element, nl_n, params_n)]
             fine += refine_levels(element, levels, n_sub, vel, g)
             best_fine = min(fine, key=lambda t: t[0])
             if not best_fine[0] <= after:
