@@ -623,11 +623,13 @@ def fit_port_element(
             c[ok] = np.linalg.lstsq(Xc[:, ok] / scale[ok], r.ravel(), rcond=None)[0]
             c[ok] /= scale[ok]
         # a friction level or a hardening spring is >= 0; a port whose element adds less than
-        # 5 % of the largest port's share of the output is none (compared by what they add, not
-        # by level: N and N m at ports of different inertia; an indepgen stage's rotations,
-        # 1-2 % of its translations' levels, drift 60x its noise without theirs)
+        # 5 % of the largest port's share of the output is none. Friction's compared by what
+        # they add, not by level: N and N m at ports of different inertia (an indepgen stage's
+        # rotations, 1-2 % of its translations' levels, drift 60x its noise without theirs).
+        # The spring's by level, as before (the rule by share is not validated on its cases)
         c = np.maximum(c, 0.0)
-        c[c * scale < 0.05 * (c * scale).max()] = 0.0
+        share = c * scale if name == "coulomb_friction" else c
+        c[share < 0.05 * share.max()] = 0.0
         return np.broadcast_to(c, (n_u,)).copy()
 
     def make_element(name, c, n_sub=substeps, v=None, g=None):
@@ -668,9 +670,11 @@ def fit_port_element(
         """The relative error of a residual (inf for a diverged simulation's)."""
         return float(np.sqrt(r @ r)) if np.all(np.isfinite(r)) else np.inf
 
-    # the starts of the gains and of the levels' scale are judged on the record's first part
-    # (START_HORIZON): a level's misfit grows with the drift it causes, and is smoother there
-    n_start = max(int(START_HORIZON * u.shape[0]), 2) if family is not None else None
+    # friction's starts of the gains and of the levels' scale are judged on the record's first
+    # part (START_HORIZON): a level's misfit grows with the drift it causes, and is smoother
+    # there (the spring's on the whole record, as before: not validated on its cases)
+    def start_n(name):
+        return max(int(START_HORIZON * u.shape[0]), 2) if name == "coulomb_friction" else None
 
     def converged_substeps(name, c, n_sub, v=None, g=None):
         """Substeps, from ``n_sub`` up, at which the element's simulation is converged."""
@@ -771,7 +775,8 @@ def fit_port_element(
         if family is None:
             return None
         nl = make_element(name, c, n_sub, v)[0]
-        errs = [rms(simulated(nl, s * family.unit, residual=True, n=n_start)[0]) for s in GAIN_GRID]
+        n = start_n(name)
+        errs = [rms(simulated(nl, s * family.unit, residual=True, n=n)[0]) for s in GAIN_GRID]
         return GAIN_GRID[int(np.argmin(errs))] * family.unit
 
     def scale_levels(name, c, n_sub, v, g, span):
@@ -786,7 +791,7 @@ def fit_port_element(
 
         def cost(log_s):
             nl = make_element(name, np.exp(log_s) * c, n_sub, v)[0]
-            return rms(simulated(nl, g, residual=True, n=n_start)[0])
+            return rms(simulated(nl, g, residual=True, n=start_n(name))[0])
 
         step = np.log(LEVEL_STEP)
         grid = np.arange(-np.log(span), np.log(span) + 0.5 * step, step)
