@@ -9,8 +9,9 @@ substep, clipped at rest, as tests/indepgen.py does), not by workbench.sim's por
 Before (session 27): the rotation's level, 1.5 % of the translation's in N m against N,
 was cut as negligible (the regression compared levels, not what they add to the output),
 and the levels were regressed on the whole record's output error, which the twice-integrated
-error of the law's regressor (the sign of a noisy velocity near reversals) dominates; the
-fitted levels were far off and the from-rest simulation many times the noise.
+error of the law's regressor (the sign of a noisy velocity near reversals) dominates: a cubic
+spring was named, 1887x the floor (friction's best 11.6 relative error). After: friction at
+both ports, 1.00x the floor, levels within 0.01 % (4 s on a loaded machine).
 """
 
 from __future__ import annotations
