@@ -536,6 +536,8 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s, domain
         if timed and nl_first is None
         else None
     )
+    # the error the record's noise leaves, from the spread of its periods (periodic records)
+    time_floor = detect.noise_floor(data, problem.predict(current)) if F_end is not None else None
     # a nonlinearity is a finding only when a fitted port element (friction, cubic spring,
     # saturation) in the simulation model lowers the error: a linear misfit at low frequency
     # (a suspension, crosstalk) is not reduced by one, and is no false alarm
@@ -560,9 +562,7 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s, domain
         # periodic power where a linear system has none: distortion. It ranks first when it
         # carries a share of the output power comparable with the linear misfit.
         nl_ev, nl_first_rank = nl, nl.level >= 0.5 * error_before**2
-    elif F_end is not None and cur_err > DRIFT_RATIO * (
-        detect.noise_floor(data, problem.predict(current)) or np.inf
-    ):
+    elif F_end is not None and cur_err > DRIFT_RATIO * (time_floor or np.inf):
         # the steady state is right (its period-synchronous residual within noise, no
         # distortion), the from-rest simulation is not: a drift no linear effect removed. On
         # a rigid body in a closed loop that is the twice-integrated mean of a force the
@@ -599,10 +599,22 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s, domain
         else:
             found.append(finding)
     remaining = _remaining(current, data)
+    element = next((f for f in found if f.effect == "nonlinearity" and f.model is not None), None)
+    if remaining is not None and not remaining["within_noise"] and element is not None:
+        # compare simulates a linear model: the element's simulation model is what explains
+        remaining["explanation"] += (
+            f"; compare judges the linear model only, the nonlinearity finding's simulation "
+            f"model (its fitted element) reaches the error {element.error_after:.4g}"
+        )
     if not any(f.effect != "nonlinearity" for f in found):
         if remaining is None or remaining["within_noise"]:
+            drift = None
+            if time_floor is not None and cur_err > DRIFT_RATIO * time_floor:
+                drift = time_floor
             found.append(
-                _none_finding(problem, current, data, cur_err, error_before, floor, alternatives)
+                _none_finding(
+                    problem, current, data, cur_err, error_before, floor, alternatives, drift
+                )
             )
             found = [f for f in found if f.effect != "none"] or found
     return Diagnosis(
@@ -1135,7 +1147,16 @@ def _fit_element(data: TimeData, linear: list, stop_above: float | None = None):
     return ef, linear[h[0]], h[3]
 
 
-def _none_finding(problem, model, data, cur_err, error_before, floor, alternatives) -> Finding:
+def _none_finding(
+    problem, model, data, cur_err, error_before, floor, alternatives, drift=None
+) -> Finding:
+    """The 'none' finding: no effect of the vocabulary lowers the error significantly.
+
+    ``drift``: the noise floor estimated from a periodic record's periods
+    (:func:`workbench.diagnosis.detect.noise_floor`) when the error stays above
+    DRIFT_RATIO times it: the steady state is right but not the from-rest simulation, and
+    the explanation says so instead of "nothing is missing".
+    """
     if problem.kind == "frf" and problem.has_var:
         chi = problem.cost(model) / problem.n_obs * 2
         reason = (
@@ -1150,7 +1171,14 @@ def _none_finding(problem, model, data, cur_err, error_before, floor, alternativ
     if alternatives:
         a = alternatives[0]
         reason += f"; the best candidate, {a['effect']}, would only reach {a['error_after']:.4g}"
-    reason += ": nothing is missing."
+    if drift is None:
+        reason += ": nothing is missing."
+    else:
+        reason += (
+            f". The steady state is within noise, but the error is {cur_err / drift:.3g} times "
+            f"the noise floor estimated from the record's periods ({drift:.4g}): a drift of the "
+            "from-rest simulation that no effect of the vocabulary (and no port element) explains."
+        )
     band = problem.band_hz
     return Finding(
         effect="none",
