@@ -27,9 +27,20 @@ a mode seen with another shape enters the ports with a gain fitted with the elem
 sensor collocated with an input fixes the mode shapes at every input
 (:func:`workbench.diagnosis.nonlinear.with_ports`, the extended modal model), and
 each pair that may be collocated is a hypothesis the record decides. Without
-ports no element can be fitted, and only distortion on the lines the excitation
-leaves empty makes it one (a periodic residual the linear search left is what a
-linear effect it missed leaves too). A modal mismatch or a suspension may be
+ports friction and a spring cannot be fitted; a saturation of the inputs needs none
+(the linear model driven by the clipped recorded input,
+:func:`workbench.diagnosis.nonlinear.fit_saturation`) and is tried alone; when it does
+not explain the record, only distortion on the lines the excitation leaves empty makes
+a nonlinearity a finding (a periodic residual the linear search left is what a linear
+effect it missed leaves too). The evidence that sends the search to an element: that
+distortion, a period-synchronous residual no linear effect removed, or (the steady state
+right) an error of the from-rest simulation above ``DRIFT_RATIO`` times the noise floor
+estimated from the record's periods (:func:`workbench.diagnosis.detect.noise_floor`): a
+drift, the twice-integrated mean of a force the linear model does not apply (a closed
+loop's slightly clipped command). The finding's ``level`` is the spec's, the share of the
+output power the fitted element adds to the linear model's response
+(:attr:`workbench.diagnosis.nonlinear.ElementFit.level`); the detector's estimate is its
+``evidence_level``. A modal mismatch or a suspension may be
 only what a port element linearizes to (friction's equivalent damping, a
 spring's equivalent stiffness): when the search accepts one on a time record,
 the element on the model as given is tried at once, and it replaces the linear
@@ -908,11 +919,17 @@ def _nonlinearity_finding(
     ``err`` is the error of the model as given, ``cur_err`` that of the final linear
     model ``linear[0]``. ``linear``: the linear models (ModalModel) the element may sit
     on (:func:`_fit_element` chooses). Without ports (a square model, whose outputs are
-    collocated with the inputs, or a sensor collocated with an input) no element can be fitted:
+    collocated with the inputs, or a sensor collocated with an input) only a saturation of
+    the inputs can be fitted; when it does not lower the error (or the data are an FRF),
     the finding carries the distortion level only and the error of the linear model,
     ``cur_err`` (it adds nothing to that model, so it cannot lower the error), and only
     ``direct`` evidence (distortion on unexcited lines) makes it a finding: a residual
     the linear search merely left is what any linear effect it missed leaves too.
+
+    With an element, ``parameters["level"]`` is the share of the output power the element
+    adds to the linear model's response (the spec's level, :attr:`ElementFit.level`) and
+    ``parameters["evidence_level"]`` the detector's estimate (``nl.level``); without one,
+    ``level`` is the detector's estimate.
 
     ``only_given``: only a finding on the model as given (``linear[-1]``) is wanted; the
     element is fitted on the other linear models only when it is one there (the same

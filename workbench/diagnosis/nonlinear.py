@@ -33,6 +33,10 @@ displacements to the model's outputs (``port_outputs`` of
 :func:`simulate_nonlinear` and :func:`fit_port_element`);
 :func:`collocated_pairs` lists the pairs a model allows (every mode's
 driving-point residue positive, as a collocated pair's is).
+
+A saturation of the inputs needs no port: the applied force ``clip(u_j, -l_j, l_j)`` does
+not depend on the motion, so any linear model driven by the clipped recorded input is its
+simulation model (:func:`fit_saturation`, on a model with no port to locate).
 """
 
 from __future__ import annotations
