@@ -15,7 +15,8 @@ Data flow::
                       ▼
     nonlinearity: a port element (friction, cubic spring, saturation) fitted and simulated
     (nonlinear.fit_port_element; ports: a square model's outputs, or the mode shapes a
-    collocated sensor fixes), a finding only when it lowers the error; tried on the model
+    collocated sensor fixes; without ports a saturation alone, nonlinear.fit_saturation),
+    a finding only when it lowers the error; tried on the model
     as given as soon as a modal mismatch or suspension (its linearization) is accepted
                       │
                       ▼

@@ -6,7 +6,9 @@
   changes the response by more than the noise;
 - :func:`nonlinearity`: power of a periodic record on the lines its
   excitation leaves empty, beyond the noise (the part of the output a linear
-  model cannot produce).
+  model cannot produce);
+- :func:`noise_floor`: the spec time-domain error the noise of a periodic
+  record leaves, from the spread of its periods.
 """
 
 from __future__ import annotations
@@ -17,7 +19,15 @@ import numpy as np
 
 from workbench.io.formats import TimeData
 
-__all__ = ["phase_slope", "where_it_shows", "nonlinearity", "Where", "NonlinearityEvidence"]
+__all__ = [
+    "phase_slope",
+    "where_it_shows",
+    "nonlinearity",
+    "noise_floor",
+    "periodic_misfit",
+    "Where",
+    "NonlinearityEvidence",
+]
 
 
 def phase_slope(freq: np.ndarray, G_meas: np.ndarray, G_model: np.ndarray, *, weight=None):
@@ -249,3 +259,53 @@ def periodic_misfit(data: TimeData, y_model: np.ndarray) -> float | None:
         power += np.sum(e.mean(axis=0) ** 2)
         var_mean += e.var(axis=0, ddof=1).sum() / e.shape[0]
     return float(power / max(var_mean, 1e-300))
+
+
+def _period_spread(rec, x: np.ndarray) -> float:
+    """Power of ``x`` (N, n) about its blocks' mean periods, per sample summed over channels:
+    each kept period less its own mean and slope (a drift or an unsettled slow transient
+    changes little within a period; 2 of ``period`` degrees of freedom), the variance over
+    the periods (ddof 1) at each sample, averaged over the samples and blocks."""
+    var, n = 0.0, 0
+    for xb in rec.periods(x):
+        P = xb.shape[1]
+        t = np.arange(P) - 0.5 * (P - 1)
+        d = xb - xb.mean(axis=1, keepdims=True)
+        d = d - (d * t[None, :, None]).sum(axis=1, keepdims=True) / (t @ t) * t[None, :, None]
+        var += float(d.var(axis=0, ddof=1).sum())
+        n += P
+    return var / max(n, 1)
+
+
+def noise_floor(data: TimeData, y_model: np.ndarray | None = None) -> float | None:
+    """The spec time-domain error that the record's noise alone leaves, ``||noise|| / ||y||``.
+
+    The output noise is estimated from the spread of the kept periods about their block's
+    mean period (:func:`_period_spread`), its variance taken as stationary over the whole
+    record (the dropped first periods too). The spread holds the noise plus whatever is
+    not periodic: a slow mode's transient that has not settled (a beam on a soft
+    suspension: 40x the noise) or a drift. With ``y_model`` (N, n_y), a linear model's
+    simulated output, the spread of the residual ``y - y_model`` is taken too (the
+    transient common to both cancels; a drift the model adds does not) and the smaller
+    of the two is the estimate (each is the noise or more).
+
+    What a model that is right leaves against the record, the steady state and the
+    transient from rest alike: a from-rest simulation that misses the record by more while
+    its period-synchronous residual is noise (:func:`periodic_misfit` ~ 1) misses a drift
+    (a twice-integrated force error).
+
+    Returns
+    -------
+    float or None
+        None when the record is not periodic (:func:`_record`).
+    """
+    rec = _record(data)
+    if rec is None:
+        return None
+    norm = float(np.linalg.norm(data.y))
+    if norm == 0:
+        return None
+    var = _period_spread(rec, data.y)
+    if y_model is not None:
+        var = min(var, _period_spread(rec, data.y - y_model))
+    return float(np.sqrt(var * data.y.shape[0]) / norm)

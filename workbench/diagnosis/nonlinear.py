@@ -33,6 +33,10 @@ displacements to the model's outputs (``port_outputs`` of
 :func:`simulate_nonlinear` and :func:`fit_port_element`);
 :func:`collocated_pairs` lists the pairs a model allows (every mode's
 driving-point residue positive, as a collocated pair's is).
+
+A saturation of the inputs needs no port: the applied force ``clip(u_j, -l_j, l_j)`` does
+not depend on the motion, so any linear model driven by the clipped recorded input is its
+simulation model (:func:`fit_saturation`, on a model with no port to locate).
 """
 
 from __future__ import annotations
@@ -58,6 +62,7 @@ __all__ = [
     "SquarePorts",
     "fit_friction",
     "fit_port_element",
+    "fit_saturation",
     "ElementFit",
     "ELEMENTS",
 ]
@@ -461,6 +466,14 @@ HIGH_PASS_ORDER = 4
 SATURATION_NFEV = 60
 #: ... fitted on the record's first fractions, each from the shorter one's levels
 SATURATION_HORIZONS = (1 / 16, 1 / 8, 1 / 4, 1 / 2, 1)
+#: shares of the samples clipped that the saturation levels are first scanned over (a common
+#: quantile of |u| for all inputs), down to one sample an input: a slight clipping of a closed
+#: loop's command (a few peaks a period) leaves a drift far above the noise in a from-rest
+#: simulation of a rigid body, which a level clipping 0.1 % of the samples misses by far
+SATURATION_SHARES = (0.5, 0.3, 0.2, 0.1, 0.05, 0.02, 0.01, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4, 1e-4)
+#: ... then each input's level between two of its this many largest |u| (clipping a few peaks),
+#: in this many sweeps over the inputs
+SATURATION_PEAKS, SATURATION_SWEEPS = 12, 2
 
 
 @dataclass(frozen=True)
@@ -485,6 +498,13 @@ class ElementFit:
         Spec time-domain error of the linear model and of the nonlinear simulation model.
     candidates : dict
         Every element tried: its error predicted by the regression (``{element: error}``).
+    level : float
+        The share of the record's power that the element adds to the linear model's
+        response to the recorded input, ``||y_element - y_linear||^2 / ||y||^2`` (both
+        simulated from rest, at most 1): the spec's nonlinearity ``level``, "the share of
+        output power not explained by a linear model", with the linear model the one the
+        element sits on. On a rigid body it includes the drift the clipped or resisted force
+        integrates to, and may reach 1.
     """
 
     element: str
@@ -494,6 +514,138 @@ class ElementFit:
     error_before: float
     error_after: float
     candidates: dict
+    level: float = float("nan")
+
+
+def _saturation_scan(lin, meas, u, y, fs):
+    """(levels (n_u,), error): the best common quantile of |u| as every input's level (N), the
+    linear model ``lin``'s outputs ``meas`` driven by the clipped input against ``y``."""
+    amp = np.abs(u)
+    best_sat, best_err = None, np.inf
+    for share in SATURATION_SHARES:
+        if share * amp.shape[0] < 1.0:
+            break  # less than a sample clipped
+        level = np.quantile(amp, 1.0 - share, axis=0)
+        y_sat = sim.simulate_zoh(lin, np.clip(u, -level, level), fs)[:, meas]
+        err = lti.relative_error_time(y, y_sat)
+        if err < best_err:
+            best_sat, best_err = level, err
+    return best_sat, float(best_err)
+
+
+def _refine_saturation(lin, meas, u, y, fs, level, err):
+    """(levels, error): one saturation level per input by least squares through the linear
+    simulation of the clipped input, from the common quantile's levels. The quantile grid
+    gives every input the same share of clipped samples; a closed loop's inputs differ (its
+    controller's command is not the recorded input's scaled copy), and a from-rest
+    simulation of a rigid body integrates a level error twice (an indepgen stage record:
+    6026x the floor at the best quantile, 0.1 % off the true levels 270x). Over the whole
+    record that makes the misfit rough in the levels (local minima 0.5 % apart: a fit on
+    it stalled at 528x), over its start it is nearly quadratic: the levels are fitted on
+    growing first parts of the record (SATURATION_HORIZONS), each from the shorter one's
+    (continuation; 1.00x there). The output is linear in the clipped input, so the
+    Jacobian is exact: d clip(u_j, l_j) / d ln l_j = l_j sign(u_j) where |u_j| > l_j,
+    simulated per input."""
+    amp = np.abs(u)
+    active = np.flatnonzero(np.isfinite(level) & (level > 0))
+    if active.size == 0:
+        return level, err
+    norm = np.linalg.norm(y)
+    top = amp.max(axis=0)[active]
+
+    def levels(theta):
+        out = np.array(level, float)
+        out[active] = np.exp(theta)
+        return out
+
+    def resid(theta, n):
+        lv = levels(theta)
+        y_n = sim.simulate_zoh(lin, np.clip(u[:n], -lv, lv), fs)[:, meas]
+        return (y_n - y[:n]).ravel() / norm
+
+    def jac(theta, n):
+        lv = levels(theta)
+        cols = []
+        for j in active:
+            d = np.zeros_like(u[:n])
+            over = amp[:n, j] > lv[j]
+            d[over, j] = np.sign(u[:n][over, j]) * lv[j]
+            cols.append(sim.simulate_zoh(lin, d, fs)[:, meas].ravel() / norm)
+        return np.stack(cols, -1)
+
+    # a level above an input's largest |u| clips nothing there: the box ends at it
+    lo = np.log(np.maximum(np.quantile(amp, 0.05, axis=0)[active], 1e-300))
+    hi = np.log(np.maximum(top, 1e-300))
+    if not np.all(lo < hi):
+        return level, err
+    theta = np.clip(np.log(level[active]), lo, hi)
+    for frac in SATURATION_HORIZONS:
+        n = max(int(frac * u.shape[0]), 1)
+        theta = scipy.optimize.least_squares(
+            resid,
+            theta,
+            jac=jac,
+            bounds=(lo, hi),
+            method="trf",
+            max_nfev=SATURATION_NFEV,
+            args=(n,),
+        ).x
+    lv = levels(theta)
+    e_new = lti.relative_error_time(y, sim.simulate_zoh(lin, np.clip(u, -lv, lv), fs)[:, meas])
+    return (lv, float(e_new)) if e_new < err else (level, err)
+
+
+def _scan_peaks(lin, meas, u, y, fs, level, err):
+    """(levels, error): each input's level in turn (the others held; SATURATION_SWEEPS
+    sweeps) at the best of its SATURATION_PEAKS largest |u| (the level at a peak clips the
+    peaks above it by their excess over it), then by a bounded 1-D search between that
+    peak's neighbours; kept where it lowers the error. A slight clipping (a few peaks of a
+    closed loop's command) makes the error steep in the level (a from-rest simulation of a
+    rigid body: 0.1 % off the level, 50x the noise) with a kink at every peak: the least
+    squares of :func:`_refine_saturation` stays between the peaks it starts between, which
+    the common quantile's level may not be."""
+    level = np.array(level, float)
+    amp = np.abs(u)
+
+    def error(lv):
+        return lti.relative_error_time(y, sim.simulate_zoh(lin, np.clip(u, -lv, lv), fs)[:, meas])
+
+    for _ in range(SATURATION_SWEEPS):
+        for j in range(u.shape[1]):
+            peaks = np.unique(amp[:, j])[::-1][: SATURATION_PEAKS + 1]
+            if peaks.size < 2:
+                continue
+
+            def err_j(x, j=j):
+                trial = level.copy()
+                trial[j] = x
+                return float(error(trial))
+
+            errs = [err_j(p) for p in peaks]
+            k = int(np.argmin(errs))
+            lo, hi = peaks[min(k + 1, peaks.size - 1)], peaks[max(k - 1, 0)]
+            x, e = peaks[k], errs[k]
+            if hi > lo:
+                sol = scipy.optimize.minimize_scalar(
+                    err_j, bounds=(lo, hi), method="bounded", options={"xatol": 1e-7 * hi}
+                )
+                if sol.fun < e:
+                    x, e = float(sol.x), float(sol.fun)
+            if e < err:
+                level[j], err = x, e
+    return level, err
+
+
+def _fit_saturation_levels(lin, meas, u, y, fs, *, refine=True):
+    """(levels (n_u,) N, error): the saturation of the inputs that explains ``y`` best, the
+    linear model ``lin`` (outputs ``meas`` measured) driven by the clipped recorded input:
+    the quantile scan, then (``refine``) the levels per input between the largest peaks and
+    through the simulation."""
+    level, err = _saturation_scan(lin, meas, u, y, fs)
+    if refine:
+        level, err = _scan_peaks(lin, meas, u, y, fs, level, err)
+        level, err = _refine_saturation(lin, meas, u, y, fs, level, err)
+    return level, err
 
 
 def fit_port_element(
@@ -838,77 +990,8 @@ def fit_port_element(
             out.append((simulated(nl, g)[0], name, nl, params))
         return out + refine_levels(name, c, n_sub, None, g)
 
-    def refine_saturation(level, err):
-        """(levels, error): one saturation level per port by least squares through the linear
-        simulation of the clipped input, from the common quantile's levels. The quantile grid
-        gives every port the same share of clipped samples; a closed loop's ports differ (its
-        controller's command is not the recorded input's scaled copy), and a from-rest
-        simulation of a rigid body integrates a level error twice (an indepgen stage record:
-        6026x the floor at the best quantile, 0.1 % off the true levels 270x). Over the whole
-        record that makes the misfit rough in the levels (local minima 0.5 % apart: a fit on
-        it stalled at 528x), over its start it is nearly quadratic: the levels are fitted on
-        growing first parts of the record (SATURATION_HORIZONS), each from the shorter one's
-        (continuation; 1.00x there). The output is linear in the clipped input, so the
-        Jacobian is exact: d clip(u_j, l_j) / d ln l_j = l_j sign(u_j) where |u_j| > l_j,
-        simulated per port."""
-        active = np.flatnonzero(np.isfinite(level) & (level > 0))
-        if active.size == 0:
-            return level, err
-        norm = np.linalg.norm(y)
-        top = amp.max(axis=0)[active]
-
-        def levels(theta):
-            out = np.array(level, float)
-            out[active] = np.exp(theta)
-            return out
-
-        def resid(theta, n):
-            lv = levels(theta)
-            y_n = sim.simulate_zoh(lin, np.clip(u[:n], -lv, lv), fs)[:, meas]
-            return (y_n - y[:n]).ravel() / norm
-
-        def jac(theta, n):
-            lv = levels(theta)
-            cols = []
-            for j in active:
-                d = np.zeros_like(u[:n])
-                over = amp[:n, j] > lv[j]
-                d[over, j] = np.sign(u[:n][over, j]) * lv[j]
-                cols.append(sim.simulate_zoh(lin, d, fs)[:, meas].ravel() / norm)
-            return np.stack(cols, -1)
-
-        # a level above a port's largest |u| clips nothing there: the box ends at it
-        lo = np.log(np.maximum(np.quantile(amp, 0.05, axis=0)[active], 1e-300))
-        hi = np.log(np.maximum(top, 1e-300))
-        if not np.all(lo < hi):
-            return level, err
-        theta = np.clip(np.log(level[active]), lo, hi)
-        for frac in SATURATION_HORIZONS:
-            n = max(int(frac * u.shape[0]), 1)
-            theta = scipy.optimize.least_squares(
-                resid,
-                theta,
-                jac=jac,
-                bounds=(lo, hi),
-                method="trf",
-                max_nfev=SATURATION_NFEV,
-                args=(n,),
-            ).x
-        lv = levels(theta)
-        e_new = lti.relative_error_time(y, sim.simulate_zoh(lin, np.clip(u, -lv, lv), fs)[:, meas])
-        return (lv, float(e_new)) if e_new < err else (level, err)
-
-    # saturation: the linear response to the clipped input, over levels of |u|
-    amp = np.abs(u)
-    best_sat, best_err = None, np.inf
-    for q in (0.5, 0.7, 0.8, 0.9, 0.95, 0.98, 0.99, 0.995, 0.999):
-        level = np.quantile(amp, q, axis=0)
-        y_sat = sim.simulate_zoh(lin, np.clip(u, -level, level), fs)[:, meas]
-        err = lti.relative_error_time(y, y_sat)
-        if err < best_err:
-            best_sat, best_err = level, err
-    if refine:
-        best_sat, best_err = refine_saturation(best_sat, best_err)
+    # saturation: the linear response to the clipped input (it needs no port)
+    best_sat, best_err = _fit_saturation_levels(lin, meas, u, y, fs, refine=refine)
     scored = [
         (
             float(best_err),
@@ -1001,13 +1084,75 @@ def fit_port_element(
         ports = tuple(int(j) for j in np.flatnonzero(np.isfinite(vals)))
     else:
         ports = tuple(int(j) for j in np.flatnonzero(vals > 0))
-    before = float(before)
+    if element == "saturation":
+        y_el = sim.simulate_zoh(lin, np.clip(u, -vals, vals), fs)[:, meas]
+    else:
+        y_el = simulated(nl, gains_of(params), output=True)[0]
     return ElementFit(
         element=element,
         ports=ports,
         parameters=params,
         nonlinearity=nl,
-        error_before=before,
+        error_before=float(before),
         error_after=float(after),
         candidates=preds,
+        level=_output_share(y_el, y_lin, y),
+    )
+
+
+def _output_share(y_element: np.ndarray, y_linear: np.ndarray, y: np.ndarray) -> float:
+    """The share of the record's power that the element adds to the linear model's response
+    to the recorded input, ``||y_element - y_linear||^2 / ||y||^2``, at most 1 (a from-rest
+    simulation of a rigid body integrates a force difference twice and may exceed it)."""
+    share = np.sum((y_element - y_linear) ** 2) / max(float(np.sum(y**2)), 1e-300)
+    return float(min(share, 1.0)) if np.isfinite(share) else 1.0
+
+
+def fit_saturation(sys, u: np.ndarray, y: np.ndarray, fs: float, *, refine: bool = True):
+    """Saturation of the inputs alone: the linear model driven by the clipped recorded input.
+
+    Unlike friction or a spring, an input saturation needs no port: the applied force is
+    ``clip(u_j, -l_j, l_j)`` whatever the plant's motion, so any linear model (a model that
+    is not square and has no sensor collocated with an input too) is its simulation model.
+    The levels are scanned over quantiles of |u| and refined per input through the
+    simulation (as in :func:`fit_port_element`).
+
+    Parameters
+    ----------
+    sys : LTIModel or control.StateSpace
+        The linear model (continuous; an LTIModel's delay is part of it), any n_y x n_u.
+    u, y : (N, n_u), (N, n_y) arrays
+        Recorded input (the command before the saturation) and output.
+    fs : float
+        Sampling frequency, Hz.
+    refine : bool
+        Refine the levels per input (else the best common quantile of |u|).
+
+    Returns
+    -------
+    ElementFit
+        ``element`` "saturation", ``parameters["saturation"]`` the level per input (N),
+        ``ports`` every input; ``candidates`` holds saturation only.
+    """
+    from workbench.core.model import as_model
+
+    lin = as_model(sys)
+    u = np.asarray(u, float)
+    y = np.asarray(y, float)
+    meas = np.arange(y.shape[1])
+    y_lin = sim.simulate_zoh(lin, u, fs)
+    before = lti.relative_error_time(y, y_lin)
+    levels, after = _fit_saturation_levels(lin, meas, u, y, fs, refine=refine)
+    y_sat = sim.simulate_zoh(lin, np.clip(u, -levels, levels), fs)
+    return ElementFit(
+        element="saturation",
+        ports=tuple(int(j) for j in np.flatnonzero(np.isfinite(levels))),
+        parameters={"saturation": [float(x) for x in levels]},
+        nonlinearity=PortNonlinearity(
+            friction_force=np.zeros(u.shape[1]), saturation=levels, substeps=1
+        ),
+        error_before=float(before),
+        error_after=float(after),
+        candidates={"saturation": float(after)},
+        level=_output_share(y_sat, y_lin, y),
     )
