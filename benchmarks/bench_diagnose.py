@@ -77,7 +77,7 @@ def run_case(plant_name, kind, effect, size, seed):
     t0 = time.perf_counter()
     res = diagnose(case.nominal, case.data)
     dt = time.perf_counter() - t0
-    top = res.findings[0]
+    top = res.top
     tv, fv = _truth_value(effect, truth, plant), _found_value(top.effect, top.parameters)
     perr = (
         f"{100 * (fv / tv - 1):+.2f} %"
@@ -133,9 +133,7 @@ def main(argv=None):
                 load_model(folder / "nominal_model.npz"),
                 load_measurement(folder / "measurement.npz"),
             )
-            print(
-                f"{folder.name:28s} -> {r.findings[0].effect:14s} {time.perf_counter() - t0:5.1f} s"
-            )
+            print(f"{folder.name:28s} -> {r.top.effect:14s} {time.perf_counter() - t0:5.1f} s")
 
 
 if __name__ == "__main__":

@@ -148,13 +148,13 @@ def main(argv=None) -> int:
             print(f"skip {plant} {effs} {kind}: {exc}")
             continue
         res, dt = run(case)
-        top = res.findings[0]
+        top = res.top
         ok = top.effect in accepted_effects(case)
         truth = case.answer["effects"][0]
         perr = param_error(top.effect, truth["parameters"], top.parameters) if ok else None
         floor = case.answer["noise_floor_error"]
         vis = case.answer["nominal_error"] / floor
-        ratio = res.findings[-1].error_after / floor
+        ratio = (res.findings[-1] if res.findings else res.top).error_after / floor
         name = "+".join(effs)
         confusion[name if len(effs) == 1 else "pair"][top.effect] += 1
         var_ok = []
@@ -165,7 +165,7 @@ def main(argv=None) -> int:
                     continue
                 m = transform(case.nominal, how, rng, fs)
                 r2, _ = run(case, model=m)
-                var_ok.append((how, r2.findings[0].effect == top.effect))
+                var_ok.append((how, r2.top.effect == top.effect))
         rows.append(
             dict(
                 plant=plant,

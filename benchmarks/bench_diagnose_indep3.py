@@ -114,7 +114,7 @@ def to_measurement(case):
 def score(case, res) -> dict:
     """The checks of one case against its answer."""
     a = case.answer
-    top = res.findings[0]
+    top = res.top
     right = top.effect == a["effect"]
     perr = param_error(top.effect, a["parameters"], top.parameters) if right else None
     p_ok = right and (perr is None or perr <= TOL[top.effect])
@@ -250,9 +250,7 @@ def main(argv=None) -> int:
         dt = time.perf_counter() - t0
         r = score(case, res)
         r["seconds"] = dt
-        r["parameters"] = {
-            k2: v for k2, v in res.findings[0].parameters.items() if k2 not in ("matrix",)
-        }
+        r["parameters"] = {k2: v for k2, v in res.top.parameters.items() if k2 not in ("matrix",)}
         rows.append(r)
         pe = "-" if r["param_err"] is None else f"{r['param_err']:.3g}"
         print(

@@ -85,7 +85,7 @@ def bench_time_diagnosis(repeat: int) -> None:
             found = []
 
             def run(domain=domain, found=found, case=case):
-                found.append(diagnose(case.model, case.data, domain=domain).findings[0])
+                found.append(diagnose(case.model, case.data, domain=domain).top)
 
             out[domain] = (best_of(run, repeat), found[-1])
         (t_f, f_f), (t_t, f_t) = out["frequency"], out["time"]
@@ -125,7 +125,7 @@ def bench_frf_diagnosis(repeat: int) -> None:
             found = []
 
             def run(case=case, found=found):
-                found.append(diagnose(case.model, case.data).findings[0])
+                found.append(diagnose(case.model, case.data).top)
 
             fit_engine.FRF_SOLVER = solver
             try:
@@ -168,7 +168,7 @@ def bench_periodic_diagnosis(repeat: int) -> None:
             found = []
 
             def run(case=case, found=found):
-                found.append(diagnose(case.model, case.data).findings[0])
+                found.append(diagnose(case.model, case.data).top)
 
             fit_engine.FRF_SOLVER = solver
             try:

@@ -216,6 +216,26 @@ class Diagnosis:
             out["remaining"] = jsonable(self.remaining)
         return out
 
+    @property
+    def top(self) -> Finding:
+        """The most likely finding; when there is none (compare still fails and no effect of
+        the vocabulary lowers the error: ``remaining`` says where), an ``"unexplained"``
+        stand-in at ``error_before`` that is not part of ``findings``."""
+        if self.findings:
+            return self.findings[0]
+        why = (self.remaining or {}).get("explanation", "no effect of the vocabulary explains")
+        return Finding(
+            effect="unexplained",
+            inputs=(),
+            outputs=(),
+            band_hz=(0.0, 0.0),
+            parameters={},
+            parameters_std={},
+            error_after=float(self.error_before),
+            explanation=why,
+            model=self.model,
+        )
+
 
 def _bic(cost: float, n: int, k: int) -> float:
     return n * math.log(max(cost, 1e-300) / n) + k * math.log(n)
