@@ -66,6 +66,67 @@ def test_zoh_response_equals_scipy_zoh_and_freqz(num, den, delay):
     assert np.max(np.abs(h - h_ref)) <= 1e-9 * np.max(np.abs(h_ref))
 
 
+def _physical_rigid_body(taus):
+    """(A, B) of a unit mass behind first-order lags ``taus`` (s): states (position, velocity,
+    then the lags' outputs, the force last but one), a state space independent of the
+    companion form the code under test factors."""
+    n = 2 + len(taus)
+    A, B = np.zeros((n, n + 1)), np.zeros((n, 1))
+    A[0, 1] = A[1, 2] = 1.0  # x' = v, v' = the first lag's output (or u: column n)
+    for i, tau in enumerate(taus):  # lag i: y_i' = (y_{i+1} - y_i) / tau, the last one's input u
+        A[2 + i, 2 + i] = -1.0 / tau
+        A[2 + i, 3 + i] = 1.0 / tau
+    B[:, 0], A = A[:, n], A[:, :n]
+    return A, B
+
+
+def _held_response(A, B, C, z, dt, frac):
+    """C (zI - Ad)^-1 (B0 + B1 / z) of the ZOH with an input delay ``frac`` < dt (the two-interval
+    integral of c2d_zoh, by the block matrix exponential), solved per point."""
+
+    def phi_gamma(h):
+        n = A.shape[0]
+        M = np.zeros((n + 1, n + 1))
+        M[:n, :n], M[:n, n:] = A * h, B * h
+        E = scipy.linalg.expm(M)
+        return E[:n, :n], E[:n, n:]
+
+    Ad, B0 = phi_gamma(dt - frac)
+    B1 = np.zeros_like(B0)
+    if frac > 0:
+        P, G = phi_gamma(frac)
+        Ad, B1 = Ad @ P, Ad @ G
+    eye = np.eye(A.shape[0])
+    return np.array([(C @ np.linalg.solve(zz * eye - Ad, B0 + B1 / zz)).item() for zz in z])
+
+
+@pytest.mark.parametrize("taus", [(), (3e-4,), (1e-4, 5e-4), (2e-2,)])
+@pytest.mark.parametrize("frac", [0.0, 0.3, 0.97])
+def test_rigid_body_behind_lags_responds_as_its_physical_state_space(taus, frac, monkeypatch):
+    """1/s^2 and s/s^2 behind lags, with a fractional delay: the closed form's line
+    responses equal those of the physical state space sampled by the matrix exponential,
+    to 1e-9 at every line (the companion form's characteristic polynomials lost up to 1e-5
+    at the low lines), and the closed form needs no matrix exponential of its own."""
+    import workbench.modal.simulate as sim
+
+    def no_expm(*args):
+        raise AssertionError("the rigid body fell back to the matrix exponential")
+
+    monkeypatch.setattr(sim, "_zoh_coefficients", no_expm)
+    dt = 1.0 / 5000.0
+    z = np.exp(1j * np.linspace(0.003, np.pi - 0.003, 300))
+    den = np.array([1.0, 0.0, 0.0])
+    for tau in taus:
+        den = np.convolve(den, [tau, 1.0])
+    A, B = _physical_rigid_body(list(taus))
+    delay = (2 + frac) * dt  # whole samples too
+    for num, row in (([1.0], 0), ([1.0, 0.0], 1)):
+        h_ref = _held_response(A, B, np.eye(A.shape[0])[row : row + 1], z, dt, frac * dt)
+        h_ref = h_ref * z**-2
+        h = zoh_response(num, den, z, dt, delay)
+        assert np.max(np.abs(h - h_ref) / np.abs(h_ref)) <= 1e-9
+
+
 def test_filtered_lines_are_the_steady_state_dft_of_filtered_inputs():
     """With lags and a fractional delay: the DFT of the last period of the time filter."""
     rng = np.random.default_rng(1)

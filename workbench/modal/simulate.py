@@ -340,8 +340,12 @@ def _distinct_pole_response(strict, den, zi, dt: float, frac: float):
     :func:`workbench.sim.c2d_zoh`). ``strict`` (n_num, n) numerator coefficients; returns a
     (n_num, n_l) complex array, or None when two poles are within :data:`_POLE_SEPARATION`
     of each other (or a pole is at 0 with another one): then the caller's discretization
-    by the matrix exponential applies.
+    by the matrix exponential applies. The rigid body's double pole at 0 (behind lags) has
+    its own closed form, :func:`_rigid_body_response`: more accurate than that
+    discretization's characteristic polynomials, and not recomputed per delay.
     """
+    if _rigid_body(den):
+        return _rigid_body_response(strict, den, zi, dt, frac)
     if den.size == 3:  # a mode: the quadratic's roots directly (np.roots costs 20x more)
         h, q = 0.5 * den[1], np.sqrt(complex(0.25 * den[1] ** 2 - den[2]))
         lam = np.array([-h + q, -h - q])
@@ -354,6 +358,16 @@ def _distinct_pole_response(strict, den, zi, dt: float, frac: float):
             return None
     dden = np.polyval(np.polyder(den), lam)
     r = np.array([np.polyval(st, lam) for st in strict]) / dden  # (n_num, n_poles)
+    hs = r @ _simple_pole_responses(lam, zi, dt, frac).T
+    return hs if np.all(np.isfinite(hs)) else None
+
+
+def _simple_pole_responses(lam, zi, dt: float, frac: float):
+    """(n_l, n_poles) ZOH responses of ``1 / (s - lam)`` per pole, at ``zi`` = 1/z, delay ``frac``.
+
+    ``(b0 z^-1 + b1 z^-2) / (1 - exp(lam dt) z^-1)`` of :func:`_distinct_pole_response`
+    (``lam = 0``, the integrator, included).
+    """
 
     def integral(h):  # int_0^h exp(lam s) ds, its limit h at lam = 0
         small = np.abs(lam * h) < 1e-8
@@ -364,7 +378,57 @@ def _distinct_pole_response(strict, den, zi, dt: float, frac: float):
     b1 = np.exp(lam * (dt - frac)) * integral(frac) if frac > 0 else np.zeros_like(lam)
     p = np.exp(lam * dt)
     zc = zi[:, None]
-    # (n_l, n_poles): each pole's sampled response per unit residue
-    per_pole = (b0 * zc + b1 * zc * zc) / (1.0 - p * zc)
-    hs = r @ per_pole.T
+    return (b0 * zc + b1 * zc * zc) / (1.0 - p * zc)
+
+
+#: the rigid body's closed form (:func:`_rigid_body_response`) takes the other poles down to
+#: ``|lam| dt`` = this: closer to 0 its partial fractions cancel (a loss of about
+#: ``(pi / (|lam| dt))^2`` in relative accuracy at the Nyquist frequency, ~1e-11 here)
+_RIGID_POLE_MIN = 1e-2
+
+
+def _rigid_body(den) -> bool:
+    """Whether monic ``den`` is ``s^2 q(s)`` with ``q(0) != 0``: a rigid body (behind lags)."""
+    return den.size >= 3 and den[-1] == 0.0 and den[-2] == 0.0 and den[-3] != 0.0
+
+
+def _rigid_body_response(strict, den, zi, dt: float, frac: float):
+    """ZOH responses of ``strict_i(s) / (s^2 q(s))`` in closed form (:func:`_rigid_body` ``den``).
+
+    Partial fractions ``c2 / s^2 + c1 / s + sum r_k / (s - lam_k)`` over the simple roots
+    ``lam_k`` of ``q``: ``c2 = strict(0) / q(0)``, ``c1 = (strict / q)'(0)``, and ``r_k`` as in
+    :func:`_distinct_pole_response`. The double integrator's input held on
+    ``[k dt + frac, (k+1) dt + frac)`` and sampled at ``n dt`` has the pulse response
+    ``S(m dt - frac) - S((m-1) dt - frac)``, ``S(t) = t^2 / 2`` for ``t >= 0``: ``frac^2 / 2`` more
+    than ``dt^2 (m - 1/2) - dt frac`` at ``m = 1``, that at every ``m >= 2``, whose sum is
+    ``frac^2 / 2 w + dt^2 w / (1 - w)^2 - (dt^2 / 2 + dt frac) w / (1 - w)`` with ``w = z^-1``.
+    Returns (n_num, n_l) complex, or None (the caller's matrix exponential then) when two of
+    ``q``'s roots are within :data:`_POLE_SEPARATION` or one is within :data:`_RIGID_POLE_MIN`
+    of 0 (in ``|lam| dt``).
+    """
+    q = den[:-2]
+    if q.size == 1:
+        lam = np.zeros(0, complex)
+    elif q.size == 2:  # one lag: its root directly (np.roots costs 20x more)
+        lam = np.array([-q[1] / q[0]], complex)
+    else:
+        lam = np.roots(q).astype(complex)
+    if lam.size > 1:
+        diff = np.abs(lam[:, None] - lam[None, :]) + np.diag(np.full(lam.size, np.inf))
+        size = np.maximum(np.abs(lam[:, None]), np.abs(lam[None, :]))
+        if np.any(diff <= _POLE_SEPARATION * size):
+            return None
+    if np.any(np.abs(lam) * dt < _RIGID_POLE_MIN):
+        return None
+    q0, q1 = q[-1], (q[-2] if q.size > 1 else 0.0)  # q(0), q'(0)
+    c2 = strict[:, -1] / q0
+    c1 = (strict[:, -2] * q0 - strict[:, -1] * q1) / q0**2
+    poles = np.concatenate([[0.0], lam])  # the integrator, then q's roots
+    r = np.array([np.polyval(st, lam) for st in strict]) / np.polyval(np.polyder(den), lam)
+    r = np.concatenate([c1[:, None], r], axis=1)  # (n_num, 1 + n_lam)
+    w = zi
+    double = (
+        0.5 * frac**2 * w + dt**2 * w / (1.0 - w) ** 2 - (0.5 * dt**2 + dt * frac) * w / (1.0 - w)
+    )
+    hs = r @ _simple_pole_responses(poles, zi, dt, frac).T + c2[:, None] * double[None, :]
     return hs if np.all(np.isfinite(hs)) else None
