@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import control
 import numpy as np
+import pytest
 import scipy.linalg
 import scipy.signal
 
@@ -169,3 +170,20 @@ def test_a_lightly_damped_flexible_mode_stiffened_by_the_spring_is_found():
     freqs = sorted(m.freq_hz for m in fr.model.modes if m.freq_hz > 0)
     assert np.allclose(freqs, f_true, rtol=1e-4), (freqs, f_true)
     assert fr.error <= 2.0 * floor, fr.error / floor
+
+
+def test_an_overdamped_rigid_fit_gives_no_coupled_start_instead_of_a_crash():
+    """A rigid suspension fit may end overdamped (damping 2: an indepgen3 planar FRF, a
+    sensor-lag case, whose rigid fit ran to its damping bound). The coupled realization
+    has no second-order form there: no refinement is offered, the diagnosis goes on (it
+    raised LinAlgError out of ``diagnose`` before)."""
+    nominal, data, _, _ = _case()
+    base = decompose(nominal)
+    problem = FrfProblem(data)
+    rigid = fit(SuspensionStiffness(), problem, base)
+    theta = rigid.theta.copy()
+    theta[1] = np.log(2.0)  # the shared damping ratio
+    cs = CoupledSuspension()
+    with pytest.raises(np.linalg.LinAlgError):
+        cs.build(cs.start(theta, base), problem, base)  # the premise: no coupled form
+    assert cs.start(theta, base, problem) is None

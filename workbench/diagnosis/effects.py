@@ -36,7 +36,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from workbench.diagnosis.fit import FitResult, Realized
+from workbench.diagnosis.fit import NUMERICAL_FAILURES, FitResult, Realized
 from workbench.modal.model import ModalModel, Mode, numerators_times
 
 __all__ = [
@@ -800,7 +800,7 @@ class CoupledSuspension:
     def _sizes(self, base) -> tuple[int, int]:
         return RigidSuspension.rank(base), len(self.flexible(base))
 
-    def start(self, theta_rigid: np.ndarray, base, problem=None) -> np.ndarray:
+    def start(self, theta_rigid: np.ndarray, base, problem=None) -> np.ndarray | None:
         """The rigid suspension's theta with no coupling (the same model).
 
         With ``problem``, each coupled flexible mode's stiffening ``d_jj`` is screened
@@ -810,21 +810,35 @@ class CoupledSuspension:
         narrower than the spring moves it: from ``d = 0`` the fit does not see where it
         went (the test's chain at damping 0.002: the first flexible mode 0.36 Hz off, 2.5
         half-power widths; the coupled fit stayed at 38x the noise floor).
+
+        None (with ``problem``) when the uncoupled start has no second-order form (a mode
+        overdamped in the coupled realization: an indepgen3 planar FRF whose rigid fit
+        ended heavily damped crashed the diagnosis here); screening points without one are
+        skipped.
         """
         R, nf = self._sizes(base)
         theta = np.concatenate([np.asarray(theta_rigid, float), np.zeros(2 * R * nf + nf * nf)])
         if problem is None:
             return theta
+
+        def cost(th) -> float:
+            try:
+                return problem.cost(self.build(th, problem, base).model)
+            except NUMERICAL_FAILURES:
+                return np.inf
+
         d0 = theta.size - nf * nf  # the first entry of d
-        best = problem.cost(self.build(theta, problem, base).model)
+        best = cost(theta)
+        if not np.isfinite(best):
+            return None
         for j, k in enumerate(self.flexible(base)):
             step = max(base.modes[k].damping, MIN_STIFFENING_STEP)
             for ratio in np.exp(np.arange(step, np.log(np.sqrt(2.0)), step)):
                 trial = theta.copy()
                 trial[d0 + j * nf + j] = ratio**2 - 1
-                cost = problem.cost(self.build(trial, problem, base).model)
-                if cost < best:
-                    best, theta = cost, trial
+                c = cost(trial)
+                if c < best:
+                    best, theta = c, trial
         return theta
 
     def grid(self, problem, base):
@@ -1214,8 +1228,9 @@ def refinements(fr: FitResult, base: ModalModel, problem) -> list[tuple]:
             theta = moved
     if rigid_fit and 1 <= R <= 3 and problem.domain == "frequency":
         cs = CoupledSuspension()
-        if cs.flexible(base):
-            out.append((cs, cs.start(theta, base, problem)))
+        start = cs.start(theta, base, problem) if cs.flexible(base) else None
+        if start is not None:
+            out.append((cs, start))
     return out
 
 
