@@ -948,9 +948,11 @@ def _with_image(finding: Finding, model: ModalModel, problem) -> Finding:
         return finding
     mode = min(added, key=lambda m: abs(math.log(m.freq_hz / f0)))
     fs = problem.data.fs
+    if not 0.01 * fs < mode.freq_hz < 0.5 * fs:
+        return finding  # above Nyquist it is itself an image; near 0 its image would be at fs
     f_img = fs - mode.freq_hz
     z_img = mode.damping * mode.freq_hz / f_img
-    if z_img < IMAGE_MIN_DAMPING or f_img >= 0.99 * fs:
+    if z_img < IMAGE_MIN_DAMPING:
         return finding
     rest = replace(model, modes=tuple(m for m in model.modes if m is not mode))
     fr = fit(AliasedMode(), problem, rest, starts=[np.log([f_img, z_img])], n_starts=1)
