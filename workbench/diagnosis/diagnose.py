@@ -535,6 +535,7 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s, domain
             and nl_first is None
             and not early_tried
             and last.effect in LINEARIZED_ELEMENT
+            and not _at_time_floor(data, problem, current, cur_err)
         ):
             # a modal mismatch or a suspension may be only a port element's linearization:
             # the element on the model as given is the other explanation of the same misfit,
@@ -665,6 +666,21 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s, domain
         model=current,
         remaining=remaining,
     )
+
+
+def _at_time_floor(data, problem, model: ModalModel, err: float) -> bool:
+    """Whether ``model`` already leaves only the record's noise (periodic time records).
+
+    The early element test asks a port element on the model as given to lower the error
+    below the linear finding's by ERROR_RATIO. When the linear finding is within
+    FLOOR_RATIO of the noise floor estimated from the periods
+    (:func:`~workbench.diagnosis.detect.noise_floor`), that would take an error
+    ERROR_RATIO * FLOOR_RATIO = 0.94x the noise itself, which a few element parameters on
+    thousands of samples cannot reach: the test (hundreds of nonlinear simulations, most of
+    a stage record's diagnosis) is skipped. False where no floor can be estimated.
+    """
+    floor = detect.noise_floor(data, problem.predict(model))
+    return floor is not None and err <= FLOOR_RATIO * floor
 
 
 def _on_the_record(fr: FitResult, problem, base) -> FitResult:
