@@ -44,6 +44,7 @@ __all__ = [
     "levenberg_marquardt",
     "parameter_std",
     "screen",
+    "structure_lines",
 ]
 
 
@@ -184,17 +185,18 @@ class _Normal:
         return self.fn(theta, r)
 
 
-def _normal_equations(structure, problem, base, residual, lo, hi) -> _Normal | None:
+def _normal_equations(structure, problem, base, residual, lo, hi, lines=None) -> _Normal | None:
     """The normal equations fit() solves for ``structure``, or None for scipy's trf.
 
     A structure's ``normal_equations`` hook (analytic, the modal fit) comes first, with
     :func:`levenberg_marquardt`'s tight stops. On FRF data and a periodic record's lines
-    (``problem.domain == "frequency"``, ``FRF_SOLVER == "lm"``) every other structure: its
-    ``jacobian`` hook (analytic; it returns None where it has none for the problem: the
-    lines of a periodic record), else :func:`finite_difference_jacobian`, with scipy's
-    default stops (1e-8: what the trust-region search used, and all a difference quotient
-    resolves). Elsewhere (a record simulated in the time domain, or the reference
-    ``FRF_SOLVER == "trf"``): None.
+    (``problem.domain == "frequency"``, ``FRF_SOLVER == "lm"``) every other structure: the
+    Jacobian of its compressed residual ``lines`` (:func:`structure_lines`; then
+    ``residual`` is that compressed residual), else its ``jacobian`` hook (analytic; it
+    returns None where it has none for the problem: the lines of a periodic record), else
+    :func:`finite_difference_jacobian`, with scipy's default stops (1e-8: what the
+    trust-region search used, and all a difference quotient resolves). Elsewhere (a record
+    simulated in the time domain, or the reference ``FRF_SOLVER == "trf"``): None.
     """
     if callable(getattr(structure, "normal_equations", None)):
         return _Normal(lambda th, r: structure.normal_equations(th, problem, base, r), {})
@@ -205,12 +207,29 @@ def _normal_equations(structure, problem, base, residual, lo, hi) -> _Normal | N
     jac = getattr(structure, "jacobian", None)
 
     def normal(theta, r):
-        J = jac(theta, problem, base) if callable(jac) else None
+        if lines is not None:
+            J = lines.jacobian(theta)
+        else:
+            J = jac(theta, problem, base) if callable(jac) else None
         if J is None:
             J = finite_difference_jacobian(residual, theta, r, lo, hi)
         return J.T @ J, J.T @ r
 
     return _Normal(normal, {"ftol": 1e-8, "xtol": 1e-8, "gtol": 1e-8})
+
+
+def structure_lines(structure, problem, base):
+    """The structure's residual compressed per line on FRF data, or None.
+
+    A structure whose parameters reach an FRF's prediction only through per-line factors
+    of fixed terms (a moved mode, a delay, a lag) offers ``lines(problem, base)``: an
+    object with ``residual(theta)`` and ``jacobian(theta)`` whose norms and inner products
+    are those of ``problem.residual(structure.build(theta, ...).model)`` and of its
+    derivative (:class:`~workbench.diagnosis.problem.LineTerms`), at a fraction of the
+    cost and without building a model. :func:`screen` and :func:`fit` evaluate those.
+    """
+    fn = getattr(structure, "lines", None)
+    return fn(problem, base) if callable(fn) else None
 
 
 def finite_difference_jacobian(residual, x, r, lo, hi, *, rel_step: float = DIFF_STEP):
@@ -240,10 +259,17 @@ def screen(structure: Structure, problem, base: ModalModel) -> Screening:
     if lo.size == 0:
         return Screening(problem.cost(structure.build(np.zeros(0), problem, base).model), [])
     grid = [np.clip(np.asarray(g, float), lo, hi) for g in structure.grid(problem, base)]
+    lines = structure_lines(structure, problem, base) if grid else None
+
+    def cost(g):
+        if lines is not None:
+            return lines.cost(g)
+        return problem.cost(structure.build(g, problem, base).model)
+
     costs = []
     for g in grid:
         try:
-            costs.append(problem.cost(structure.build(g, problem, base).model))
+            costs.append(cost(g))
         except NUMERICAL_FAILURES:
             costs.append(np.inf)
     costs = np.asarray(costs, float)
@@ -309,15 +335,22 @@ def fit(
         # base, r) -> (J^T J, J^T r), or jacobian(theta, problem, base) -> J, analytic; they run
         # Levenberg-Marquardt on the normal equations. On FRF data every other structure runs
         # it too, on finite differences (a jacobian hook may return None: none for this
-        # problem); elsewhere finite differences in scipy's trust-region reflective
-        normal = _normal_equations(structure, problem, base, residual, lo, hi)
+        # problem); elsewhere finite differences in scipy's trust-region reflective. The LM
+        # path evaluates a structure's compressed residual where it has one (the reference
+        # FRF_SOLVER == "trf" keeps the model's residual)
+        lines = structure_lines(structure, problem, base) if FRF_SOLVER == "lm" else None
+        if lines is not None and lines.residual is None:
+            lines = None  # a cheap cost only (MissingMode): the model's residual is searched
+        normal = _normal_equations(structure, problem, base, residual, lo, hi, lines)
+        # the same norms and inner products as the model's residual (see structure_lines)
+        searched = lines.residual if normal is not None and lines is not None else residual
         for th0 in starts:
             th0 = np.clip(th0, lo + inner, hi - inner)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
                 if normal is not None:
                     res = levenberg_marquardt(
-                        residual, normal, th0, lo, hi, max_nfev=max_nfev, **normal.tolerances
+                        searched, normal, th0, lo, hi, max_nfev=max_nfev, **normal.tolerances
                     )
                 else:
                     res = scipy.optimize.least_squares(

@@ -28,7 +28,14 @@ from workbench.io.formats import FrfData, TimeData
 from workbench.modal.model import ModalModel, Mode
 from workbench.modal.simulate import filtered_inputs, filtered_lines
 
-__all__ = ["FrfProblem", "PeriodicProblem", "TimeProblem", "make_problem", "moving_start"]
+__all__ = [
+    "FrfProblem",
+    "LineTerms",
+    "PeriodicProblem",
+    "TimeProblem",
+    "make_problem",
+    "moving_start",
+]
 
 
 def _key(*arrays) -> tuple:
@@ -75,6 +82,70 @@ def _solve_basis(M: np.ndarray, r: np.ndarray):
     return x, std
 
 
+class LineTerms:
+    """The weighted FRF residual of a model family ``P = fixed + sum_k phi_k(f) terms_k``,
+    compressed line by line.
+
+    A structure whose parameters reach the prediction only through per-line scalar
+    factors of fixed channel terms (a moved mode: its ``1/den(s)`` times its numerator
+    through the outer factors; a delay: ``exp(-s tau)`` times the prediction; a lag on
+    one input: ``1/(1 + s tau_j)`` times that column) has at line f the weighted residual
+    ``A_f [-phi_f; 1]``, ``A_f = w_f [terms_f | G_f - fixed_f]`` (n_ch = n_y n_u rows,
+    m + 1 columns). With the thin QR ``A_f = Q_f R_f`` (orthonormal ``Q_f``) the residual
+    and every derivative of it with respect to ``phi`` keep their norms and inner products
+    as ``R_f [-phi_f; 1]``, k = min(n_ch, m + 1) complex numbers instead of n_ch: the
+    cost, ``J^T J`` and ``J^T r`` of a fit are those of :meth:`FrfProblem.residual`
+    (exact arithmetic; the QR's rounding, ~1e-16 of ``|A_f|``), an evaluation costs
+    O(n_f k m) and no model is built. The vector itself is not the residual's (its
+    entries are the ``Q_f`` coordinates): only norms and products of it are meaningful.
+
+    Parameters
+    ----------
+    problem : FrfProblem
+    fixed : (n_f, n_y, n_u) complex
+        The prediction's part that does not move.
+    terms : (m, n_f, n_y, n_u) complex
+        The terms the factors scale (outer factors, lags, coupling, delay applied).
+    """
+
+    def __init__(self, problem: FrfProblem, fixed: np.ndarray, terms: np.ndarray):
+        n_f = problem.freq.size
+        m = terms.shape[0]
+        w = problem.w.reshape(n_f, -1)
+        A = np.empty((n_f, w.shape[1], m + 1), complex)
+        A[:, :, :m] = np.moveaxis(terms.reshape(m, n_f, -1), 0, -1) * w[:, :, None]
+        A[:, :, m] = (problem.data.G - fixed).reshape(n_f, -1) * w
+        R = np.linalg.qr(A, mode="r")  # (n_f, k, m + 1), batched over the lines
+        self.terms = np.ascontiguousarray(R[:, :, :m])  # (n_f, k, m)
+        self.target = np.ascontiguousarray(R[:, :, m])  # (n_f, k)
+
+    def residual(self, phi: np.ndarray) -> np.ndarray:
+        """Compressed residual (2 n_f k,) real, for the factors ``phi`` (m, n_f) complex."""
+        if phi.shape[0] == 1:
+            r = self.target - self.terms[:, :, 0] * phi[0][:, None]
+        else:  # one small product per line (einsum's generic loop was 2-3x slower)
+            r = self.target - (self.terms @ np.ascontiguousarray(phi.T)[:, :, None])[:, :, 0]
+        return r.view(float).ravel()
+
+    def cost(self, phi: np.ndarray) -> float:
+        """Sum of squared weighted residuals, as :meth:`FrfProblem.cost` of the model."""
+        r = self.residual(phi)
+        return float(r @ r)
+
+    def jacobian(self, dphi: np.ndarray, terms: np.ndarray | None = None) -> np.ndarray:
+        """Compressed Jacobian (2 n_f k, n_theta) for ``dphi`` = d phi / d theta.
+
+        ``dphi`` (n_theta, m, n_f); or, with ``terms`` (n_theta,) term indices, (n_theta, n_f):
+        parameter t moves the factor of term ``terms[t]`` only (a mode's frequency, one
+        channel's lag), one product per column instead of m.
+        """
+        if terms is not None:
+            d = self.terms[:, :, terms] * (-dphi.T)[:, None, :]  # (n_f, k, n_theta)
+        else:
+            d = -(self.terms @ np.ascontiguousarray(dphi.transpose(2, 1, 0)))
+        return np.stack([d.real, d.imag], axis=2).reshape(-1, dphi.shape[0])
+
+
 #: cores kept by FrfProblem (each n_f n_y n_u complex), and mode sums summed directly
 CORE_CACHE = 16
 CORE_ANCHORS = 4
@@ -114,7 +185,8 @@ class FrfProblem:
         self._cache: dict = {}  # mode key -> its response
         self._core_cache: dict = {}  # (mode keys, D) -> core, oldest first
         self._anchors: dict = {}  # mode keys -> (modes, sum of responses summed directly)
-        self._linear_last = None  # (model, w2 |h|^2, w2 conj(h) e), see _linear_data
+        self._linear_last = None  # (model, w2 |h|^2, w2 conj(h) e, w2 |e|^2), see _linear_data
+        self._term_last = None  # (model, den key, M, r) of the last fit_new_term
 
     # ------------------------------------------------------------ prediction
     def _mode_response(self, m: Mode) -> np.ndarray:
@@ -204,7 +276,8 @@ class FrfProblem:
         if last is None or last[0] is not model:
             e = self.data.G - self.predict(model)
             h = model.channel_factor(self.freq)
-            last = (model, self.w2 * (h.real**2 + h.imag**2), self.w2 * np.conj(h) * e)
+            e2 = np.sum(self.w2 * (e.real**2 + e.imag**2), axis=0)  # (n_y, n_u): the cost's
+            last = (model, self.w2 * (h.real**2 + h.imag**2), self.w2 * np.conj(h) * e, e2)
             self._linear_last = last
         return last[1], last[2]
 
@@ -216,10 +289,36 @@ class FrfProblem:
         d = self.s**2 + den[0] * self.s + den[1]
         wr = np.sqrt(max(den[1], 1e-300))
         M, r = _normal_parts(np.stack([1.0 / d, self.s / (wr * d)], -1), *self._linear_data(model))
+        self._term_last = (model, _key(den), M, r)  # for added_term_cost
         x = _solve_channels(M, r)
         cov = np.linalg.inv(M + 1e-300 * np.eye(2))
         std = np.sqrt(np.abs(np.stack([cov[..., 0, 0], cov[..., 1, 1]], -1)))
         return x[..., 0], x[..., 1] / wr, std[..., 0], std[..., 1] / wr
+
+    def added_term_cost(self, model: ModalModel, den: np.ndarray, N0, N1) -> float:
+        """:meth:`cost` of ``model`` plus the mode ``(N1 s + N0) / (s^2 + den[0] s + den[1])``.
+
+        From the normal equations of :meth:`fit_new_term` (``den`` = (a1, a0), N0 and N1
+        (n_y, n_u), any values: a projected residue too): per channel ``sum_f w2 |e|^2 -
+        2 x.r + x^T M x`` with ``x = (N0, N1 sqrt(a0))``, no prediction formed (a screening
+        evaluates hundreds). Exact for a model without coupling (``T_in``, ``T_out`` None:
+        the channel factor of :meth:`fit_new_term` is then the model's outer factor); the
+        rounding is ~1e-16 of the base model's cost.
+        """
+        if model.T_in is not None or model.T_out is not None:
+            raise ValueError("added_term_cost: a model with coupling (use cost)")
+        last = self._term_last
+        if last is not None and last[0] is model and last[1] == _key(den):
+            M, r = last[2], last[3]
+        else:
+            d = self.s**2 + den[0] * self.s + den[1]
+            wr = np.sqrt(max(den[1], 1e-300))
+            phi = np.stack([1.0 / d, self.s / (wr * d)], -1)
+            M, r = _normal_parts(phi, *self._linear_data(model))
+        x = np.stack([N0, N1 * np.sqrt(max(den[1], 1e-300))], -1)  # (n_y, n_u, 2)
+        e2 = self._linear_last[3]
+        quad = np.einsum("ijp,ijpq,ijq->", x, M, x)
+        return float(np.sum(e2) - 2.0 * np.sum(x * r) + quad)
 
     def fit_upper_residual(self, model: ModalModel, den: np.ndarray):
         """Residual terms of modes above the band: D + (N1 s + N0) / den(s), jointly per channel.
@@ -278,6 +377,10 @@ class FrfProblem:
 
     def model_frf(self, model: ModalModel, freq=None) -> np.ndarray:
         return model.frf(self.freq if freq is None else freq)
+
+    def lines(self, fixed: np.ndarray, terms: np.ndarray) -> LineTerms:
+        """The residual of ``fixed + sum_k phi_k terms_k``, compressed per line (LineTerms)."""
+        return LineTerms(self, fixed, terms)
 
 
 def _peaks(freq: np.ndarray, power: np.ndarray, n: int) -> list[float]:
