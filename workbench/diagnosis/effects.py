@@ -36,7 +36,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from workbench.diagnosis.fit import NUMERICAL_FAILURES, FitResult, Realized
+from workbench.diagnosis.fit import NUMERICAL_FAILURES, FitResult, Realized, structure_lines
 from workbench.modal.model import ModalModel, Mode, numerators_times
 
 __all__ = [
@@ -287,7 +287,8 @@ class MissingMode:
         f_lo, f_hi = problem.band_hz
         return np.array([np.log(0.7 * f_lo), _LOG_Z[0]]), np.array([np.log(1.3 * f_hi), _LOG_Z[1]])
 
-    def build(self, theta, problem, base):
+    def _residue(self, theta, problem, base):
+        """The added mode's (Mode without residue, N0, N1, std N0, std N1) at theta."""
         f, z = _freq_damping(theta)
         mode = Mode("flexible", f, z, np.zeros(base.n_u), np.zeros(base.n_y))
         N0, N1, s0, s1 = problem.fit_new_term(base, mode.denominator())
@@ -296,7 +297,10 @@ class MissingMode:
         R = _weighted_rank_one(
             np.vstack([N0, w * N1]), np.vstack([s0, w * s1]), n_iter=self.rank_one_iterations
         )
-        N0, N1 = R[: base.n_y], R[base.n_y :] / w
+        return mode, R[: base.n_y], R[base.n_y :] / w, s0, s1
+
+    def build(self, theta, problem, base):
+        mode, N0, N1, s0, s1 = self._residue(theta, problem, base)
         U, S, Vt = np.linalg.svd(N0)
         c, b = U[:, 0] * np.sqrt(S[0]), Vt[0] * np.sqrt(S[0])  # c b^T ~ N0
         mode = replace(mode, b=b, c=c, N0=N0, N1=N1, effect="missing_mode")
@@ -305,20 +309,23 @@ class MissingMode:
         )
 
     def lines(self, problem, base):
-        """:class:`_Lines` with the cost only, on FRF data without coupling, else None.
-
-        The screening's cost of the added mode from the normal equations its residue was
-        solved with (:meth:`FrfProblem.added_term_cost`): no model's prediction formed.
-        """
+        """:class:`_Lines` on FRF data without coupling (else None): the added mode's cost
+        from the normal equations its residue was solved with
+        (:meth:`FrfProblem.added_term_cost`, a screening), its residual as the base's
+        misfit minus the mode (:meth:`FrfProblem.added_term_residual`, finite differences):
+        no model's prediction formed."""
         if problem.kind != "frf" or base.T_in is not None or base.T_out is not None:
             return None
 
         def cost(theta):
-            realized = self.build(theta, problem, base)
-            den = realized.model.modes[-1].denominator()
-            return problem.added_term_cost(base, den, realized.linear["N0"], realized.linear["N1"])
+            mode, N0, N1, _, _ = self._residue(theta, problem, base)
+            return problem.added_term_cost(base, mode.denominator(), N0, N1)
 
-        return _Lines(cost=cost)
+        def residual(theta):
+            mode, N0, N1, _, _ = self._residue(theta, problem, base)
+            return problem.added_term_residual(base, replace(mode, N0=N0, N1=N1))
+
+        return _Lines(residual=residual, cost=cost)
 
     def n_linear(self, base):
         return 2 * base.n_y * base.n_u
@@ -1234,7 +1241,7 @@ class _Lag:
         # lags on some channels only: the best level per channel alone, then combined
         best = np.zeros(n)
         cost0 = problem.cost(base)
-        lines = self.lines(problem, base)
+        lines = structure_lines(self, problem, base)
         for j in range(n):
             costs = []
             for a in levels:

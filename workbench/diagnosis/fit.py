@@ -192,7 +192,8 @@ def _normal_equations(structure, problem, base, residual, lo, hi, lines=None) ->
     :func:`levenberg_marquardt`'s tight stops. On FRF data and a periodic record's lines
     (``problem.domain == "frequency"``, ``FRF_SOLVER == "lm"``) every other structure: the
     Jacobian of its compressed residual ``lines`` (:func:`structure_lines`; then
-    ``residual`` is that compressed residual), else its ``jacobian`` hook (analytic; it
+    ``residual`` evaluates it; differences of it where it has no Jacobian), else its
+    ``jacobian`` hook (analytic; it
     returns None where it has none for the problem: the lines of a periodic record), else
     :func:`finite_difference_jacobian`, with scipy's default stops (1e-8: what the
     trust-region search used, and all a difference quotient resolves). Elsewhere (a record
@@ -207,8 +208,8 @@ def _normal_equations(structure, problem, base, residual, lo, hi, lines=None) ->
     jac = getattr(structure, "jacobian", None)
 
     def normal(theta, r):
-        if lines is not None:
-            J = lines.jacobian(theta)
+        if lines is not None:  # its Jacobian, or differences of its residual
+            J = lines.jacobian(theta) if lines.jacobian is not None else None
         else:
             J = jac(theta, problem, base) if callable(jac) else None
         if J is None:
@@ -229,7 +230,21 @@ def structure_lines(structure, problem, base):
     cost and without building a model. :func:`screen` and :func:`fit` evaluate those.
     """
     fn = getattr(structure, "lines", None)
-    return fn(problem, base) if callable(fn) else None
+    if not callable(fn):
+        return None
+    # kept on the problem for its base: a screening, the grid it screens and the fit from
+    # it ask for the same structure on the same base (each a QR per line)
+    cache = getattr(problem, "lines_cache", None)
+    if cache is None:
+        return fn(problem, base)
+    key = (structure, id(base))
+    hit = cache.get(key)
+    if hit is not None and hit[0] is base:
+        return hit[1]
+    if len(cache) >= 32:
+        cache.clear()
+    cache[key] = (base, fn(problem, base))
+    return cache[key][1]
 
 
 def finite_difference_jacobian(residual, x, r, lo, hi, *, rel_step: float = DIFF_STEP):
@@ -305,18 +320,25 @@ def fit(
         Residual evaluations per refinement.
     """
 
-    infeasible: list[np.ndarray] = []
+    infeasible: list[float] = []
+    # what the search evaluates: the model's residual, or the structure's lines (below)
+    evaluate = [lambda th: problem.residual(structure.build(th, problem, base).model)]
+    size = [problem.n_obs]
 
     def residual(theta):
         try:
-            return problem.residual(structure.build(theta, problem, base).model)
+            r = evaluate[0](theta)
+            size[0] = r.size
+            return r
         except NUMERICAL_FAILURES:
             # a trial point the structure cannot realize (an overdamped coupled mode): a
             # residual far above the start's, so the trust region rejects the step and shrinks
+            # (the model's residual and a structure's lines share its norm, see
+            # structure_lines; a compressed one is not size n_obs: the fill takes its size)
             if not infeasible:
                 r0 = problem.residual(base)
-                infeasible.append(np.full(r0.shape, 1e3 * max(np.sqrt(np.mean(r0**2)), 1e-150)))
-            return infeasible[0]
+                infeasible.append(1e3 * max(np.sqrt(np.mean(r0**2)), 1e-150))
+            return np.full(size[0], infeasible[0])
 
     lo, hi = (np.asarray(b, float) for b in structure.bounds(problem, base))
     n_theta = lo.size
@@ -340,17 +362,18 @@ def fit(
         # FRF_SOLVER == "trf" keeps the model's residual)
         lines = structure_lines(structure, problem, base) if FRF_SOLVER == "lm" else None
         if lines is not None and lines.residual is None:
-            lines = None  # a cheap cost only (MissingMode): the model's residual is searched
+            lines = None  # a cheap cost only: the model's residual is searched
         normal = _normal_equations(structure, problem, base, residual, lo, hi, lines)
-        # the same norms and inner products as the model's residual (see structure_lines)
-        searched = lines.residual if normal is not None and lines is not None else residual
+        if normal is not None and lines is not None:
+            # the same norms and inner products as the model's residual (structure_lines)
+            evaluate[0] = lines.residual
         for th0 in starts:
             th0 = np.clip(th0, lo + inner, hi - inner)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
                 if normal is not None:
                     res = levenberg_marquardt(
-                        searched, normal, th0, lo, hi, max_nfev=max_nfev, **normal.tolerances
+                        residual, normal, th0, lo, hi, max_nfev=max_nfev, **normal.tolerances
                     )
                 else:
                     res = scipy.optimize.least_squares(

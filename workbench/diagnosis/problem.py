@@ -187,6 +187,8 @@ class FrfProblem:
         self._anchors: dict = {}  # mode keys -> (modes, sum of responses summed directly)
         self._linear_last = None  # (model, w2 |h|^2, w2 conj(h) e, w2 |e|^2), see _linear_data
         self._term_last = None  # (model, den key, M, r) of the last fit_new_term
+        self._added_last = None  # (model, w e, w h), see added_term_residual
+        self.lines_cache: dict = {}  # (structure, id(base)) -> (base, its lines), structure_lines
 
     # ------------------------------------------------------------ prediction
     def _mode_response(self, m: Mode) -> np.ndarray:
@@ -319,6 +321,26 @@ class FrfProblem:
         e2 = self._linear_last[3]
         quad = np.einsum("ijp,ijpq,ijq->", x, M, x)
         return float(np.sum(e2) - 2.0 * np.sum(x * r) + quad)
+
+    def added_term_residual(self, model: ModalModel, mode: Mode) -> np.ndarray:
+        """:meth:`residual` of ``model`` with ``mode`` appended, (n_obs,).
+
+        The model's weighted misfit minus the mode's response through the channel factor
+        (both kept for the last model asked: a fit adds hundreds of trial modes to one
+        model), no prediction formed. Exact for a model without coupling (``T_in``,
+        ``T_out`` None); rounding ~1e-16 of the model's misfit.
+        """
+        if model.T_in is not None or model.T_out is not None:
+            raise ValueError("added_term_residual: a model with coupling (use residual)")
+        last = self._added_last
+        if last is None or last[0] is not model:
+            ew = (self.data.G - self.predict(model)) * self.w
+            last = (model, ew, self.w * model.channel_factor(self.freq))
+            self._added_last = last
+        r = mode.response(self.s)
+        r *= last[2]
+        np.subtract(last[1], r, out=r)
+        return r.view(float).ravel()
 
     def fit_upper_residual(self, model: ModalModel, den: np.ndarray):
         """Residual terms of modes above the band: D + (N1 s + N0) / den(s), jointly per channel.
