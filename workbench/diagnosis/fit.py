@@ -257,12 +257,12 @@ def finite_difference_jacobian(residual, x, r, lo, hi, *, rel_step: float = DIFF
     h = rel_step * np.where(x >= 0, 1.0, -1.0) * np.maximum(1.0, np.abs(x))
     out = (x + h < lo) | (x + h > hi)
     h = np.where(out & (x - h >= lo) & (x - h <= hi), -h, h)
-    J = np.empty((np.size(r), x.size))
+    J = np.empty((x.size, np.size(r)))  # filled by rows: a column of a C-order J is strided
     for i in range(x.size):
         xi = x.copy()
         xi[i] += h[i]
-        J[:, i] = (residual(xi) - r) / (xi[i] - x[i])
-    return J
+        J[i] = (residual(xi) - r) / (xi[i] - x[i])
+    return J.T
 
 
 def screen(structure: Structure, problem, base: ModalModel) -> Screening:

@@ -185,7 +185,8 @@ class FrfProblem:
         self._cache: dict = {}  # mode key -> its response
         self._core_cache: dict = {}  # (mode keys, D) -> core, oldest first
         self._anchors: dict = {}  # mode keys -> (modes, sum of responses summed directly)
-        self._linear_last = None  # (model, w2 |h|^2, w2 conj(h) e, w2 |e|^2), see _linear_data
+        self._linear_last = None  # [model, w2 |h|^2, w2 conj(h) e, w2 |e|^2, e], _linear_data
+        self._factors: dict = {}  # (delay, lags) -> channel factor, see _channel_factor
         self._term_last = None  # (model, den key, M, r) of the last fit_new_term
         self._added_last = None  # (model, w e, w h), see added_term_residual
         self.lines_cache: dict = {}  # (structure, id(base)) -> (base, its lines), structure_lines
@@ -246,7 +247,12 @@ class FrfProblem:
 
     def predict(self, model: ModalModel) -> np.ndarray:
         """Model FRF at the measured lines, (n_f, n_y, n_u)."""
-        return model.outer(self.freq, self.core(model))
+        G = self.core(model)
+        if model.T_in is None and model.T_out is None:
+            if model.delay_s or np.any(model.lags("in")) or np.any(model.lags("out")):
+                # the outer factor is per channel: one product with the kept factor
+                return G * self._channel_factor(model)
+        return model.outer(self.freq, G)
 
     def residual(self, model: ModalModel) -> np.ndarray:
         e = self.data.G - self.predict(model)
@@ -270,6 +276,19 @@ class FrfProblem:
         return np.sum(e.real**2 + e.imag**2, axis=(1, 2))
 
     # --------------------------------------------------------- linear parts
+    def _channel_factor(self, model: ModalModel) -> np.ndarray:
+        """``model.channel_factor`` at the lines, (n_f, n_y, n_u), read-only, kept by the
+        delay and lags (a joint refit's linear parts see the same lags hundreds of times)."""
+        k = _key([model.delay_s], model.lags("in"), model.lags("out"))
+        h = self._factors.get(k)
+        if h is None:
+            h = model.channel_factor(self.freq)
+            h.flags.writeable = False
+            if len(self._factors) >= 8:
+                self._factors.pop(next(iter(self._factors)))
+            self._factors[k] = h
+        return h
+
     def _linear_data(self, model: ModalModel):
         """``(w2 |h|^2, w2 conj(h) e)`` of the misfit ``e`` and channel factor ``h`` of
         ``model`` (:func:`_normal_parts`), kept for the last model asked (a grid screens
@@ -277,9 +296,9 @@ class FrfProblem:
         last = self._linear_last
         if last is None or last[0] is not model:
             e = self.data.G - self.predict(model)
-            h = model.channel_factor(self.freq)
-            e2 = np.sum(self.w2 * (e.real**2 + e.imag**2), axis=0)  # (n_y, n_u): the cost's
-            last = (model, self.w2 * (h.real**2 + h.imag**2), self.w2 * np.conj(h) * e, e2)
+            h = self._channel_factor(model)
+            # the per-channel cost w2 |e|^2 (added_term_cost) is summed when first asked
+            last = [model, self.w2 * (h.real**2 + h.imag**2), self.w2 * np.conj(h) * e, None, e]
             self._linear_last = last
         return last[1], last[2]
 
@@ -309,6 +328,7 @@ class FrfProblem:
         """
         if model.T_in is not None or model.T_out is not None:
             raise ValueError("added_term_cost: a model with coupling (use cost)")
+        self._linear_data(model)  # the misfit below is this model's
         last = self._term_last
         if last is not None and last[0] is model and last[1] == _key(den):
             M, r = last[2], last[3]
@@ -318,7 +338,11 @@ class FrfProblem:
             phi = np.stack([1.0 / d, self.s / (wr * d)], -1)
             M, r = _normal_parts(phi, *self._linear_data(model))
         x = np.stack([N0, N1 * np.sqrt(max(den[1], 1e-300))], -1)  # (n_y, n_u, 2)
-        e2 = self._linear_last[3]
+        last = self._linear_last
+        if last[3] is None:
+            e = last[4]
+            last[3] = np.sum(self.w2 * (e.real**2 + e.imag**2), axis=0)  # (n_y, n_u)
+        e2 = last[3]
         quad = np.einsum("ijp,ijpq,ijq->", x, M, x)
         return float(np.sum(e2) - 2.0 * np.sum(x * r) + quad)
 
@@ -335,7 +359,7 @@ class FrfProblem:
         last = self._added_last
         if last is None or last[0] is not model:
             ew = (self.data.G - self.predict(model)) * self.w
-            last = (model, ew, self.w * model.channel_factor(self.freq))
+            last = (model, ew, self.w * self._channel_factor(model))
             self._added_last = last
         r = mode.response(self.s)
         r *= last[2]
@@ -360,7 +384,7 @@ class FrfProblem:
     def fit_feedthrough(self, model: ModalModel):
         """Real matrix added to D, per channel; returns dD and its std (unit noise scale)."""
         e = self.data.G - self.predict(model)
-        h = model.channel_factor(self.freq)
+        h = self._channel_factor(model)
         m = np.sum(self.w2 * np.abs(h) ** 2, axis=0)
         r = np.sum(self.w2 * (np.conj(h) * e).real, axis=0)
         return r / m, 1.0 / np.sqrt(m)
