@@ -1179,11 +1179,29 @@ class UpperResidual:
             np.array([np.log(_UPPER_RANGE[1] * f_hi), _LOG_Z[1]]),
         )
 
-    def build(self, theta, problem, base):
+    def _term(self, theta, problem, base):
+        """The pseudo-mode (its residue solved) and dD at theta, their std (unit noise)."""
         f, z = _freq_damping(theta)
         mode = Mode("flexible", f, z, np.zeros(base.n_u), np.zeros(base.n_y))
         dD, N0, N1, sD, s0, s1 = problem.fit_upper_residual(base, mode.denominator())
-        mode = replace(mode, N0=N0, N1=N1, effect="upper_residual")
+        return replace(mode, N0=N0, N1=N1, effect="upper_residual"), dD, sD, s0, s1
+
+    def lines(self, problem, base):
+        """:class:`_Lines` on FRF data without coupling (else None): the residual as the
+        base's misfit minus the pseudo-mode and dD (:meth:`FrfProblem.added_term_residual`,
+        no model's prediction formed)."""
+        if problem.kind != "frf" or base.T_in is not None or base.T_out is not None:
+            return None
+
+        def residual(theta):
+            mode, dD, *_ = self._term(theta, problem, base)
+            return problem.added_term_residual(base, mode, dD)
+
+        return _Lines(residual=residual)
+
+    def build(self, theta, problem, base):
+        mode, dD, sD, s0, s1 = self._term(theta, problem, base)
+        N0, N1 = mode.N0, mode.N1
         static = dD + N0 / mode.omega**2
         new = replace(base, D=base.D + dD, modes=base.modes + (mode,))
         return Realized(

@@ -117,12 +117,13 @@ class LineTerms:
         A[:, :, m] = (problem.data.G - fixed).reshape(n_f, -1) * w
         R = np.linalg.qr(A, mode="r")  # (n_f, k, m + 1), batched over the lines
         self.terms = np.ascontiguousarray(R[:, :, :m])  # (n_f, k, m)
+        self.by_term = np.ascontiguousarray(np.moveaxis(R[:, :, :m], -1, 0))  # (m, n_f, k)
         self.target = np.ascontiguousarray(R[:, :, m])  # (n_f, k)
 
     def residual(self, phi: np.ndarray) -> np.ndarray:
         """Compressed residual (2 n_f k,) real, for the factors ``phi`` (m, n_f) complex."""
         if phi.shape[0] == 1:
-            r = self.target - self.terms[:, :, 0] * phi[0][:, None]
+            r = self.target - self.by_term[0] * phi[0][:, None]
         else:  # one small product per line (einsum's generic loop was 2-3x slower)
             r = self.target - (self.terms @ np.ascontiguousarray(phi.T)[:, :, None])[:, :, 0]
         return r.view(float).ravel()
@@ -139,11 +140,15 @@ class LineTerms:
         parameter t moves the factor of term ``terms[t]`` only (a mode's frequency, one
         channel's lag), one product per column instead of m.
         """
-        if terms is not None:
-            d = self.terms[:, :, terms] * (-dphi.T)[:, None, :]  # (n_f, k, n_theta)
-        else:
-            d = -(self.terms @ np.ascontiguousarray(dphi.transpose(2, 1, 0)))
-        return np.stack([d.real, d.imag], axis=2).reshape(-1, dphi.shape[0])
+        # built as J^T, one row per parameter laid out as residual() lays out its vector
+        n_theta = dphi.shape[0]
+        Jt = np.empty((n_theta,) + self.target.shape, complex)  # (n_theta, n_f, k)
+        for t in range(n_theta):
+            if terms is not None:
+                np.multiply(self.by_term[terms[t]], -dphi[t][:, None], out=Jt[t])
+            else:
+                Jt[t] = -(self.terms @ dphi[t].T[:, :, None])[:, :, 0]
+        return Jt.view(float).reshape(n_theta, -1).T
 
 
 #: cores kept by FrfProblem (each n_f n_y n_u complex), and mode sums summed directly
@@ -346,8 +351,9 @@ class FrfProblem:
         quad = np.einsum("ijp,ijpq,ijq->", x, M, x)
         return float(np.sum(e2) - 2.0 * np.sum(x * r) + quad)
 
-    def added_term_residual(self, model: ModalModel, mode: Mode) -> np.ndarray:
-        """:meth:`residual` of ``model`` with ``mode`` appended, (n_obs,).
+    def added_term_residual(self, model: ModalModel, mode: Mode, dD=None) -> np.ndarray:
+        """:meth:`residual` of ``model`` with ``mode`` appended (and ``dD`` (n_y, n_u) added
+        to its D), (n_obs,).
 
         The model's weighted misfit minus the mode's response through the channel factor
         (both kept for the last model asked: a fit adds hundreds of trial modes to one
@@ -362,6 +368,8 @@ class FrfProblem:
             last = (model, ew, self.w * self._channel_factor(model))
             self._added_last = last
         r = mode.response(self.s)
+        if dD is not None:
+            r += dD
         r *= last[2]
         np.subtract(last[1], r, out=r)
         return r.view(float).ravel()
