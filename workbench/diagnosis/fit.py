@@ -15,6 +15,13 @@ evaluation by the problem's closed-form linear fits (variable projection,
 Golub & Pereyra 1973). Start points come from a coarse grid of ``theta``
 evaluated by the same projected cost.
 
+On FRF data a structure may offer ``lines(problem, base)`` (:func:`structure_lines`): the
+same cost, residual norms and normal equations without building a model per evaluation
+(a moved mode, a delay or a lag scales fixed terms by per-line factors:
+:class:`~workbench.diagnosis.problem.LineTerms` compresses each line's residual to a
+handful of numbers by a QR; an added mode or pseudo-mode is the base's misfit minus
+the term). Screening and refinement evaluate those; the result is evaluated on the model.
+
 Data flow::
 
     Structure.grid ──> cost on the grid ──> best starts ──> least_squares
