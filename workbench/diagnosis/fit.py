@@ -244,14 +244,14 @@ def structure_lines(structure, problem, base):
     cache = getattr(problem, "lines_cache", None)
     if cache is None:
         return fn(problem, base)
-    key = (structure, id(base))
+    key = (id(structure), id(base))
     hit = cache.get(key)
-    if hit is not None and hit[0] is base:
-        return hit[1]
+    if hit is not None and hit[0] is structure and hit[1] is base:
+        return hit[2]
     if len(cache) >= 32:
         cache.clear()
-    cache[key] = (base, fn(problem, base))
-    return cache[key][1]
+    cache[key] = (structure, base, fn(problem, base))
+    return cache[key][2]
 
 
 def finite_difference_jacobian(residual, x, r, lo, hi, *, rel_step: float = DIFF_STEP):
@@ -603,6 +603,7 @@ class Composite:
     bases: tuple
     effect: str = "composite"
     theta_names: tuple[str, ...] = ()
+    _last: list = field(default_factory=list, compare=False, repr=False)  # see chain
 
     def _sizes(self, problem) -> list[int]:
         return [len(p.bounds(problem, b)[0]) for p, b in zip(self.parts, self.bases)]
@@ -623,11 +624,24 @@ class Composite:
         return out
 
     def chain(self, theta, problem, base) -> list[Realized]:
-        """Realized model after each part."""
+        """Realized model after each part.
+
+        The parts up to the first whose theta differs from the last chain's are reused
+        (same input model, same values: the same Realized): a finite-difference column of
+        a later part rebuilds only from it, and the rebuilt part sees the same model object
+        (the problem's caches of that model's misfit then hold).
+        """
         out = []
         model = base
-        for part, th in zip(self.parts, self.split(theta, problem)):
-            r = part.build(th, problem, model)
+        last = self._last  # [(part's theta bytes, its input model, Realized)]
+        for i, (part, th) in enumerate(zip(self.parts, self.split(theta, problem))):
+            key = th.tobytes()
+            if i < len(last) and last[i][0] == key and last[i][1] is model:
+                r = last[i][2]
+            else:
+                r = part.build(th, problem, model)
+                del last[i:]
+                last.append((key, model, r))
             out.append(r)
             model = r.model
         return out
@@ -635,8 +649,36 @@ class Composite:
     def build(self, theta, problem, base):
         return self.chain(theta, problem, base)[-1]
 
+    def lines(self, problem, base):
+        """On FRF data: the residual as the model before the last part minus what the last
+        part appended (:meth:`FrfProblem.appended_residual`: an added mode or pseudo-mode,
+        the model's residual otherwise), in the residual's own layout; else None."""
+        if getattr(problem, "kind", "") != "frf" or not hasattr(problem, "appended_residual"):
+            return None
+
+        def residual(theta):
+            chain = self.chain(theta, problem, base)
+            before = chain[-2].model if len(chain) > 1 else base
+            return problem.appended_residual(chain[-1].model, before)
+
+        return _Residual(residual)
+
     def n_linear(self, base):
         return sum(p.n_linear(b) for p, b in zip(self.parts, self.bases))
+
+
+class _Residual:
+    """Lines (:func:`structure_lines`) with a residual in the model residual's own layout
+    and no Jacobian (finite differences of it)."""
+
+    jacobian = None
+
+    def __init__(self, residual):
+        self.residual = residual
+
+    def cost(self, theta) -> float:
+        r = self.residual(theta)
+        return float(r @ r)
 
 
 #: order in which effects are stacked in a joint fit: the outer factors first, so that the

@@ -194,7 +194,7 @@ class FrfProblem:
         self._factors: dict = {}  # (delay, lags) -> channel factor, see _channel_factor
         self._term_last = None  # (model, den key, M, r) of the last fit_new_term
         self._added_last = None  # (model, w e, w h), see added_term_residual
-        self.lines_cache: dict = {}  # (structure, id(base)) -> (base, its lines), structure_lines
+        self.lines_cache: dict = {}  # ids -> (structure, base, its lines), see structure_lines
 
     # ------------------------------------------------------------ prediction
     def _mode_response(self, m: Mode) -> np.ndarray:
@@ -351,6 +351,28 @@ class FrfProblem:
         quad = np.einsum("ijp,ijpq,ijq->", x, M, x)
         return float(np.sum(e2) - 2.0 * np.sum(x * r) + quad)
 
+    def appended_residual(self, model: ModalModel, parent: ModalModel) -> np.ndarray:
+        """:meth:`residual` of ``model``, formed from ``parent`` where ``model`` is ``parent``
+        with one mode appended (and its D changed), the outer factors the same and no
+        coupling (:meth:`added_term_residual`); directly otherwise."""
+        same_outer = (
+            model.T_in is None
+            and model.T_out is None
+            and parent.T_in is None
+            and parent.T_out is None
+            and model.delay_s == parent.delay_s
+            and np.array_equal(model.lags("in"), parent.lags("in"))
+            and np.array_equal(model.lags("out"), parent.lags("out"))
+        )
+        n = len(parent.modes)
+        if (
+            same_outer
+            and len(model.modes) == n + 1
+            and all(a is b for a, b in zip(model.modes, parent.modes))
+        ):
+            return self.added_term_residual(parent, model.modes[-1], model.D - parent.D)
+        return self.residual(model)
+
     def added_term_residual(self, model: ModalModel, mode: Mode, dD=None) -> np.ndarray:
         """:meth:`residual` of ``model`` with ``mode`` appended (and ``dD`` (n_y, n_u) added
         to its D), (n_obs,).
@@ -364,8 +386,9 @@ class FrfProblem:
             raise ValueError("added_term_residual: a model with coupling (use residual)")
         last = self._added_last
         if last is None or last[0] is not model:
-            ew = (self.data.G - self.predict(model)) * self.w
-            last = (model, ew, self.w * self._channel_factor(model))
+            lin = self._linear_last  # the misfit a linear fit on this model formed, if any
+            e = lin[4] if lin is not None and lin[0] is model else self.data.G - self.predict(model)
+            last = (model, e * self.w, self.w * self._channel_factor(model))
             self._added_last = last
         r = mode.response(self.s)
         if dD is not None:
