@@ -1,6 +1,8 @@
 """The FRF diagnosis's fast paths against independent oracles.
 
 - every analytic structure Jacobian against central differences of the residual;
+- every structure's residual compressed per line (``lines``) against the model's residual:
+  the cost and the normal equations;
 - the cached / anchor-derived core response against the model's own direct sum;
 - the added-term linear fits against a per-channel ``numpy.linalg.lstsq``;
 - Levenberg-Marquardt on finite-difference normal equations against scipy's trust-region
@@ -19,13 +21,16 @@ from test_diagnose_gen import beam, beam_params, frf_case, stage, stage_params
 import workbench.diagnosis.fit as fit_engine
 from workbench.diagnosis.effects import (
     ActuatorDynamics,
+    MissingMode,
     ModalMismatch,
     ModalModes,
     ModalPattern,
     SensorDynamics,
     SuspensionStiffness,
     TimeDelay,
+    UpperResidual,
 )
+from workbench.diagnosis.fit import structure_lines
 from workbench.diagnosis.modal import decompose
 from workbench.diagnosis.problem import FrfProblem
 
@@ -84,6 +89,42 @@ def test_analytic_jacobians_match_central_differences(plant, params):
         assert J.shape == Jc.shape == (problem.n_obs, theta.size)
         err = np.max(np.abs(J - Jc)) / np.max(np.abs(Jc))
         assert err < 1e-5, (type(s).__name__, err)
+
+
+@pytest.mark.parametrize("plant,params", [(stage, stage_params), (beam, beam_params)])
+def test_lines_match_the_model_residual(plant, params):
+    """A structure's lines: the model's cost, J^T J and J^T r (where it has a Jacobian)."""
+    problem, base0 = _problem(plant, params, "modal_mismatch")
+    for base in (base0, _with_outer(base0, T_in=False, T_out=True)):
+        structures = [TimeDelay(), ActuatorDynamics(), ModalPattern(), ModalModes()]
+        structures += [
+            ModalMismatch(index=k) for k, m in enumerate(base.modes) if m.kind == "flexible"
+        ]
+        if any(m.kind == "rigid" for m in base.modes):
+            structures.append(SuspensionStiffness())
+        if base.T_out is None:  # the added terms and the output lags: no output coupling
+            structures += [SensorDynamics(), MissingMode(), UpperResidual()]
+        for s in structures:
+            lines = structure_lines(s, problem, base)
+            lo, hi = s.bounds(problem, base)
+            grid = s.grid(problem, base)
+            for g in grid[:: max(1, len(grid) // 3)]:
+                g = np.clip(np.asarray(g, float), lo, hi)
+                r = problem.residual(s.build(g, problem, base).model)
+                assert abs(lines.cost(g) / (r @ r) - 1) < 1e-12, type(s).__name__
+                if lines.jacobian is None:
+                    continue
+                rc, Jc, J = lines.residual(g), lines.jacobian(g), s.jacobian(g, problem, base)
+                scale = np.max(np.abs(J.T @ J))
+                assert np.max(np.abs(Jc.T @ Jc - J.T @ J)) < 1e-12 * scale, type(s).__name__
+                assert np.allclose(
+                    Jc.T @ rc, J.T @ r, rtol=0, atol=1e-12 * np.sqrt(scale * (r @ r))
+                )
+    # coupling on the lags' side or with an added term: no lines (the model's residual)
+    coupled = _with_outer(base0, T_in=True, T_out=True)
+    for s in (ActuatorDynamics(), SensorDynamics(), MissingMode(), UpperResidual()):
+        assert structure_lines(s, problem, coupled) is None
+    assert structure_lines(TimeDelay(), SimpleNamespace(kind="time"), base0) is None
 
 
 def test_jacobians_step_aside_where_they_do_not_apply():

@@ -36,7 +36,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from workbench.diagnosis.fit import NUMERICAL_FAILURES, FitResult, Realized
+from workbench.diagnosis.fit import NUMERICAL_FAILURES, FitResult, Realized, structure_lines
 from workbench.modal.model import ModalModel, Mode, numerators_times
 
 __all__ = [
@@ -95,6 +95,88 @@ def _residual_columns(problem, model: ModalModel, dcores: list) -> np.ndarray:
         dr = model.outer(problem.freq, dG) * problem.w
         J[:, i] = -dr.view(float).ravel()
     return J
+
+
+class _Lines:
+    """What a structure's ``lines(problem, base)`` returns on FRF data (see
+    :func:`~workbench.diagnosis.fit.structure_lines`): ``cost(theta)``, the cost of
+    ``build(theta).model``; and, where the residual compresses per line
+    (:class:`~workbench.diagnosis.problem.LineTerms`), ``residual(theta)`` and
+    ``jacobian(theta)``, norms and inner products those of the model's residual and of
+    its derivative (else None)."""
+
+    def __init__(self, residual=None, jacobian=None, cost=None):
+        self.residual = residual
+        self.jacobian = jacobian
+        self._cost = cost
+
+    def cost(self, theta) -> float:
+        if self._cost is not None:
+            return self._cost(theta)
+        r = self.residual(theta)
+        return float(r @ r)
+
+
+class _MovedModes:
+    """The modes ``ks`` of ``base`` at other frequencies and dampings, residues kept, on FRF data.
+
+    Mode k contributes ``outer(N0_k + s N1_k) / den_k(s)`` (the outer factors are linear
+    and per line): fixed terms times the per-line factor ``1/den_k``, the form
+    :class:`~workbench.diagnosis.problem.LineTerms` compresses. ``f`` (m,) Hz and ``z``
+    (m,) of :meth:`residual` and :meth:`jacobian` are the moved modes' values, as
+    :meth:`Mode.moved` takes them.
+    """
+
+    def __init__(self, problem, base: ModalModel, ks: list[int]):
+        s = problem.s
+        ones = np.ones(s.size, complex)
+        terms = np.stack(
+            [base.outer(problem.freq, base.modes[k].numerator_times(s, ones)) for k in ks]
+        )
+        dens = np.stack([base.modes[k].den(s) for k in ks])  # (m, n_f)
+        fixed = problem.predict(base) - np.einsum("mfyu,mf->fyu", terms, 1.0 / dens)
+        self.lines = problem.lines(fixed, terms)
+        self.s = s
+
+    def _den(self, f, z):
+        w = 2 * np.pi * np.asarray(f, float)[:, None]
+        z = np.asarray(z, float)[:, None]
+        return self.s**2 + 2 * z * w * self.s + w**2, z, w
+
+    def residual(self, f, z) -> np.ndarray:
+        return self.lines.residual(1.0 / self._den(f, z)[0])
+
+    def _factors(self, f, z):
+        """d(1/den) / d ln f and / d ln z, (m, n_f) each (as :func:`_den_factors`)."""
+        den, z, w = self._den(f, z)
+        den2 = den**2
+        d_lnz = 2 * z * w * self.s
+        return -(d_lnz + 2 * w * w) / den2, -d_lnz / den2
+
+    def jacobian(self, f, z, dlnf: np.ndarray, dlnz: np.ndarray) -> np.ndarray:
+        """Columns for ``dlnf``, ``dlnz`` (n_theta, m): d ln f_k / d theta, d ln z_k / d theta."""
+        phi_f, phi_z = self._factors(f, z)
+        dphi = dlnf[:, :, None] * phi_f[None] + dlnz[:, :, None] * phi_z[None]
+        return self.lines.jacobian(dphi)
+
+    def jacobian_per_mode(self, f, z) -> np.ndarray:
+        """Columns for theta = (ln f_1 .. ln f_m, ln z_1 .. ln z_m), each moving its own mode."""
+        phi_f, phi_z = self._factors(f, z)
+        m = phi_f.shape[0]
+        return self.lines.jacobian(np.vstack([phi_f, phi_z]), np.tile(np.arange(m), 2))
+
+
+def _moved_mode_lines(problem, base: ModalModel, k: int) -> _Lines | None:
+    """:class:`_Lines` of theta = (ln f, ln z) of mode ``k`` (ModalMismatch, a suspension)."""
+    if problem.kind != "frf" or base.modes[k].kind == "real":
+        return None
+    mm = _MovedModes(problem, base, [k])
+
+    def fz(theta):
+        f, z = _freq_damping(theta)
+        return [f], [z]
+
+    return _Lines(lambda th: mm.residual(*fz(th)), lambda th: mm.jacobian_per_mode(*fz(th)))
 
 
 def _mode_std(fr: FitResult) -> tuple[float, float, float, float]:
@@ -168,6 +250,21 @@ class TimeDelay:
         dr = P * (problem.s * 1e-3)[:, None, None] * problem.w  # -(-s 1e-3 P) w
         return dr.view(float).reshape(-1, 1)
 
+    def lines(self, problem, base):
+        """:class:`_Lines` on FRF data: the prediction times ``exp(-s theta 1e-3)``; else None."""
+        if problem.kind != "frf":
+            return None
+        lines = problem.lines(np.zeros_like(problem.data.G), problem.predict(base)[None])
+        s = problem.s * 1e-3
+
+        def phi(theta):
+            return np.exp(-s * theta[0])[None]
+
+        return _Lines(
+            lambda th: lines.residual(phi(th)),
+            lambda th: lines.jacobian((-s * phi(th))[None]),
+        )
+
     def report(self, fr, problem, base):
         return {"delay_s": float(fr.theta[0] * 1e-3)}, {"delay_s": float(fr.theta_std[0] * 1e-3)}
 
@@ -190,7 +287,8 @@ class MissingMode:
         f_lo, f_hi = problem.band_hz
         return np.array([np.log(0.7 * f_lo), _LOG_Z[0]]), np.array([np.log(1.3 * f_hi), _LOG_Z[1]])
 
-    def build(self, theta, problem, base):
+    def _residue(self, theta, problem, base):
+        """The added mode's (Mode without residue, N0, N1, std N0, std N1) at theta."""
         f, z = _freq_damping(theta)
         mode = Mode("flexible", f, z, np.zeros(base.n_u), np.zeros(base.n_y))
         N0, N1, s0, s1 = problem.fit_new_term(base, mode.denominator())
@@ -199,13 +297,35 @@ class MissingMode:
         R = _weighted_rank_one(
             np.vstack([N0, w * N1]), np.vstack([s0, w * s1]), n_iter=self.rank_one_iterations
         )
-        N0, N1 = R[: base.n_y], R[base.n_y :] / w
+        return mode, R[: base.n_y], R[base.n_y :] / w, s0, s1
+
+    def build(self, theta, problem, base):
+        mode, N0, N1, s0, s1 = self._residue(theta, problem, base)
         U, S, Vt = np.linalg.svd(N0)
         c, b = U[:, 0] * np.sqrt(S[0]), Vt[0] * np.sqrt(S[0])  # c b^T ~ N0
         mode = replace(mode, b=b, c=c, N0=N0, N1=N1, effect="missing_mode")
         return Realized(
             replace(base, modes=base.modes + (mode,)), {"N0": N0, "N1": N1}, {"N0": s0, "N1": s1}
         )
+
+    def lines(self, problem, base):
+        """:class:`_Lines` on FRF data without coupling (else None): the added mode's cost
+        from the normal equations its residue was solved with
+        (:meth:`FrfProblem.added_term_cost`, a screening), its residual as the base's
+        misfit minus the mode (:meth:`FrfProblem.added_term_residual`, finite differences):
+        no model's prediction formed."""
+        if problem.kind != "frf" or base.T_in is not None or base.T_out is not None:
+            return None
+
+        def cost(theta):
+            mode, N0, N1, _, _ = self._residue(theta, problem, base)
+            return problem.added_term_cost(base, mode.denominator(), N0, N1)
+
+        def residual(theta):
+            mode, N0, N1, _, _ = self._residue(theta, problem, base)
+            return problem.added_term_residual(base, replace(mode, N0=N0, N1=N1))
+
+        return _Lines(residual=residual, cost=cost)
 
     def n_linear(self, base):
         return 2 * base.n_y * base.n_u
@@ -292,6 +412,10 @@ class ModalMismatch:
             problem, model, _mode_derivatives(problem, model.modes[self.index])
         )
 
+    def lines(self, problem, base):
+        """:class:`_Lines` on FRF data (the moved mode's factor), else None."""
+        return _moved_mode_lines(problem, base, self.index)
+
     def n_linear(self, base):
         return 0
 
@@ -361,6 +485,27 @@ class ModalPattern:
         dF = numerators_times(modes, problem.s, np.stack([p[0] for p in phi], -1))
         dZ = numerators_times(modes, problem.s, np.stack([p[1] for p in phi], -1) * moves)
         return _residual_columns(problem, model, [dF, dZ])
+
+    def lines(self, problem, base):
+        """:class:`_Lines` on FRF data (every moved mode's factor), else None."""
+        if problem.kind != "frf":
+            return None
+        ks = self.indices(base)
+        mm = _MovedModes(problem, base, ks)
+        f0 = np.array([base.modes[k].freq_hz for k in ks])
+        z0 = np.array([base.modes[k].damping for k in ks])
+        one, zero = np.ones((1, len(ks))), np.zeros((1, len(ks)))
+
+        def fz(theta):
+            sf, sz = np.exp(theta)
+            return f0 * sf, np.minimum(z0 * sz, 0.9)
+
+        def jac(theta):
+            # a damping held at its 0.9 cap does not move
+            moves = (z0 * float(np.exp(theta[1])) < 0.9)[None].astype(float)
+            return mm.jacobian(*fz(theta), np.vstack([one, zero]), np.vstack([zero, moves]))
+
+        return _Lines(lambda th: mm.residual(*fz(th)), jac)
 
     def n_linear(self, base):
         return 0
@@ -448,6 +593,18 @@ class ModalModes(ModalPattern):
         model = self.build(theta, problem, base).model
         pairs = [_mode_derivatives(problem, model.modes[k]) for k in self.indices(base)]
         return _residual_columns(problem, model, [d[0] for d in pairs] + [d[1] for d in pairs])
+
+    def lines(self, problem, base):
+        """:class:`_Lines` on FRF data (every moved mode's factor), else None."""
+        if problem.kind != "frf":
+            return None
+        n = len(self.indices(base))
+        mm = _MovedModes(problem, base, self.indices(base))
+
+        def fz(theta):
+            return np.exp(theta[:n]), np.exp(theta[n:])
+
+        return _Lines(lambda th: mm.residual(*fz(th)), lambda th: mm.jacobian_per_mode(*fz(th)))
 
     def report(self, fr, problem, base):
         ks = self.indices(base)
@@ -544,6 +701,10 @@ class SuspensionStiffness:
         return _residual_columns(
             problem, model, _mode_derivatives(problem, model.modes[self._rigid(base)])
         )
+
+    def lines(self, problem, base):
+        """:class:`_Lines` on FRF data (the suspended rigid mode's factor), else None."""
+        return _moved_mode_lines(problem, base, self._rigid(base))
 
     def n_linear(self, base):
         return 0
@@ -1022,11 +1183,29 @@ class UpperResidual:
             np.array([np.log(_UPPER_RANGE[1] * f_hi), _LOG_Z[1]]),
         )
 
-    def build(self, theta, problem, base):
+    def _term(self, theta, problem, base):
+        """The pseudo-mode (its residue solved) and dD at theta, their std (unit noise)."""
         f, z = _freq_damping(theta)
         mode = Mode("flexible", f, z, np.zeros(base.n_u), np.zeros(base.n_y))
         dD, N0, N1, sD, s0, s1 = problem.fit_upper_residual(base, mode.denominator())
-        mode = replace(mode, N0=N0, N1=N1, effect="upper_residual")
+        return replace(mode, N0=N0, N1=N1, effect="upper_residual"), dD, sD, s0, s1
+
+    def lines(self, problem, base):
+        """:class:`_Lines` on FRF data without coupling (else None): the residual as the
+        base's misfit minus the pseudo-mode and dD (:meth:`FrfProblem.added_term_residual`,
+        no model's prediction formed)."""
+        if problem.kind != "frf" or base.T_in is not None or base.T_out is not None:
+            return None
+
+        def residual(theta):
+            mode, dD, *_ = self._term(theta, problem, base)
+            return problem.added_term_residual(base, mode, dD)
+
+        return _Lines(residual=residual)
+
+    def build(self, theta, problem, base):
+        mode, dD, sD, s0, s1 = self._term(theta, problem, base)
+        N0, N1 = mode.N0, mode.N1
         static = dD + N0 / mode.omega**2
         new = replace(base, D=base.D + dD, modes=base.modes + (mode,))
         return Realized(
@@ -1084,12 +1263,17 @@ class _Lag:
         # lags on some channels only: the best level per channel alone, then combined
         best = np.zeros(n)
         cost0 = problem.cost(base)
+        lines = structure_lines(self, problem, base)
         for j in range(n):
             costs = []
             for a in levels:
                 th = np.zeros(n)
                 th[j] = a
-                costs.append(problem.cost(self.build(th, problem, base).model))
+                if lines is not None:
+                    r = lines.residual(th)
+                    costs.append(float(r @ r))
+                else:
+                    costs.append(problem.cost(self.build(th, problem, base).model))
             k = int(np.argmin(costs))
             if costs[k] < cost0:
                 best[j] = levels[k]
@@ -1136,6 +1320,35 @@ class _Lag:
             dr = P[at] * problem.w[at] * (dlog[:, j, None])
             J[at + (slice(None), j)] = dr.view(float).reshape(dr.shape + (2,))
         return J.reshape(-1, n)
+
+    def lines(self, problem, base):
+        """:class:`_Lines` on FRF data without coupling on this side, else None.
+
+        Column (row) j of the prediction times ``L_j / L0_j``, ``L_j = 1/(1 + s tau_j)``
+        and ``L0_j`` the base's lag: channel j's part of the prediction without its lag is
+        the fixed term, ``L_j`` its factor (as :meth:`jacobian`).
+        """
+        coupling = base.T_in if self.side == "in" else base.T_out
+        if problem.kind != "frf" or coupling is not None:
+            return None
+        P = problem.predict(base)
+        tau0 = base.lags(self.side)
+        L0 = 1.0 / (1.0 + problem.s[:, None] * tau0[None, :])  # (n_f, n)
+        n = self._n(base)
+        terms = np.zeros((n,) + P.shape, complex)
+        for j in range(n):
+            at = (slice(None), slice(None), j) if self.side == "in" else (slice(None), j)
+            terms[(j,) + at] = P[at] / L0[:, j, None]
+        lines = problem.lines(np.zeros_like(P), terms)
+        s, scale, channels = problem.s, self._scale(problem), np.arange(n)
+
+        def phi(theta):
+            return 1.0 / (1.0 + s[None, :] * (tau0 + np.asarray(theta, float) / scale)[:, None])
+
+        def jac(theta):  # theta_j moves channel j's factor only
+            return lines.jacobian(-s / scale * phi(theta) ** 2, channels)
+
+        return _Lines(lambda th: lines.residual(phi(th)), jac)
 
     def report(self, fr, problem, base):
         f_hi = problem.band_hz[1]

@@ -15,6 +15,13 @@ evaluation by the problem's closed-form linear fits (variable projection,
 Golub & Pereyra 1973). Start points come from a coarse grid of ``theta``
 evaluated by the same projected cost.
 
+On FRF data a structure may offer ``lines(problem, base)`` (:func:`structure_lines`): the
+same cost, residual norms and normal equations without building a model per evaluation
+(a moved mode, a delay or a lag scales fixed terms by per-line factors:
+:class:`~workbench.diagnosis.problem.LineTerms` compresses each line's residual to a
+handful of numbers by a QR; an added mode or pseudo-mode is the base's misfit minus
+the term). Screening and refinement evaluate those; the result is evaluated on the model.
+
 Data flow::
 
     Structure.grid ──> cost on the grid ──> best starts ──> least_squares
@@ -44,6 +51,7 @@ __all__ = [
     "levenberg_marquardt",
     "parameter_std",
     "screen",
+    "structure_lines",
 ]
 
 
@@ -184,17 +192,19 @@ class _Normal:
         return self.fn(theta, r)
 
 
-def _normal_equations(structure, problem, base, residual, lo, hi) -> _Normal | None:
+def _normal_equations(structure, problem, base, residual, lo, hi, lines=None) -> _Normal | None:
     """The normal equations fit() solves for ``structure``, or None for scipy's trf.
 
     A structure's ``normal_equations`` hook (analytic, the modal fit) comes first, with
     :func:`levenberg_marquardt`'s tight stops. On FRF data and a periodic record's lines
-    (``problem.domain == "frequency"``, ``FRF_SOLVER == "lm"``) every other structure: its
-    ``jacobian`` hook (analytic; it returns None where it has none for the problem: the
-    lines of a periodic record), else :func:`finite_difference_jacobian`, with scipy's
-    default stops (1e-8: what the trust-region search used, and all a difference quotient
-    resolves). Elsewhere (a record simulated in the time domain, or the reference
-    ``FRF_SOLVER == "trf"``): None.
+    (``problem.domain == "frequency"``, ``FRF_SOLVER == "lm"``) every other structure: the
+    Jacobian of its compressed residual ``lines`` (:func:`structure_lines`; then
+    ``residual`` evaluates it; differences of it where it has no Jacobian), else its
+    ``jacobian`` hook (analytic; it
+    returns None where it has none for the problem: the lines of a periodic record), else
+    :func:`finite_difference_jacobian`, with scipy's default stops (1e-8: what the
+    trust-region search used, and all a difference quotient resolves). Elsewhere (a record
+    simulated in the time domain, or the reference ``FRF_SOLVER == "trf"``): None.
     """
     if callable(getattr(structure, "normal_equations", None)):
         return _Normal(lambda th, r: structure.normal_equations(th, problem, base, r), {})
@@ -205,12 +215,43 @@ def _normal_equations(structure, problem, base, residual, lo, hi) -> _Normal | N
     jac = getattr(structure, "jacobian", None)
 
     def normal(theta, r):
-        J = jac(theta, problem, base) if callable(jac) else None
+        if lines is not None:  # its Jacobian, or differences of its residual
+            J = lines.jacobian(theta) if lines.jacobian is not None else None
+        else:
+            J = jac(theta, problem, base) if callable(jac) else None
         if J is None:
             J = finite_difference_jacobian(residual, theta, r, lo, hi)
         return J.T @ J, J.T @ r
 
     return _Normal(normal, {"ftol": 1e-8, "xtol": 1e-8, "gtol": 1e-8})
+
+
+def structure_lines(structure, problem, base):
+    """The structure's residual compressed per line on FRF data, or None.
+
+    A structure whose parameters reach an FRF's prediction only through per-line factors
+    of fixed terms (a moved mode, a delay, a lag) offers ``lines(problem, base)``: an
+    object with ``residual(theta)`` and ``jacobian(theta)`` whose norms and inner products
+    are those of ``problem.residual(structure.build(theta, ...).model)`` and of its
+    derivative (:class:`~workbench.diagnosis.problem.LineTerms`), at a fraction of the
+    cost and without building a model. :func:`screen` and :func:`fit` evaluate those.
+    """
+    fn = getattr(structure, "lines", None)
+    if not callable(fn):
+        return None
+    # kept on the problem for its base: a screening, the grid it screens and the fit from
+    # it ask for the same structure on the same base (each a QR per line)
+    cache = getattr(problem, "lines_cache", None)
+    if cache is None:
+        return fn(problem, base)
+    key = (id(structure), id(base))
+    hit = cache.get(key)
+    if hit is not None and hit[0] is structure and hit[1] is base:
+        return hit[2]
+    if len(cache) >= 32:
+        cache.clear()
+    cache[key] = (structure, base, fn(problem, base))
+    return cache[key][2]
 
 
 def finite_difference_jacobian(residual, x, r, lo, hi, *, rel_step: float = DIFF_STEP):
@@ -223,12 +264,12 @@ def finite_difference_jacobian(residual, x, r, lo, hi, *, rel_step: float = DIFF
     h = rel_step * np.where(x >= 0, 1.0, -1.0) * np.maximum(1.0, np.abs(x))
     out = (x + h < lo) | (x + h > hi)
     h = np.where(out & (x - h >= lo) & (x - h <= hi), -h, h)
-    J = np.empty((np.size(r), x.size))
+    J = np.empty((x.size, np.size(r)))  # filled by rows: a column of a C-order J is strided
     for i in range(x.size):
         xi = x.copy()
         xi[i] += h[i]
-        J[:, i] = (residual(xi) - r) / (xi[i] - x[i])
-    return J
+        J[i] = (residual(xi) - r) / (xi[i] - x[i])
+    return J.T
 
 
 def screen(structure: Structure, problem, base: ModalModel) -> Screening:
@@ -240,10 +281,17 @@ def screen(structure: Structure, problem, base: ModalModel) -> Screening:
     if lo.size == 0:
         return Screening(problem.cost(structure.build(np.zeros(0), problem, base).model), [])
     grid = [np.clip(np.asarray(g, float), lo, hi) for g in structure.grid(problem, base)]
+    lines = structure_lines(structure, problem, base) if grid else None
+
+    def cost(g):
+        if lines is not None:
+            return lines.cost(g)
+        return problem.cost(structure.build(g, problem, base).model)
+
     costs = []
     for g in grid:
         try:
-            costs.append(problem.cost(structure.build(g, problem, base).model))
+            costs.append(cost(g))
         except NUMERICAL_FAILURES:
             costs.append(np.inf)
     costs = np.asarray(costs, float)
@@ -279,18 +327,25 @@ def fit(
         Residual evaluations per refinement.
     """
 
-    infeasible: list[np.ndarray] = []
+    infeasible: list[float] = []
+    # what the search evaluates: the model's residual, or the structure's lines (below)
+    evaluate = [lambda th: problem.residual(structure.build(th, problem, base).model)]
+    size = [problem.n_obs]
 
     def residual(theta):
         try:
-            return problem.residual(structure.build(theta, problem, base).model)
+            r = evaluate[0](theta)
+            size[0] = r.size
+            return r
         except NUMERICAL_FAILURES:
             # a trial point the structure cannot realize (an overdamped coupled mode): a
             # residual far above the start's, so the trust region rejects the step and shrinks
+            # (the model's residual and a structure's lines share its norm, see
+            # structure_lines; a compressed one is not size n_obs: the fill takes its size)
             if not infeasible:
                 r0 = problem.residual(base)
-                infeasible.append(np.full(r0.shape, 1e3 * max(np.sqrt(np.mean(r0**2)), 1e-150)))
-            return infeasible[0]
+                infeasible.append(1e3 * max(np.sqrt(np.mean(r0**2)), 1e-150))
+            return np.full(size[0], infeasible[0])
 
     lo, hi = (np.asarray(b, float) for b in structure.bounds(problem, base))
     n_theta = lo.size
@@ -309,8 +364,16 @@ def fit(
         # base, r) -> (J^T J, J^T r), or jacobian(theta, problem, base) -> J, analytic; they run
         # Levenberg-Marquardt on the normal equations. On FRF data every other structure runs
         # it too, on finite differences (a jacobian hook may return None: none for this
-        # problem); elsewhere finite differences in scipy's trust-region reflective
-        normal = _normal_equations(structure, problem, base, residual, lo, hi)
+        # problem); elsewhere finite differences in scipy's trust-region reflective. The LM
+        # path evaluates a structure's compressed residual where it has one (the reference
+        # FRF_SOLVER == "trf" keeps the model's residual)
+        lines = structure_lines(structure, problem, base) if FRF_SOLVER == "lm" else None
+        if lines is not None and lines.residual is None:
+            lines = None  # a cheap cost only: the model's residual is searched
+        normal = _normal_equations(structure, problem, base, residual, lo, hi, lines)
+        if normal is not None and lines is not None:
+            # the same norms and inner products as the model's residual (structure_lines)
+            evaluate[0] = lines.residual
         for th0 in starts:
             th0 = np.clip(th0, lo + inner, hi - inner)
             with warnings.catch_warnings():
@@ -540,6 +603,7 @@ class Composite:
     bases: tuple
     effect: str = "composite"
     theta_names: tuple[str, ...] = ()
+    _last: list = field(default_factory=list, compare=False, repr=False)  # see chain
 
     def _sizes(self, problem) -> list[int]:
         return [len(p.bounds(problem, b)[0]) for p, b in zip(self.parts, self.bases)]
@@ -560,11 +624,24 @@ class Composite:
         return out
 
     def chain(self, theta, problem, base) -> list[Realized]:
-        """Realized model after each part."""
+        """Realized model after each part.
+
+        The parts up to the first whose theta differs from the last chain's are reused
+        (same input model, same values: the same Realized): a finite-difference column of
+        a later part rebuilds only from it, and the rebuilt part sees the same model object
+        (the problem's caches of that model's misfit then hold).
+        """
         out = []
         model = base
-        for part, th in zip(self.parts, self.split(theta, problem)):
-            r = part.build(th, problem, model)
+        last = self._last  # [(part's theta bytes, its input model, Realized)]
+        for i, (part, th) in enumerate(zip(self.parts, self.split(theta, problem))):
+            key = th.tobytes()
+            if i < len(last) and last[i][0] == key and last[i][1] is model:
+                r = last[i][2]
+            else:
+                r = part.build(th, problem, model)
+                del last[i:]
+                last.append((key, model, r))
             out.append(r)
             model = r.model
         return out
@@ -572,8 +649,36 @@ class Composite:
     def build(self, theta, problem, base):
         return self.chain(theta, problem, base)[-1]
 
+    def lines(self, problem, base):
+        """On FRF data: the residual as the model before the last part minus what the last
+        part appended (:meth:`FrfProblem.appended_residual`: an added mode or pseudo-mode,
+        the model's residual otherwise), in the residual's own layout; else None."""
+        if getattr(problem, "kind", "") != "frf" or not hasattr(problem, "appended_residual"):
+            return None
+
+        def residual(theta):
+            chain = self.chain(theta, problem, base)
+            before = chain[-2].model if len(chain) > 1 else base
+            return problem.appended_residual(chain[-1].model, before)
+
+        return _Residual(residual)
+
     def n_linear(self, base):
         return sum(p.n_linear(b) for p, b in zip(self.parts, self.bases))
+
+
+class _Residual:
+    """Lines (:func:`structure_lines`) with a residual in the model residual's own layout
+    and no Jacobian (finite differences of it)."""
+
+    jacobian = None
+
+    def __init__(self, residual):
+        self.residual = residual
+
+    def cost(self, theta) -> float:
+        r = self.residual(theta)
+        return float(r @ r)
 
 
 #: order in which effects are stacked in a joint fit: the outer factors first, so that the

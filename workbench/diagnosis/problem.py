@@ -28,7 +28,14 @@ from workbench.io.formats import FrfData, TimeData
 from workbench.modal.model import ModalModel, Mode
 from workbench.modal.simulate import filtered_inputs, filtered_lines
 
-__all__ = ["FrfProblem", "PeriodicProblem", "TimeProblem", "make_problem", "moving_start"]
+__all__ = [
+    "FrfProblem",
+    "LineTerms",
+    "PeriodicProblem",
+    "TimeProblem",
+    "make_problem",
+    "moving_start",
+]
 
 
 def _key(*arrays) -> tuple:
@@ -75,6 +82,75 @@ def _solve_basis(M: np.ndarray, r: np.ndarray):
     return x, std
 
 
+class LineTerms:
+    """The weighted FRF residual of a model family ``P = fixed + sum_k phi_k(f) terms_k``,
+    compressed line by line.
+
+    A structure whose parameters reach the prediction only through per-line scalar
+    factors of fixed channel terms (a moved mode: its ``1/den(s)`` times its numerator
+    through the outer factors; a delay: ``exp(-s tau)`` times the prediction; a lag on
+    one input: ``1/(1 + s tau_j)`` times that column) has at line f the weighted residual
+    ``A_f [-phi_f; 1]``, ``A_f = w_f [terms_f | G_f - fixed_f]`` (n_ch = n_y n_u rows,
+    m + 1 columns). With the thin QR ``A_f = Q_f R_f`` (orthonormal ``Q_f``) the residual
+    and every derivative of it with respect to ``phi`` keep their norms and inner products
+    as ``R_f [-phi_f; 1]``, k = min(n_ch, m + 1) complex numbers instead of n_ch: the
+    cost, ``J^T J`` and ``J^T r`` of a fit are those of :meth:`FrfProblem.residual`
+    (exact arithmetic; the QR's rounding, ~1e-16 of ``|A_f|``), an evaluation costs
+    O(n_f k m) and no model is built. The vector itself is not the residual's (its
+    entries are the ``Q_f`` coordinates): only norms and products of it are meaningful.
+
+    Parameters
+    ----------
+    problem : FrfProblem
+    fixed : (n_f, n_y, n_u) complex
+        The prediction's part that does not move.
+    terms : (m, n_f, n_y, n_u) complex
+        The terms the factors scale (outer factors, lags, coupling, delay applied).
+    """
+
+    def __init__(self, problem: FrfProblem, fixed: np.ndarray, terms: np.ndarray):
+        n_f = problem.freq.size
+        m = terms.shape[0]
+        w = problem.w.reshape(n_f, -1)
+        A = np.empty((n_f, w.shape[1], m + 1), complex)
+        A[:, :, :m] = np.moveaxis(terms.reshape(m, n_f, -1), 0, -1) * w[:, :, None]
+        A[:, :, m] = (problem.data.G - fixed).reshape(n_f, -1) * w
+        R = np.linalg.qr(A, mode="r")  # (n_f, k, m + 1), batched over the lines
+        self.terms = np.ascontiguousarray(R[:, :, :m])  # (n_f, k, m)
+        self.by_term = np.ascontiguousarray(np.moveaxis(R[:, :, :m], -1, 0))  # (m, n_f, k)
+        self.target = np.ascontiguousarray(R[:, :, m])  # (n_f, k)
+
+    def residual(self, phi: np.ndarray) -> np.ndarray:
+        """Compressed residual (2 n_f k,) real, for the factors ``phi`` (m, n_f) complex."""
+        if phi.shape[0] == 1:
+            r = self.target - self.by_term[0] * phi[0][:, None]
+        else:  # one small product per line (einsum's generic loop was 2-3x slower)
+            r = self.target - (self.terms @ np.ascontiguousarray(phi.T)[:, :, None])[:, :, 0]
+        return r.view(float).ravel()
+
+    def cost(self, phi: np.ndarray) -> float:
+        """Sum of squared weighted residuals, as :meth:`FrfProblem.cost` of the model."""
+        r = self.residual(phi)
+        return float(r @ r)
+
+    def jacobian(self, dphi: np.ndarray, terms: np.ndarray | None = None) -> np.ndarray:
+        """Compressed Jacobian (2 n_f k, n_theta) for ``dphi`` = d phi / d theta.
+
+        ``dphi`` (n_theta, m, n_f); or, with ``terms`` (n_theta,) term indices, (n_theta, n_f):
+        parameter t moves the factor of term ``terms[t]`` only (a mode's frequency, one
+        channel's lag), one product per column instead of m.
+        """
+        # built as J^T, one row per parameter laid out as residual() lays out its vector
+        n_theta = dphi.shape[0]
+        Jt = np.empty((n_theta,) + self.target.shape, complex)  # (n_theta, n_f, k)
+        for t in range(n_theta):
+            if terms is not None:
+                np.multiply(self.by_term[terms[t]], -dphi[t][:, None], out=Jt[t])
+            else:
+                Jt[t] = -(self.terms @ dphi[t].T[:, :, None])[:, :, 0]
+        return Jt.view(float).reshape(n_theta, -1).T
+
+
 #: cores kept by FrfProblem (each n_f n_y n_u complex), and mode sums summed directly
 CORE_CACHE = 16
 CORE_ANCHORS = 4
@@ -114,7 +190,11 @@ class FrfProblem:
         self._cache: dict = {}  # mode key -> its response
         self._core_cache: dict = {}  # (mode keys, D) -> core, oldest first
         self._anchors: dict = {}  # mode keys -> (modes, sum of responses summed directly)
-        self._linear_last = None  # (model, w2 |h|^2, w2 conj(h) e), see _linear_data
+        self._linear_last = None  # [model, w2 |h|^2, w2 conj(h) e, w2 |e|^2, e], _linear_data
+        self._factors: dict = {}  # (delay, lags) -> channel factor, see _channel_factor
+        self._term_last = None  # (model, den key, M, r) of the last fit_new_term
+        self._added_last = None  # (model, w e, w h), see added_term_residual
+        self.lines_cache: dict = {}  # ids -> (structure, base, its lines), see structure_lines
 
     # ------------------------------------------------------------ prediction
     def _mode_response(self, m: Mode) -> np.ndarray:
@@ -172,7 +252,12 @@ class FrfProblem:
 
     def predict(self, model: ModalModel) -> np.ndarray:
         """Model FRF at the measured lines, (n_f, n_y, n_u)."""
-        return model.outer(self.freq, self.core(model))
+        G = self.core(model)
+        if model.T_in is None and model.T_out is None:
+            if model.delay_s or np.any(model.lags("in")) or np.any(model.lags("out")):
+                # the outer factor is per channel: one product with the kept factor
+                return G * self._channel_factor(model)
+        return model.outer(self.freq, G)
 
     def residual(self, model: ModalModel) -> np.ndarray:
         e = self.data.G - self.predict(model)
@@ -196,6 +281,19 @@ class FrfProblem:
         return np.sum(e.real**2 + e.imag**2, axis=(1, 2))
 
     # --------------------------------------------------------- linear parts
+    def _channel_factor(self, model: ModalModel) -> np.ndarray:
+        """``model.channel_factor`` at the lines, (n_f, n_y, n_u), read-only, kept by the
+        delay and lags (a joint refit's linear parts see the same lags hundreds of times)."""
+        k = _key([model.delay_s], model.lags("in"), model.lags("out"))
+        h = self._factors.get(k)
+        if h is None:
+            h = model.channel_factor(self.freq)
+            h.flags.writeable = False
+            if len(self._factors) >= 8:
+                self._factors.pop(next(iter(self._factors)))
+            self._factors[k] = h
+        return h
+
     def _linear_data(self, model: ModalModel):
         """``(w2 |h|^2, w2 conj(h) e)`` of the misfit ``e`` and channel factor ``h`` of
         ``model`` (:func:`_normal_parts`), kept for the last model asked (a grid screens
@@ -203,8 +301,9 @@ class FrfProblem:
         last = self._linear_last
         if last is None or last[0] is not model:
             e = self.data.G - self.predict(model)
-            h = model.channel_factor(self.freq)
-            last = (model, self.w2 * (h.real**2 + h.imag**2), self.w2 * np.conj(h) * e)
+            h = self._channel_factor(model)
+            # the per-channel cost w2 |e|^2 (added_term_cost) is summed when first asked
+            last = [model, self.w2 * (h.real**2 + h.imag**2), self.w2 * np.conj(h) * e, None, e]
             self._linear_last = last
         return last[1], last[2]
 
@@ -216,10 +315,87 @@ class FrfProblem:
         d = self.s**2 + den[0] * self.s + den[1]
         wr = np.sqrt(max(den[1], 1e-300))
         M, r = _normal_parts(np.stack([1.0 / d, self.s / (wr * d)], -1), *self._linear_data(model))
+        self._term_last = (model, _key(den), M, r)  # for added_term_cost
         x = _solve_channels(M, r)
         cov = np.linalg.inv(M + 1e-300 * np.eye(2))
         std = np.sqrt(np.abs(np.stack([cov[..., 0, 0], cov[..., 1, 1]], -1)))
         return x[..., 0], x[..., 1] / wr, std[..., 0], std[..., 1] / wr
+
+    def added_term_cost(self, model: ModalModel, den: np.ndarray, N0, N1) -> float:
+        """:meth:`cost` of ``model`` plus the mode ``(N1 s + N0) / (s^2 + den[0] s + den[1])``.
+
+        From the normal equations of :meth:`fit_new_term` (``den`` = (a1, a0), N0 and N1
+        (n_y, n_u), any values: a projected residue too): per channel ``sum_f w2 |e|^2 -
+        2 x.r + x^T M x`` with ``x = (N0, N1 sqrt(a0))``, no prediction formed (a screening
+        evaluates hundreds). Exact for a model without coupling (``T_in``, ``T_out`` None:
+        the channel factor of :meth:`fit_new_term` is then the model's outer factor); the
+        rounding is ~1e-16 of the base model's cost.
+        """
+        if model.T_in is not None or model.T_out is not None:
+            raise ValueError("added_term_cost: a model with coupling (use cost)")
+        self._linear_data(model)  # the misfit below is this model's
+        last = self._term_last
+        if last is not None and last[0] is model and last[1] == _key(den):
+            M, r = last[2], last[3]
+        else:
+            d = self.s**2 + den[0] * self.s + den[1]
+            wr = np.sqrt(max(den[1], 1e-300))
+            phi = np.stack([1.0 / d, self.s / (wr * d)], -1)
+            M, r = _normal_parts(phi, *self._linear_data(model))
+        x = np.stack([N0, N1 * np.sqrt(max(den[1], 1e-300))], -1)  # (n_y, n_u, 2)
+        last = self._linear_last
+        if last[3] is None:
+            e = last[4]
+            last[3] = np.sum(self.w2 * (e.real**2 + e.imag**2), axis=0)  # (n_y, n_u)
+        e2 = last[3]
+        quad = np.einsum("ijp,ijpq,ijq->", x, M, x)
+        return float(np.sum(e2) - 2.0 * np.sum(x * r) + quad)
+
+    def appended_residual(self, model: ModalModel, parent: ModalModel) -> np.ndarray:
+        """:meth:`residual` of ``model``, formed from ``parent`` where ``model`` is ``parent``
+        with one mode appended (and its D changed), the outer factors the same and no
+        coupling (:meth:`added_term_residual`); directly otherwise."""
+        same_outer = (
+            model.T_in is None
+            and model.T_out is None
+            and parent.T_in is None
+            and parent.T_out is None
+            and model.delay_s == parent.delay_s
+            and np.array_equal(model.lags("in"), parent.lags("in"))
+            and np.array_equal(model.lags("out"), parent.lags("out"))
+        )
+        n = len(parent.modes)
+        if (
+            same_outer
+            and len(model.modes) == n + 1
+            and all(a is b for a, b in zip(model.modes, parent.modes))
+        ):
+            return self.added_term_residual(parent, model.modes[-1], model.D - parent.D)
+        return self.residual(model)
+
+    def added_term_residual(self, model: ModalModel, mode: Mode, dD=None) -> np.ndarray:
+        """:meth:`residual` of ``model`` with ``mode`` appended (and ``dD`` (n_y, n_u) added
+        to its D), (n_obs,).
+
+        The model's weighted misfit minus the mode's response through the channel factor
+        (both kept for the last model asked: a fit adds hundreds of trial modes to one
+        model), no prediction formed. Exact for a model without coupling (``T_in``,
+        ``T_out`` None); rounding ~1e-16 of the model's misfit.
+        """
+        if model.T_in is not None or model.T_out is not None:
+            raise ValueError("added_term_residual: a model with coupling (use residual)")
+        last = self._added_last
+        if last is None or last[0] is not model:
+            lin = self._linear_last  # the misfit a linear fit on this model formed, if any
+            e = lin[4] if lin is not None and lin[0] is model else self.data.G - self.predict(model)
+            last = (model, e * self.w, self.w * self._channel_factor(model))
+            self._added_last = last
+        r = mode.response(self.s)
+        if dD is not None:
+            r += dD
+        r *= last[2]
+        np.subtract(last[1], r, out=r)
+        return r.view(float).ravel()
 
     def fit_upper_residual(self, model: ModalModel, den: np.ndarray):
         """Residual terms of modes above the band: D + (N1 s + N0) / den(s), jointly per channel.
@@ -239,7 +415,7 @@ class FrfProblem:
     def fit_feedthrough(self, model: ModalModel):
         """Real matrix added to D, per channel; returns dD and its std (unit noise scale)."""
         e = self.data.G - self.predict(model)
-        h = model.channel_factor(self.freq)
+        h = self._channel_factor(model)
         m = np.sum(self.w2 * np.abs(h) ** 2, axis=0)
         r = np.sum(self.w2 * (np.conj(h) * e).real, axis=0)
         return r / m, 1.0 / np.sqrt(m)
@@ -278,6 +454,10 @@ class FrfProblem:
 
     def model_frf(self, model: ModalModel, freq=None) -> np.ndarray:
         return model.frf(self.freq if freq is None else freq)
+
+    def lines(self, fixed: np.ndarray, terms: np.ndarray) -> LineTerms:
+        """The residual of ``fixed + sum_k phi_k terms_k``, compressed per line (LineTerms)."""
+        return LineTerms(self, fixed, terms)
 
 
 def _peaks(freq: np.ndarray, power: np.ndarray, n: int) -> list[float]:
