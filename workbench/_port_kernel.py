@@ -100,7 +100,7 @@ def _sens_start(x, a, CvT, Fc, iv0, dFc, dlv, dCvT, has_dcv, S, dr, dw):
     n_p = Fc.shape[0]
     for q in range(n_th):
         _port_map(CvT, S[q], dw)  # Cv S[q]
-        if has_dcv:
+        if has_dcv[q]:
             for m in range(n):
                 xm = x[m]
                 for i in range(n_p):
@@ -134,7 +134,7 @@ def _sens_end(x, CvT, G1T, Fc, iv0, Mv, dFc, dlv, dCvT, has_dcv, S, Sp, dr, w, d
             Sp_w = 0.0
             for m in range(n):
                 Sp_w += CvT[m, i] * Sp[q, m]
-            if has_dcv:
+            if has_dcv[q]:
                 for m in range(n):
                     Sp_w += dCvT[q, m, i] * x[m]
             dr[q, i] = -dFc[q, i] * ti - si * (Sp_w - w[i] * dlv[q])
@@ -178,14 +178,16 @@ def _sens_end(x, CvT, G1T, Fc, iv0, Mv, dFc, dlv, dCvT, has_dcv, S, Sp, dr, w, d
 def _advance(
     x, PhiT, GaT, G1T, G_oldT, G_newT, has_old, u_new, u_old, CvT, CpT, Fc, v0, k3, Mv,
     has_fr, has_k3, fc_max, xp, f0, c0, r, a, g, J, dlt, rt, t, gt, tt,
-    dFc, dlv, dCvT, has_dcv, S, Sp, dr, w, dw,
+    dFc, dlv, dCvT, has_dcv, S, Sp, dr, w, dw, phi_m, phi_i,
 ):  # fmt: skip
     """x (in place) after the ``G_newT.shape[0]`` substeps of one sample (the matrices
     transposed: PhiT = Phi', GaT = Ga', G1T = G1', G_oldT[j] = G_old[j]', CvT = Cv', CpT = Cp').
 
     With ``n_th = dFc.shape[0] > 0`` parameters (friction only, no cubic spring) also the
     state's sensitivities ``S[q] = dx / dtheta_q`` (n_th, n), in place: see :func:`_sens_start`
-    and :func:`_sens_end`.
+    and :func:`_sens_end`; ``Phi S`` summed over Phi's nonzero entries ``PhiT[phi_m, phi_i]``
+    (in the order of the dense sum: the same result; a modal model's Phi is 2x2 blocks, 26 of
+    the stage's 256 entries).
 
     Written out in one function: a call with array arguments costs reference counting
     (atomic operations), more than the arithmetic at these sizes. Products M x are summed
@@ -245,10 +247,8 @@ def _advance(
             for q in range(n_th):
                 for i in range(n):
                     Sp[q, i] = 0.0
-                for m in range(n):
-                    sm = S[q, m]
-                    for i in range(n):
-                        Sp[q, i] += PhiT[m, i] * sm
+                for e in range(phi_m.shape[0]):
+                    Sp[q, phi_i[e]] += PhiT[phi_m[e], phi_i[e]] * S[q, phi_m[e]]
                 for m in range(n_p):
                     fm = dr[q, m]
                     for i in range(n):
@@ -392,8 +392,10 @@ def port_sample(x, PhiT, GaT, G1T, G_oldT, G_newT, has_old, u_new, u_old, CvT, C
         fc_max > 0.0, has_k3, fc_max, np.empty(n), np.empty(n_p), np.empty(n_p),
         np.empty(n_p), np.empty(n_p), np.empty(n_p), np.empty((n_p, n_p)), np.empty(n_p),
         np.empty(n_p), np.empty(n_p), np.empty(n_p), np.empty(n_p),
-        np.empty((0, n_p)), np.empty(0), np.empty((0, n, n_p)), False, np.empty((0, n)),
+        np.empty((0, n_p)), np.empty(0), np.empty((0, n, n_p)), np.empty(0, np.bool_),
+        np.empty((0, n)),
         np.empty((0, n)), np.empty((0, n_p)), np.empty(n_p), np.empty(n_p),
+        np.empty(0, np.int64), np.empty(0, np.int64),
     )  # fmt: skip
     return out
 
@@ -412,8 +414,8 @@ def port_record(
     only, no cubic spring), forward, alongside the simulation: ``dy[k, :, q] = C dx[k] /
     dtheta_q`` (written, (N, n_y, n_th)), given how the law depends on them: ``dFc[q]`` =
     dF_c / dtheta_q (n_th, n_p) N, ``dlv[q]`` = dlog v0 / dtheta_q (n_th,), ``dCvT[q]`` =
-    (dCv / dtheta_q)' (n_th, n, n_p; read only if ``has_dcv``). The linear part does not depend
-    on theta; x starts at rest, so its sensitivities at 0.
+    (dCv / dtheta_q)' (n_th, n, n_p; row q read only if ``has_dcv[q]``, (n_th,) bool). The
+    linear part does not depend on theta; x starts at rest, so its sensitivities at 0.
     """
     n = PhiT.shape[0]
     n_p = Fc.shape[0]
@@ -439,6 +441,21 @@ def port_record(
     dr = np.zeros((n_th, n_p))
     w = np.empty(n_p)
     dw = np.empty(n_p)
+    nnz = 0
+    if n_th > 0:
+        for m in range(n):
+            for i in range(n):
+                nnz += PhiT[m, i] != 0.0
+    phi_m = np.empty(nnz, np.int64)
+    phi_i = np.empty(nnz, np.int64)
+    e = 0
+    if n_th > 0:
+        for m in range(n):
+            for i in range(n):
+                if PhiT[m, i] != 0.0:
+                    phi_m[e] = m
+                    phi_i[e] = i
+                    e += 1
     for k in range(um.shape[0]):
         for i in range(n_y):
             acc = 0.0
@@ -456,5 +473,5 @@ def port_record(
         _advance(
             x, PhiT, GaT, G1T, G_oldT, G_newT, has_old, um[k], um1[k], CvT, CpT, Fc, v0, k3, Mv,
             fc_max > 0.0, has_k3, fc_max, xp, f0, c0, r, a, g, J, dlt, rt, t, gt, tt,
-            dFc, dlv, dCvT, has_dcv, S, Sp, dr, w, dw,
+            dFc, dlv, dCvT, has_dcv, S, Sp, dr, w, dw, phi_m, phi_i,
         )  # fmt: skip

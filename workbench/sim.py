@@ -528,7 +528,8 @@ class SubstepZoh:
         y = np.empty((N, C.shape[0]))
         p = np.empty((N, n_p))
         if sens is None:
-            dFc, dlv, dCvT, has_dcv = np.empty((0, n_p)), np.empty(0), np.empty((0, n, n_p)), False
+            dFc, dlv, dCvT = np.empty((0, n_p)), np.empty(0), np.empty((0, n, n_p))
+            has_dcv = np.empty(0, bool)
         else:
             if np.any(law.cubic_stiffness != 0):
                 raise InputError("SubstepZoh.simulate: sensitivities of a cubic spring's record")
@@ -572,16 +573,18 @@ class PortSensitivity:
     Cv: np.ndarray | None = None
 
     def kernel_args(self, n: int, n_p: int):
-        """(dFc, dlv, dCvT, has_dcv) as :func:`workbench._port_kernel.port_record` takes them."""
+        """(dFc, dlv, dCvT, has_dcv (n_th,) bool) as :func:`workbench._port_kernel.port_record`
+        takes them."""
         c = np.ascontiguousarray
         dFc = c(np.asarray(self.friction_force, float).reshape(-1, n_p))
         n_th = dFc.shape[0]
         dlv = np.zeros(n_th) if self.log_velocity is None else self.log_velocity
         dlv = c(np.broadcast_to(np.asarray(dlv, float), (n_th,)))
         if self.Cv is None:
-            return dFc, dlv, np.zeros((n_th, n, n_p)), False
+            return dFc, dlv, np.zeros((n_th, n, n_p)), np.zeros(n_th, bool)
         dCv = np.asarray(self.Cv, float).reshape(n_th, n_p, n)
-        return dFc, dlv, c(dCv.transpose(0, 2, 1)), bool(np.any(dCv))
+        # per parameter whether it moves Cv at all (the levels and v0 do not: skipped)
+        return dFc, dlv, c(dCv.transpose(0, 2, 1)), np.any(dCv != 0, axis=(1, 2))
 
 
 def _friction_end_reference(a, Mv, Fc, v0, r):
