@@ -24,6 +24,13 @@ stiff at the levels used (a hardening spring far below the substep's rate): its 
 value is predicted (held), corrected once from the state this gives (Heun), and the
 friction re-solved from the corrected prediction.
 
+:func:`port_record` also carries, on request, the state's forward sensitivities to the
+friction law's parameters (levels, v0, the port velocity map) through the same substeps: the
+linear part is linear in them, the friction's end value is differentiated at its converged
+root (implicit function theorem, :func:`_sens_end`), so they are the exact derivative of the
+simulation as computed (to the Newton tolerance), at about 2-3 simulations' cost for nine
+parameters where forward differences take nine.
+
 numba is a dependency of the project; :meth:`workbench.sim.SubstepZoh.advance` with
 ``engine="python"`` is the pure-NumPy reference of the same arithmetic (tested equal).
 """
@@ -84,13 +91,103 @@ def _levels(Fc, k3):
     return fc_max, has_k3
 
 
+@numba.njit(cache=True, inline="always")
+def _sens_start(x, a, CvT, Fc, iv0, dFc, dlv, dCvT, has_dcv, S, dr, dw):
+    """dr (n_th, n_p): the sensitivities of the friction at a sample's start,
+    ``r = -F_c tanh(a / v0)``, ``a = Cv x``, ``x`` with sensitivities ``S`` (n_th, n):
+    ``dr = -dF_c tanh - F_c sech^2 / v0 (dCv x + Cv S - a dlog v0)``."""
+    n_th, n = S.shape
+    n_p = Fc.shape[0]
+    for q in range(n_th):
+        _port_map(CvT, S[q], dw)  # Cv S[q]
+        if has_dcv[q]:
+            for m in range(n):
+                xm = x[m]
+                for i in range(n_p):
+                    dw[i] += dCvT[q, m, i] * xm
+        for i in range(n_p):
+            ti = np.tanh(a[i] * iv0)
+            dr[q, i] = -dFc[q, i] * ti - Fc[i] * (1.0 - ti * ti) * iv0 * (dw[i] - a[i] * dlv[q])
+
+
+@numba.njit(cache=True, inline="always")
+def _sens_end(x, CvT, G1T, Fc, iv0, Mv, dFc, dlv, dCvT, has_dcv, S, Sp, dr, w, dw, J):
+    """S (in place): the sensitivities of the substep's end state ``x = xp + G1 r``, those of
+    ``xp`` given (``Sp``, n_th x n); dr (n_th, n_p) those of the friction's end value ``r``.
+
+    ``r`` is the root of ``r + F_c tanh(w / v0) = 0``, ``w = Cv x = Cv xp + Mv r``; the implicit
+    function theorem: ``(I + diag(s) Mv) dr = -(dF_c tanh + s (dCv x + Cv Sp - w dlog v0))``,
+    ``s = F_c sech^2(w / v0) / v0`` (the converged root's, exact to the Newton tolerance: the
+    derivative of the simulation as computed, not of a continuous-time idealization).
+    """
+    n_th, n = S.shape
+    n_p = Fc.shape[0]
+    _port_map(CvT, x, w)
+    # LU of I + diag(s) Mv (partial pivoting) in J, the permutation in the rows of dr below
+    for i in range(n_p):
+        ti = np.tanh(w[i] * iv0)
+        si = Fc[i] * (1.0 - ti * ti) * iv0
+        for k in range(n_p):
+            J[i, k] = si * Mv[i, k]
+        J[i, i] += 1.0
+        for q in range(n_th):  # the right-hand sides, in dr
+            Sp_w = 0.0
+            for m in range(n):
+                Sp_w += CvT[m, i] * Sp[q, m]
+            if has_dcv[q]:
+                for m in range(n):
+                    Sp_w += dCvT[q, m, i] * x[m]
+            dr[q, i] = -dFc[q, i] * ti - si * (Sp_w - w[i] * dlv[q])
+    for c in range(n_p):
+        piv = c
+        big = abs(J[c, c])
+        for i in range(c + 1, n_p):
+            if abs(J[i, c]) > big:
+                big = abs(J[i, c])
+                piv = i
+        if piv != c:
+            for k in range(n_p):
+                tmp = J[c, k]
+                J[c, k] = J[piv, k]
+                J[piv, k] = tmp
+            for q in range(n_th):
+                tmp = dr[q, c]
+                dr[q, c] = dr[q, piv]
+                dr[q, piv] = tmp
+        for i in range(c + 1, n_p):
+            fct = J[i, c] / J[c, c]
+            for k in range(c, n_p):
+                J[i, k] -= fct * J[c, k]
+            for q in range(n_th):
+                dr[q, i] -= fct * dr[q, c]
+    for q in range(n_th):
+        for i in range(n_p - 1, -1, -1):
+            acc = dr[q, i]
+            for k in range(i + 1, n_p):
+                acc -= J[i, k] * dr[q, k]
+            dr[q, i] = acc / J[i, i]
+        for i in range(n):
+            S[q, i] = Sp[q, i]
+        for m in range(n_p):
+            dm = dr[q, m]
+            for i in range(n):
+                S[q, i] += G1T[m, i] * dm
+
+
 @numba.njit(cache=True)
 def _advance(
     x, PhiT, GaT, G1T, G_oldT, G_newT, has_old, u_new, u_old, CvT, CpT, Fc, v0, k3, Mv,
     has_fr, has_k3, fc_max, xp, f0, c0, r, a, g, J, dlt, rt, t, gt, tt,
+    dFc, dlv, dCvT, has_dcv, S, Sp, dr, w, dw, phi_m, phi_i,
 ):  # fmt: skip
     """x (in place) after the ``G_newT.shape[0]`` substeps of one sample (the matrices
     transposed: PhiT = Phi', GaT = Ga', G1T = G1', G_oldT[j] = G_old[j]', CvT = Cv', CpT = Cp').
+
+    With ``n_th = dFc.shape[0] > 0`` parameters (friction only, no cubic spring) also the
+    state's sensitivities ``S[q] = dx / dtheta_q`` (n_th, n), in place: see :func:`_sens_start`
+    and :func:`_sens_end`; ``Phi S`` summed over Phi's nonzero entries ``PhiT[phi_m, phi_i]``
+    (in the order of the dense sum: the same result; a modal model's Phi is 2x2 blocks, 26 of
+    the stage's 256 entries).
 
     Written out in one function: a call with array arguments costs reference counting
     (atomic operations), more than the arithmetic at these sizes. Products M x are summed
@@ -100,6 +197,7 @@ def _advance(
     n = x.shape[0]
     n_p = Fc.shape[0]
     n_u = u_new.shape[0]
+    n_th = dFc.shape[0]
     iv0 = 1.0 / v0
     stiff = False
     for i in range(n_p):
@@ -112,6 +210,8 @@ def _advance(
             _port_map(CvT, x, a)
             for i in range(n_p):
                 r[i] = -Fc[i] * np.tanh(a[i] * iv0)
+            if n_th > 0:
+                _sens_start(x, a, CvT, Fc, iv0, dFc, dlv, dCvT, has_dcv, S, dr, dw)
         for i in range(n_p):
             f0[i] = r[i] if has_fr else 0.0  # r: also the warm start of the end value
             c0[i] = 0.0
@@ -143,6 +243,16 @@ def _advance(
             cm = c0[m]
             for i in range(n):
                 xp[i] += GaT[m, i] * fm + G1T[m, i] * cm
+        if n_th > 0:  # Sp = Phi S + Ga df0 (df0 = dr: the end value before, or _sens_start's)
+            for q in range(n_th):
+                for i in range(n):
+                    Sp[q, i] = 0.0
+                for e in range(phi_m.shape[0]):
+                    Sp[q, phi_i[e]] += PhiT[phi_m[e], phi_i[e]] * S[q, phi_m[e]]
+                for m in range(n_p):
+                    fm = dr[q, m]
+                    for i in range(n):
+                        Sp[q, i] += GaT[m, i] * fm
         for rep in range(2 if has_k3 else 1):
             if rep == 1:  # Heun: the spring's end value from the state just found
                 for i in range(n_p):
@@ -155,6 +265,9 @@ def _advance(
             for i in range(n):
                 x[i] = xp[i]
             if not has_fr:
+                for q in range(n_th):
+                    for i in range(n):
+                        S[q, i] = Sp[q, i]
                 continue
             _port_map(CvT, xp, a)
             # Newton on g(r) = r + F_c tanh((a + Mv r) / v0), r warm-started (g, t at r)
@@ -260,6 +373,8 @@ def _advance(
                 rm = r[m]
                 for i in range(n):
                     x[i] += G1T[m, i] * rm
+            if n_th > 0:
+                _sens_end(x, CvT, G1T, Fc, iv0, Mv, dFc, dlv, dCvT, has_dcv, S, Sp, dr, w, dw, J)
 
 
 @numba.njit(cache=True)
@@ -277,23 +392,36 @@ def port_sample(x, PhiT, GaT, G1T, G_oldT, G_newT, has_old, u_new, u_old, CvT, C
         fc_max > 0.0, has_k3, fc_max, np.empty(n), np.empty(n_p), np.empty(n_p),
         np.empty(n_p), np.empty(n_p), np.empty(n_p), np.empty((n_p, n_p)), np.empty(n_p),
         np.empty(n_p), np.empty(n_p), np.empty(n_p), np.empty(n_p),
+        np.empty((0, n_p)), np.empty(0), np.empty((0, n, n_p)), np.empty(0, np.bool_),
+        np.empty((0, n)),
+        np.empty((0, n)), np.empty((0, n_p)), np.empty(n_p), np.empty(n_p),
+        np.empty(0, np.int64), np.empty(0, np.int64),
     )  # fmt: skip
     return out
 
 
 @numba.njit(cache=True)
 def port_record(
-    PhiT, GaT, G1T, G_oldT, G_newT, has_old, C, D, CvT, CpT, Fc, v0, k3, Mv, um, um1, y, p
+    PhiT, GaT, G1T, G_oldT, G_newT, has_old, C, D, CvT, CpT, Fc, v0, k3, Mv, um, um1, y, p,
+    dFc, dlv, dCvT, has_dcv, dy,
 ):  # fmt: skip
     """Run a record from rest: y[k] = C x + D um[k], p[k] = Cp x (written), then one sample.
 
     ``um`` = u[k-m], ``um1`` = u[k-m-1] (N, n_u), saturated; y (N, n_y), p (N, n_p); the
     other arguments as :func:`port_sample`'s.
+
+    Sensitivities of the outputs to ``n_th = dFc.shape[0]`` parameters theta (0: none; friction
+    only, no cubic spring), forward, alongside the simulation: ``dy[k, :, q] = C dx[k] /
+    dtheta_q`` (written, (N, n_y, n_th)), given how the law depends on them: ``dFc[q]`` =
+    dF_c / dtheta_q (n_th, n_p) N, ``dlv[q]`` = dlog v0 / dtheta_q (n_th,), ``dCvT[q]`` =
+    (dCv / dtheta_q)' (n_th, n, n_p; row q read only if ``has_dcv[q]``, (n_th,) bool). The
+    linear part does not depend on theta; x starts at rest, so its sensitivities at 0.
     """
     n = PhiT.shape[0]
     n_p = Fc.shape[0]
     n_y = C.shape[0]
     n_u = um.shape[1]
+    n_th = dFc.shape[0]
     x = np.zeros(n)
     fc_max, has_k3 = _levels(Fc, k3)
     xp = np.empty(n)
@@ -308,6 +436,26 @@ def port_record(
     t = np.empty(n_p)
     gt = np.empty(n_p)
     tt = np.empty(n_p)
+    S = np.zeros((n_th, n))
+    Sp = np.empty((n_th, n))
+    dr = np.zeros((n_th, n_p))
+    w = np.empty(n_p)
+    dw = np.empty(n_p)
+    nnz = 0
+    if n_th > 0:
+        for m in range(n):
+            for i in range(n):
+                nnz += PhiT[m, i] != 0.0
+    phi_m = np.empty(nnz, np.int64)
+    phi_i = np.empty(nnz, np.int64)
+    e = 0
+    if n_th > 0:
+        for m in range(n):
+            for i in range(n):
+                if PhiT[m, i] != 0.0:
+                    phi_m[e] = m
+                    phi_i[e] = i
+                    e += 1
     for k in range(um.shape[0]):
         for i in range(n_y):
             acc = 0.0
@@ -316,8 +464,14 @@ def port_record(
             for m in range(n_u):
                 acc += D[i, m] * um[k, m]
             y[k, i] = acc
+            for q in range(n_th):
+                acc = 0.0
+                for m in range(n):
+                    acc += C[i, m] * S[q, m]
+                dy[k, i, q] = acc
         _port_map(CpT, x, p[k])
         _advance(
             x, PhiT, GaT, G1T, G_oldT, G_newT, has_old, um[k], um1[k], CvT, CpT, Fc, v0, k3, Mv,
             fc_max > 0.0, has_k3, fc_max, xp, f0, c0, r, a, g, J, dlt, rt, t, gt, tt,
+            dFc, dlv, dCvT, has_dcv, S, Sp, dr, w, dw, phi_m, phi_i,
         )  # fmt: skip

@@ -48,6 +48,7 @@ __all__ = [
     "phi_gamma_foh",
     "PortLaw",
     "SubstepZoh",
+    "PortSensitivity",
     "substep_zoh",
     "closed_loop_matrices",
     "closed_loop",
@@ -492,7 +493,9 @@ class SubstepZoh:
         um1: np.ndarray,
         C: np.ndarray,
         D: np.ndarray,
-    ) -> tuple[np.ndarray, np.ndarray]:
+        *,
+        sens: PortSensitivity | None = None,
+    ) -> tuple[np.ndarray, np.ndarray] | tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Record from rest, compiled: (y, p) with y[k] = C x + D um[k], p[k] = Cp x.
 
         Parameters
@@ -501,20 +504,37 @@ class SubstepZoh:
         um, um1 : (N, n_u) arrays
             u[k-m] and u[k-m-1], saturated.
         C, D : (n_y, n), (n_y, n_u) arrays
+        sens : PortSensitivity, optional
+            How the friction law depends on parameters theta (n_th): then also the outputs'
+            exact sensitivities, computed forward alongside the simulation (the derivative of
+            the simulation as computed, to the Newton tolerance of its friction solve). The
+            law must have no cubic spring.
 
         Returns
         -------
         y : (N, n_y) array
         p : (N, n_p) array
             Port displacements.
+        dy : (N, n_y, n_th) array
+            With ``sens``: dy / dtheta.
         """
         from workbench._port_kernel import port_record
 
         c = np.ascontiguousarray
         um = c(um, dtype=float)
         N = um.shape[0]
+        n = self.Phi.shape[0]
+        n_p = law.Cp.shape[0]
         y = np.empty((N, C.shape[0]))
-        p = np.empty((N, law.Cp.shape[0]))
+        p = np.empty((N, n_p))
+        if sens is None:
+            dFc, dlv, dCvT = np.empty((0, n_p)), np.empty(0), np.empty((0, n, n_p))
+            has_dcv = np.empty(0, bool)
+        else:
+            if np.any(law.cubic_stiffness != 0):
+                raise InputError("SubstepZoh.simulate: sensitivities of a cubic spring's record")
+            dFc, dlv, dCvT, has_dcv = sens.kernel_args(n, n_p)
+        dy = np.empty((N, C.shape[0], dFc.shape[0]))
         port_record(
             *self._kernel_args,
             c(C, dtype=float),
@@ -524,8 +544,47 @@ class SubstepZoh:
             c(um1, dtype=float),
             y,
             p,
+            dFc,
+            dlv,
+            dCvT,
+            has_dcv,
+            dy,
         )
-        return y, p
+        return (y, p) if sens is None else (y, p, dy)
+
+
+@dataclass(frozen=True)
+class PortSensitivity:
+    """How a friction :class:`PortLaw` depends on parameters theta (n_th of them), for the
+    exact sensitivities of :meth:`SubstepZoh.simulate`.
+
+    Parameters
+    ----------
+    friction_force : (n_th, n_p) array
+        dF_c / dtheta, N per unit of theta (for theta = log F_c: F_c on its port's row).
+    log_velocity : (n_th,) array, optional
+        dlog v0 / dtheta (1 for theta = log v0); default 0.
+    Cv : (n_th, n_p, n) array, optional
+        dCv / dtheta, the port velocity map's (m/s per state per unit of theta); default 0.
+    """
+
+    friction_force: np.ndarray
+    log_velocity: np.ndarray | None = None
+    Cv: np.ndarray | None = None
+
+    def kernel_args(self, n: int, n_p: int):
+        """(dFc, dlv, dCvT, has_dcv (n_th,) bool) as :func:`workbench._port_kernel.port_record`
+        takes them."""
+        c = np.ascontiguousarray
+        dFc = c(np.asarray(self.friction_force, float).reshape(-1, n_p))
+        n_th = dFc.shape[0]
+        dlv = np.zeros(n_th) if self.log_velocity is None else self.log_velocity
+        dlv = c(np.broadcast_to(np.asarray(dlv, float), (n_th,)))
+        if self.Cv is None:
+            return dFc, dlv, np.zeros((n_th, n, n_p)), np.zeros(n_th, bool)
+        dCv = np.asarray(self.Cv, float).reshape(n_th, n_p, n)
+        # per parameter whether it moves Cv at all (the levels and v0 do not: skipped)
+        return dFc, dlv, c(dCv.transpose(0, 2, 1)), np.any(dCv != 0, axis=(1, 2))
 
 
 def _friction_end_reference(a, Mv, Fc, v0, r):

@@ -41,6 +41,7 @@ simulation model (:func:`fit_saturation`, on a model with no port to locate).
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -290,6 +291,20 @@ class SquarePorts:
                 rows.append((P @ m.b / bb if bb > 0 else np.zeros(n_u), P, zero))
         return _append_ports(self.model, rows).to_lti()
 
+    def port_map_derivative(self) -> np.ndarray:
+        """dCp / dg_k, (n_g, n_u, n) m per state per m/N: how the port displacements' rows of
+        :meth:`system`'s C move with each gain (nothing else in it depends on them). The rows
+        are linear in the gains (each mode's port residue is ``g_k`` times a fixed shape), so
+        the difference over one unit of each gain is the derivative, exactly."""
+        ports = self.port_outputs
+        base = np.asarray(self.system(self.unit).C, float)[ports]
+        out = []
+        for k, unit in enumerate(self.unit):
+            g = self.unit.copy()
+            g[k] += unit
+            out.append((np.asarray(self.system(g).C, float)[ports] - base) / unit)
+        return np.stack(out) if out else np.zeros((0,) + base.shape)
+
 
 def square_ports(model) -> SquarePorts | None:
     """The port model of a square ModalModel, or None when every mode is collocated (then
@@ -327,8 +342,10 @@ def simulate_nonlinear(
     return _simulate(sys, u, fs, nl, delay_s, port_outputs)[0]
 
 
-def _simulate(sys, u, fs, nl, delay_s=0.0, port_outputs=None):
-    """(y, p): :func:`simulate_nonlinear`'s measured outputs and the port displacements."""
+def _simulate(sys, u, fs, nl, delay_s=0.0, port_outputs=None, sens=None):
+    """(y, p): :func:`simulate_nonlinear`'s measured outputs and the port displacements; with
+    ``sens`` (:class:`workbench.sim.PortSensitivity`, its port velocity map's derivative
+    ``Cv`` as ``dCp A``) also dy / dtheta, (N, n_y, n_th)."""
     A, B, C, D, Cp, _ = _ports(sys, port_outputs)
     delay_s = float(delay_s) + float(getattr(sys, "delay_s", 0.0))  # the model's delay travels
     # the held input enters at the ports like the port forces (B both), whole-sample delay
@@ -348,7 +365,7 @@ def _simulate(sys, u, fs, nl, delay_s=0.0, port_outputs=None):
         cubic_stiffness=0.0 if nl.cubic_stiffness is None else nl.cubic_stiffness,
     )
     # the compiled substep loop of the plants (trapezoidal port force, implicit friction)
-    return prop.simulate(law, ud, ud, C, D)
+    return prop.simulate(law, ud, ud, C, D, sens=sens)
 
 
 def fit_friction(
@@ -429,6 +446,9 @@ CONVERGED = 0.25
 MAX_SUBSTEPS = 64
 #: rounds of (converge the substeps, refit the levels there)
 CONVERGE_ROUNDS = 3
+#: friction's Gauss-Newton uses the exact Jacobian while a step lowers the squared error by at
+#: least this share of what the Jacobian's linear model predicts (the trust-region ratio test)
+MODEL_TRUST = 0.25
 #: the friction's v0 is fitted within this factor either way of its estimate (1e-3 of the rms
 #: port velocity): far below it the law is a step the substeps cannot resolve, far above it a
 #: viscous damper (a linear effect); a free v0 may run off to either on a poor start
@@ -749,6 +769,11 @@ def fit_port_element(
         """The linear model the simulation runs: with its port gains ``g`` (SquarePorts)."""
         return lin if g is None else as_model(family.system(g))
 
+    @functools.cache
+    def port_map_derivative():
+        """dCp / dg_k of the port gains (SquarePorts), (n_g, n_u, n)."""
+        return family.port_map_derivative()
+
     def law(name, p):
         if name == "coulomb_friction":
             return np.tanh(np.gradient(p, 1.0 / fs, axis=0) / v0)
@@ -811,16 +836,22 @@ def fit_port_element(
         g = params.get("port_gains")
         return None if g is None else np.asarray(g, float)
 
-    def simulated(nl, g=None, *, residual=False, output=False, n=None):
+    def simulated(nl, g=None, *, residual=False, output=False, n=None, sens=None):
         """(error, simulated port motion) of the nonlinear simulation model with port gains
         ``g`` (SquarePorts; None otherwise), or its residual, or its output; the residual
-        over the record's first ``n`` samples if given (relative to their norm)."""
+        over the record's first ``n`` samples if given (relative to their norm). With ``sens``
+        (:class:`workbench.sim.PortSensitivity`; the residual only) the residual's exact
+        Jacobian (N n_y, n_th) in place of the port motion."""
         with np.errstate(over="ignore", invalid="ignore"):  # a diverging trial scores inf
-            y_nl, p_nl = _simulate(system(g), u[:n], fs, nl, 0.0, port_outputs)
+            out = _simulate(system(g), u[:n], fs, nl, 0.0, port_outputs, sens=sens)
+        y_nl, p_nl = out[:2]
         if not np.all(np.isfinite(y_nl)):
             return np.inf, None
         if residual:
-            return (y_nl - y[:n]).ravel() / np.linalg.norm(y[:n]), p_nl
+            scale = np.linalg.norm(y[:n])
+            if sens is not None:
+                return (y_nl - y[:n]).ravel() / scale, out[2].reshape(y_nl.size, -1) / scale
+            return (y_nl - y[:n]).ravel() / scale, p_nl
         if output:
             return y_nl, p_nl
         return float(lti.relative_error_time(y, y_nl)), p_nl
@@ -880,6 +911,46 @@ def fit_port_element(
             nl = make_element(name, levels, n_sub, vel)[0]
             return simulated(nl, gains, residual=True, n=n)[0]
 
+        def resid_jac(theta, n):
+            """(residual, its Jacobian in theta): friction's exact, from the sensitivities
+            the simulation computes alongside (the derivative of the simulation as computed),
+            at about 2-3 simulations' cost for the stage's 9 parameters where finite
+            differences take 10; the spring's None (finite differences below)."""
+            if not friction:
+                return resid(theta, n), None
+            levels, vel, gains = unpack(theta)
+            n_th = theta.size
+            dFc = np.zeros((n_th, n_u))
+            dFc[np.arange(n_lvl), active] = levels[active]  # d F_c / d log F_c
+            dlv = np.zeros(n_th)
+            dlv[n_lvl] = 1.0
+            dCv = None
+            if fit_g:  # d Cv / d log g_k = g_k dCp/dg_k A (the port velocity is Cp A x)
+                A = np.asarray(system(gains).A, float)
+                dCv = np.zeros((n_th, n_u, A.shape[0]))
+                dCv[n_lvl + n_v :] = gains[:, None, None] * (port_map_derivative() @ A)
+            sens = sim.PortSensitivity(friction_force=dFc, log_velocity=dlv, Cv=dCv)
+            nl = make_element(name, levels, n_sub, vel)[0]
+            r, J = simulated(nl, gains, residual=True, n=n, sens=sens)
+            return r, (J if np.all(np.isfinite(r)) else None)
+
+        def gauss_newton_step(J, r0):
+            """(step, whole): the Gauss-Newton step, cut back to move no parameter by more than
+            0.5 (a trust region on the logs), and whether it was not cut."""
+            step = np.linalg.lstsq(J, -r0, rcond=None)[0]
+            cut = min(1.0, 0.5 / max(np.max(np.abs(step)), 1e-300))
+            return step * cut, cut == 1.0
+
+        def fd_jacobian(theta, r0, n):
+            """Forward differences of the residual (None when a step diverges)."""
+            J = np.empty((r0.size, theta.size))
+            for k in range(theta.size):
+                r = resid(theta + h * np.eye(theta.size)[k], n)
+                if not np.all(np.isfinite(r)):
+                    return None
+                J[:, k] = (r - r0) / h
+            return J
+
         theta = np.log(c[active])
         lo, hi = np.full(n_lvl, -np.inf), np.full(n_lvl, np.inf)
         if friction:
@@ -893,29 +964,60 @@ def fit_port_element(
         n_iter = VELOCITY_ITERATIONS if friction else REFINE_ITERATIONS
         n_iter = GAIN_ITERATIONS if fit_g else n_iter
         horizons = FRICTION_HORIZONS if friction else (1.0,)
+        # friction's Jacobian is exact (the sensitivities) where Gauss-Newton takes whole steps
+        # with it (no parameter moved by more than the trust region, 0.5 in the logs) and its
+        # linear model predicts the error's fall over them (a share MODEL_TRUST of it): near
+        # the optimum, where it is the better slope. Elsewhere forward differences over h, the
+        # path as before, until their step is whole again. Far from the optimum, near
+        # stick-slip switches, the record is steep in the parameters on scales far below the
+        # steps: the exact derivative holds only near the point, and the step it extrapolates
+        # is cut back to nothing (on an indepgen stage record with hard Coulomb friction it
+        # asked for 100x in a port gain and stalled at 32x the floor, where differences over
+        # h reach 4x)
+        exact = friction
         for frac in horizons:
             n = max(int(frac * u.shape[0]), 2)
-            r0 = resid(theta, n)
+            r0, J = resid_jac(theta, n) if exact else (resid(theta, n), None)
             if not np.all(np.isfinite(r0)):
                 return out
             for _ in range(n_iter):
-                J = np.empty((r0.size, theta.size))
-                for k in range(theta.size):
-                    r = resid(theta + h * np.eye(theta.size)[k], n)
-                    if not np.all(np.isfinite(r)):
+                if J is None:
+                    if exact:  # the accepted trial's, which was run without it
+                        r0, J = resid_jac(theta, n)
+                    else:
+                        J = fd_jacobian(theta, r0, n)
+                    if J is None:
                         return out
-                    J[:, k] = (r - r0) / h
-                step = np.linalg.lstsq(J, -r0, rcond=None)[0]
-                step *= min(1.0, 0.5 / max(np.max(np.abs(step)), 1e-300))  # a trust region
                 cost0 = float(r0 @ r0)
-                for shrink in (1.0, 0.5):
-                    trial = np.clip(theta + shrink * step, lo, hi)
-                    r = resid(trial, n)
-                    if np.all(np.isfinite(r)) and float(r @ r) < cost0:
-                        theta, r0 = trial, r
+                step, whole = gauss_newton_step(J, r0)
+                accepted = False
+                if exact:
+                    fall, model_fall = -np.inf, 0.0
+                    if whole:
+                        trial = np.clip(theta + step, lo, hi)
+                        model = r0 + J @ (trial - theta)
+                        r = resid(trial, n)
+                        fall = cost0 - float(r @ r) if np.all(np.isfinite(r)) else -np.inf
+                        model_fall = cost0 - float(model @ model)
+                    if fall > 0 and fall >= MODEL_TRUST * model_fall:
+                        theta, r0, J, accepted = trial, r, None, True
+                    else:
+                        exact = False
+                        J = fd_jacobian(theta, r0, n)
+                        if J is None:
+                            return out
+                        step, whole = gauss_newton_step(J, r0)
+                if friction and not exact and whole:
+                    exact = True  # near the optimum (a whole step): the exact slope next
+                if not accepted:
+                    for shrink in (1.0, 0.5):
+                        trial = np.clip(theta + shrink * step, lo, hi)
+                        r = resid(trial, n)
+                        if np.all(np.isfinite(r)) and float(r @ r) < cost0:
+                            theta, r0, J = trial, r, None
+                            break
+                    else:
                         break
-                else:
-                    break
                 if frac == 1.0:  # the whole record's error: a candidate
                     levels, vel, gains = unpack(theta)
                     nl, params = make_element(name, levels, n_sub, vel, gains)
