@@ -26,7 +26,7 @@ from workbench.core.lti import relative_error_frf, relative_error_time
 from workbench.diagnosis.fit import cholesky_qr2
 from workbench.io.formats import FrfData, TimeData
 from workbench.modal.model import ModalModel, Mode
-from workbench.modal.simulate import filtered_inputs, filtered_lines
+from workbench.modal.simulate import filtered_inputs, filtered_lines, mixed_lines
 
 __all__ = ["FrfProblem", "PeriodicProblem", "TimeProblem", "make_problem", "moving_start"]
 
@@ -379,6 +379,11 @@ def _remove(Q: np.ndarray | None, X: np.ndarray) -> np.ndarray:
     return (flat - Q @ (Q.T @ flat)).reshape(X.shape)
 
 
+#: directly summed model outputs the time-record problems keep as anchors
+#: (:meth:`_FilteredProblem._parts_sum`)
+ROW_ANCHORS = 4
+
+
 class _FilteredProblem:
     """The time-record problems' shared part: the model's output as filtered inputs mixed by
     the modes' numerators, on *rows* (time samples, or the real and imaginary parts of DFT
@@ -425,29 +430,81 @@ class _FilteredProblem:
         k = _key(den, N0, N1) + channels
         out = self._cache.get(k)
         if out is None:
-            X, groups = self._filtered(model, den, u_in, channels)
-            out = np.zeros(self.target.shape)
-            for g, rows in enumerate(groups):
-                out[:, rows] = X[g, :, :, 0] @ N0[rows].T
-                if N1 is not None and np.any(N1):
-                    out[:, rows] += X[g, :, :, 1] @ N1[rows].T
+            out = self._mixed(model, den, N0, N1, u_in, channels)
             if len(self._cache) > 200:
                 self._cache.clear()
             self._cache[k] = out
         return out
 
+    def _mixed(self, model: ModalModel, den, N0, N1, u_in, channels: tuple) -> np.ndarray:
+        """One mode's (or D's) output on the rows, (n_rows, n_y): its filtered inputs mixed
+        by its numerators ``N0``, ``N1`` (n_y, n_u; ``N1`` None for D)."""
+        X, groups = self._filtered(model, den, u_in, channels)
+        out = np.zeros(self.target.shape)
+        for g, rows in enumerate(groups):
+            out[:, rows] = X[g, :, :, 0] @ N0[rows].T
+            if N1 is not None and np.any(N1):
+                out[:, rows] += X[g, :, :, 1] @ N1[rows].T
+        return out
+
     def _u_in(self, model: ModalModel) -> np.ndarray:
         return self.u_rows if model.T_in is None else self.u_rows @ model.T_in.T
+
+    def _parts_sum(self, model: ModalModel, u_in, channels: tuple) -> np.ndarray:
+        """``D`` and every mode's output on the rows summed, (n_rows, n_y), a new array.
+
+        From a near anchor when there is one: a sum summed directly (kept, with its parts,
+        for the last :data:`ROW_ANCHORS` models so summed) of a model with the same
+        channels whose parts differ from this model's in at most two places (a screen or a
+        fit moving or adding one mode: most evaluations), the changed parts subtracted and
+        added; the unchanged parts are recognised by identity (a structure's ``build``
+        keeps the other modes' objects), which costs nothing, where looking each part up by
+        its values (the parts' cache) costs a key per mode. Rounding ~1e-16 of the
+        anchor's largest row, never chained: a sum derived so is not an anchor.
+        """
+        items = ((model.D if np.any(model.D) else None),) + model.modes
+        for anchor in reversed(self._anchors):
+            a_channels, a_items, a_parts, a_sum = anchor
+            extra = len(items) - len(a_items)
+            if a_channels != channels or not 0 <= extra <= 2:
+                continue
+            changed = [k for k in range(len(a_items)) if a_items[k] is not items[k]]
+            if len(changed) + extra > 2:
+                continue
+            y = a_sum.copy()
+            for k in changed:
+                if a_parts[k] is not None:
+                    y -= a_parts[k]
+                part = self._item_part(model, items[k], u_in, channels)
+                if part is not None:
+                    y += part
+            for item in items[len(a_items) :]:
+                y += self._item_part(model, item, u_in, channels)
+            return y
+        parts = [self._item_part(model, item, u_in, channels) for item in items]
+        y = np.zeros(self.target.shape)
+        for part in parts:
+            if part is not None:
+                y += part
+        if len(self._anchors) >= ROW_ANCHORS:
+            self._anchors.pop(0)
+        self._anchors.append((channels, items, parts, y.copy()))
+        return y
+
+    def _item_part(self, model: ModalModel, item, u_in, channels: tuple):
+        """The output of one item of :meth:`_parts_sum` (the feedthrough ``D``, None when it
+        is zero, or a mode) on the rows, or None."""
+        if item is None:
+            return None
+        if isinstance(item, np.ndarray):
+            return self._part(model, None, item, None, u_in, channels)
+        return self._part(model, item.denominator(), *item.numerator(), u_in, channels)
 
     def fitted(self, model: ModalModel) -> np.ndarray:
         """The model's output on the rows (n_rows, n_y), its start fitted when there is a basis."""
         u_in = self._u_in(model)
         channels = self._channels_key(model)
-        y = np.zeros(self.target.shape)
-        if np.any(model.D):
-            y += self._part(model, None, model.D, None, u_in, channels)
-        for m in model.modes:
-            y += self._part(model, m.denominator(), *m.numerator(), u_in, channels)
+        y = self._parts_sum(model, u_in, channels)
         if model.T_out is not None:
             y = y @ model.T_out.T
         Q = self._start_basis(model)
@@ -566,6 +623,7 @@ class TimeProblem(_FilteredProblem):
         self._cache: dict = {}
         self._filter_cache: dict = {}
         self._basis_cache: dict = {}
+        self._anchors: list = []  # (channels, items, parts, sum), see _parts_sum
 
     def _filter(self, model, den, u_in):
         return filtered_inputs(model, den, u_in, self.fs)
@@ -710,6 +768,8 @@ class PeriodicProblem(_FilteredProblem):
         self.block_of = np.concatenate([np.full(ln.size, b) for b, ln in enumerate(blocks)])
         lines = np.concatenate(blocks)
         self.z = np.exp(2j * np.pi * lines / rec.period)
+        self._zi = 1.0 / self.z
+        self._blocks = [self.block_of == b for b in np.unique(self.block_of)]
         #: the excited lines' frequencies (every block's), Hz, ascending
         self.line_hz = np.unique(lines) * self.fs / rec.period
         U = np.concatenate([rec.U[b, ln] for b, ln in enumerate(blocks)])
@@ -721,6 +781,7 @@ class PeriodicProblem(_FilteredProblem):
         self._cache: dict = {}
         self._filter_cache: dict = {}
         self._basis_cache: dict = {}
+        self._anchors: list = []  # (channels, items, parts, sum), see _parts_sum
         self._basis_key: dict = {}
         self._last_new: tuple | None = None  # the last key whose basis was not kept
         self._responses: dict = {}  # filter -> its responses at z (filtered_lines' cache)
@@ -728,6 +789,13 @@ class PeriodicProblem(_FilteredProblem):
     def _filter(self, model, den, u_in):
         X, groups = filtered_lines(model, den, u_in, self.z, self.fs, responses=self._responses)
         return np.concatenate([X.real, X.imag], axis=1), groups
+
+    def _mixed(self, model, den, N0, N1, u_in, channels):
+        """The part on the lines from the filters' responses (:func:`mixed_lines`), the real
+        parts of the lines stacked over the imaginary ones; the filtered inputs
+        (:meth:`_filter`) only where a linear fit needs them as regressors."""
+        Y = mixed_lines(model, den, N0, N1, u_in, self.z, self.fs, responses=self._responses)
+        return np.concatenate([Y.real, Y.imag])
 
     def _start_basis(self, model: ModalModel) -> np.ndarray:
         """Orthonormal basis (2 n_l, r) of the transient terms of the model's poles, per block."""
@@ -761,7 +829,7 @@ class PeriodicProblem(_FilteredProblem):
     def _columns(self, poles, drift: bool) -> np.ndarray:
         """Transient columns (n_l, k) complex: the rigid body's drift (``drift``) and the
         sampled ``poles``' free responses, one set per block."""
-        zi = 1.0 / self.z
+        zi = self._zi
         cols = [1.0 / (1.0 - zi), 1.0 / (1.0 - zi) ** 2] if drift else []
         for pk in poles:
             b = 1.0 / (1.0 - pk * zi)
@@ -771,9 +839,10 @@ class PeriodicProblem(_FilteredProblem):
             else:
                 cols.append(b)
         C = np.column_stack(cols)
+        if len(self._blocks) == 1:
+            return C
         # one set of coefficients per block (each block starts from its own state)
-        blocks = [self.block_of == b for b in np.unique(self.block_of)]
-        return np.column_stack([C * blk[:, None] for blk in blocks])
+        return np.column_stack([C * blk[:, None] for blk in self._blocks])
 
     def _basis_of(self, key: tuple) -> np.ndarray:
         """Orthonormal basis (2 n_l, r) of the rigid drift and the poles of ``key``, afresh."""
@@ -816,10 +885,19 @@ class PeriodicProblem(_FilteredProblem):
         norms = np.linalg.norm(W, axis=0)
         if np.min(norms) < NEAR_SPAN:
             return None
-        # the pole's own few columns: Householder QR (a pair's two columns may be near
-        # parallel for a pole near the real axis; then the whole basis afresh)
-        Q_new, R = np.linalg.qr(W / norms)
-        d = np.abs(np.diag(R))
+        # the pole's own few columns (a pair's two may be near parallel for a pole near the
+        # real axis; then the whole basis afresh): Gram-Schmidt twice per column, which for
+        # these 2-12 columns is Householder QR's Q (up to signs) and |diag R| at a tenth of
+        # np.linalg.qr's call overhead
+        W = W / norms
+        Q_new = np.empty_like(W)
+        d = np.empty(W.shape[1])
+        for j in range(W.shape[1]):
+            w = W[:, j]
+            for _ in range(2 if j else 0):
+                w = w - Q_new[:, :j] @ (Q_new[:, :j].T @ w)
+            d[j] = np.linalg.norm(w)
+            Q_new[:, j] = w / d[j] if d[j] > 0 else 0.0
         if np.min(d) < NEAR_SPAN * np.max(d):
             return None
         return np.ascontiguousarray(np.column_stack([Q_rest, Q_new]))

@@ -16,6 +16,7 @@ Data flow::
 
 from __future__ import annotations
 
+import cmath
 import functools
 
 import numpy as np
@@ -27,6 +28,8 @@ from workbench.sim import c2d_zoh, split_delay
 __all__ = [
     "filtered_inputs",
     "filtered_lines",
+    "line_responses",
+    "mixed_lines",
     "simulate",
     "zoh_filter",
     "zoh_response",
@@ -121,6 +124,31 @@ def filtered_inputs(model, den, u: np.ndarray, fs: float, *, numerator_s: bool =
     return X, groups
 
 
+def line_responses(model, den, z: np.ndarray, fs: float, *, numerator_s=True, responses=None):
+    """The filters of :func:`filtered_inputs` with their exact ZOH responses at the points ``z``.
+
+    Parameters as :func:`filtered_lines`. Returns ``([(g, cols, hs), ...], groups)``: per
+    filter its output group ``g``, input columns ``cols`` and the responses ``hs`` (one
+    (n_l,) complex array per numerator: ``1/d``, and ``s/d`` when asked and ``den`` is
+    second order) of :func:`zoh_responses`, looked up in / added to ``responses``.
+    """
+    filters, groups = _channel_filters(model, den, numerator_s)
+    out = []
+    for g, cols, nums, d in filters:
+        hs = None
+        if responses is not None:
+            key = (d.tobytes(), len(nums), float(fs), float(model.delay_s))
+            hs = responses.get(key)
+        if hs is None:
+            hs = zoh_responses(nums, d, z, 1.0 / fs, model.delay_s)
+            if responses is not None:
+                if len(responses) > RESPONSES_KEPT:
+                    responses.clear()
+                responses[key] = hs
+        out.append((g, cols, hs))
+    return out, groups
+
+
 def filtered_lines(
     model, den, U: np.ndarray, z: np.ndarray, fs: float, *, numerator_s=True, responses=None
 ):
@@ -149,22 +177,42 @@ def filtered_lines(
     X : (n_groups, n_l, n_u, 2) complex array
     groups : list of int arrays
     """
-    filters, groups = _channel_filters(model, den, numerator_s)
+    lines, groups = line_responses(model, den, z, fs, numerator_s=numerator_s, responses=responses)
     X = np.zeros((len(groups), U.shape[0], model.n_u, 2), complex)
-    for g, cols, nums, d in filters:
-        hs = None
-        if responses is not None:
-            key = (d.tobytes(), len(nums), float(fs), float(model.delay_s))
-            hs = responses.get(key)
-        if hs is None:
-            hs = zoh_responses(nums, d, z, 1.0 / fs, model.delay_s)
-            if responses is not None:
-                if len(responses) > RESPONSES_KEPT:
-                    responses.clear()
-                responses[key] = hs
+    for g, cols, hs in lines:
         for k, h in enumerate(hs):
             X[g, :, cols, k] = (h[:, None] * U[:, cols]).T
     return X, groups
+
+
+def mixed_lines(model, den, N0, N1, U: np.ndarray, z: np.ndarray, fs: float, *, responses=None):
+    """One mode's (or the feedthrough's) output at the lines, (n_l, n_y) complex.
+
+    :func:`filtered_lines` mixed by the numerator ``N1 s + N0`` (``N0``, ``N1`` (n_y, n_u);
+    ``N1`` None for the feedthrough, ``den`` None), as the simulation mixes
+    :func:`filtered_inputs`: per filter ``h_0(z) (U N0^T) + h_1(z) (U N1^T)`` over its
+    output rows and input columns, without forming the filtered inputs (a fit evaluates
+    thousands of moved modes; their regressors are needed only by the linear fits).
+    ``U``, ``z``, ``fs``, ``responses`` as :func:`filtered_lines`.
+    """
+    lines, groups = line_responses(model, den, z, fs, responses=responses)
+    n_y, n_u = N0.shape
+    use_s = N1 is not None and np.any(N1)
+    Y = np.zeros((U.shape[0], n_y), complex)
+    for g, cols, hs in lines:
+        rows = groups[g]
+        whole = rows.size == n_y and cols.size == n_u
+        Uc = U if whole else U[:, cols]
+        N = N0 if whole else N0[np.ix_(rows, cols)]
+        part = hs[0][:, None] * (Uc @ N.T)
+        if use_s and len(hs) > 1:
+            N = N1 if whole else N1[np.ix_(rows, cols)]
+            part += hs[1][:, None] * (Uc @ N.T)
+        if whole:
+            Y += part
+        else:
+            Y[:, rows] += part
+    return Y
 
 
 #: filters whose line responses a ``responses`` cache of :func:`filtered_lines` keeps (~15 MB
@@ -346,20 +394,74 @@ def _distinct_pole_response(strict, den, zi, dt: float, frac: float):
     """
     if _rigid_body(den):
         return _rigid_body_response(strict, den, zi, dt, frac)
-    if den.size == 3:  # a mode: the quadratic's roots directly (np.roots costs 20x more)
-        h, q = 0.5 * den[1], np.sqrt(complex(0.25 * den[1] ** 2 - den[2]))
-        lam = np.array([-h + q, -h - q])
-    else:
-        lam = np.roots(den)
-    if lam.size > 1:
-        diff = np.abs(lam[:, None] - lam[None, :]) + np.diag(np.full(lam.size, np.inf))
-        size = np.maximum(np.abs(lam[:, None]), np.abs(lam[None, :]))
-        if np.any(diff <= _POLE_SEPARATION * np.maximum(size, 1e-300)):
-            return None
-    dden = np.polyval(np.polyder(den), lam)
-    r = np.array([np.polyval(st, lam) for st in strict]) / dden  # (n_num, n_poles)
+    if den.size == 3:  # a mode (no lag): the most frequent filter, in scalar arithmetic
+        return _pair_response(strict, float(den[1]), float(den[2]), zi, dt, frac)
+    lam = np.roots(den)
+    if _too_close(lam):
+        return None
+    r = _residues(strict, den, lam)  # (n_num, n_poles)
     hs = r @ _simple_pole_responses(lam, zi, dt, frac).T
     return hs if np.all(np.isfinite(hs)) else None
+
+
+def _too_close(lam: np.ndarray) -> bool:
+    """Whether two of the poles ``lam`` lie within :data:`_POLE_SEPARATION` (relative)."""
+    if lam.size < 2:
+        return False
+    diff = np.abs(lam[:, None] - lam[None, :]) + np.diag(np.full(lam.size, np.inf))
+    size = np.maximum(np.abs(lam[:, None]), np.abs(lam[None, :]))
+    return bool(np.any(diff <= _POLE_SEPARATION * np.maximum(size, 1e-300)))
+
+
+def _residues(strict: np.ndarray, den: np.ndarray, lam: np.ndarray) -> np.ndarray:
+    """Residues (n_num, n_poles) of ``strict_i(s) / den(s)`` at the simple roots ``lam`` of the
+    monic ``den``: ``strict_i(lam) / den'(lam)``, both polynomials evaluated by one
+    Vandermonde product (``np.polyval`` per row costs ~20 us of call overhead each)."""
+    n = den.size - 1
+    V = lam[None, :] ** np.arange(n - 1, -1, -1)[:, None]  # (n, n_poles): lam^(n-1) .. 1
+    dden = (np.arange(n, 0, -1) * den[:-1]) @ V  # den' = sum_k (n - k) den_k s^(n-1-k)
+    return (strict @ V) / dden
+
+
+def _pair_response(strict, a1: float, a0: float, zi, dt: float, frac: float):
+    """:func:`_distinct_pole_response` of ``s^2 + a1 s + a0`` (a mode), its two poles in
+    scalar arithmetic: ``lam = -a1 / 2 +- q``, ``den'(lam) = +-2 q = +-(lam_1 - lam_2)``.
+
+    The same partial fractions and closed forms, with a tenth of the array operations (a
+    screen or a fit evaluates thousands of moved modes). None when the poles coincide
+    within :data:`_POLE_SEPARATION` (a critically damped mode).
+    """
+    h = 0.5 * a1
+    q = cmath.sqrt(h * h - a0)
+    l1, l2 = -h + q, -h - q
+    d = l1 - l2
+    if abs(d) <= _POLE_SEPARATION * max(abs(l1), abs(l2), 1e-300):
+        return None
+    g1 = _pole_response(l1, zi, dt, frac)
+    g2 = _pole_response(l2, zi, dt, frac)
+    hs = np.empty((strict.shape[0], zi.size), complex)
+    for i, (c1, c0) in enumerate(strict.tolist()):
+        hs[i] = ((c1 * l1 + c0) / d) * g1 - ((c1 * l2 + c0) / d) * g2
+    return hs if np.all(np.isfinite(hs)) else None
+
+
+def _hold_integral(lam: complex, h: float) -> complex:
+    """``int_0^h exp(lam s) ds`` (s), its limit ``h`` near ``lam = 0`` (scalar ``lam``)."""
+    x = lam * h
+    if abs(x) < 1e-8:
+        return h * (1 + 0.5 * x)
+    return complex(np.expm1(x)) / lam
+
+
+def _pole_response(lam: complex, zi, dt: float, frac: float):
+    """(n_l,) ZOH response of ``1 / (s - lam)`` at ``zi`` = 1/z with the delay ``frac``: one
+    column of :func:`_simple_pole_responses`, for a scalar pole."""
+    b0 = _hold_integral(lam, dt - frac)
+    p = cmath.exp(lam * dt)
+    if frac > 0:
+        b1 = cmath.exp(lam * (dt - frac)) * _hold_integral(lam, frac)
+        return (b0 + b1 * zi) * zi / (1.0 - p * zi)
+    return b0 * zi / (1.0 - p * zi)
 
 
 def _simple_pole_responses(lam, zi, dt: float, frac: float):
@@ -413,18 +515,15 @@ def _rigid_body_response(strict, den, zi, dt: float, frac: float):
         lam = np.array([-q[1] / q[0]], complex)
     else:
         lam = np.roots(q).astype(complex)
-    if lam.size > 1:
-        diff = np.abs(lam[:, None] - lam[None, :]) + np.diag(np.full(lam.size, np.inf))
-        size = np.maximum(np.abs(lam[:, None]), np.abs(lam[None, :]))
-        if np.any(diff <= _POLE_SEPARATION * size):
-            return None
+    if _too_close(lam):
+        return None
     if np.any(np.abs(lam) * dt < _RIGID_POLE_MIN):
         return None
     q0, q1 = q[-1], (q[-2] if q.size > 1 else 0.0)  # q(0), q'(0)
     c2 = strict[:, -1] / q0
     c1 = (strict[:, -2] * q0 - strict[:, -1] * q1) / q0**2
     poles = np.concatenate([[0.0], lam])  # the integrator, then q's roots
-    r = np.array([np.polyval(st, lam) for st in strict]) / np.polyval(np.polyder(den), lam)
+    r = _residues(strict, den, lam)
     r = np.concatenate([c1[:, None], r], axis=1)  # (n_num, 1 + n_lam)
     w = zi
     double = (
