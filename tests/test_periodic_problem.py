@@ -391,3 +391,31 @@ def test_transient_basis_extended_by_a_moved_or_added_pole_spans_the_basis_afres
         assert np.max(np.abs(Q @ Q.T - Q_ref @ Q_ref.T)) <= 1e-9
     # computed afresh: the first model, the rest of the second; the others were extended
     assert len(fresh) == 2
+
+
+def test_mixed_lines_is_the_filtered_inputs_mixed_by_the_numerators():
+    """mixed_lines (a part's output at the lines from the filters' responses, lags per
+    channel gathered) against filtered_lines' filtered inputs mixed by the numerators as the
+    simulation mixes them; with lags on some inputs and outputs (several filters, the lag
+    poles' roots given in closed form) and without (one filter)."""
+    from workbench.modal.simulate import mixed_lines
+
+    base = replace(ModalModel.from_statespace(_two_mode_plant(), exact=True), delay_s=0.37e-3)
+    lines = np.arange(1, 301)
+    z = np.exp(2j * np.pi * lines / PERIOD)
+    rng = np.random.default_rng(5)
+    U = rng.normal(size=(lines.size, 2)) + 1j * rng.normal(size=(lines.size, 2))
+    for tau_in, tau_out in (([0.0, 0.0], [0.0, 0.0]), ([1e-3, 0.0], [0.0, 5e-4])):
+        model = replace(base, tau_in=np.array(tau_in), tau_out=np.array(tau_out))
+        for den, (N0, N1) in [(None, (base.D + 0.3, None))] + [
+            (m.denominator(), m.numerator()) for m in model.modes
+        ]:
+            N1 = None if N1 is None else N1 + rng.normal(size=N1.shape)  # s/den used too
+            X, groups = filtered_lines(model, den, U, z, FS)
+            ref = np.zeros((lines.size, 2), complex)
+            for g, rows in enumerate(groups):
+                ref[:, rows] = X[g, :, :, 0] @ N0[rows].T
+                if N1 is not None and den is not None and len(den) == 2:
+                    ref[:, rows] += X[g, :, :, 1] @ N1[rows].T
+            Y = mixed_lines(model, den, N0, N1, U, z, FS)
+            assert np.max(np.abs(Y - ref)) <= 1e-12 * np.max(np.abs(ref))

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import cmath
 import functools
+from typing import NamedTuple
 
 import numpy as np
 import scipy.linalg
@@ -42,10 +43,13 @@ def _channel_filters(model, den, numerator_s: bool):
 
     Returns
     -------
-    filters : list of (g, cols, nums, d)
+    filters : list of :class:`_Filter`
         Output group ``g``, input columns ``cols``, the numerators (``[1]``, and ``[1, 0]``
-        for ``s/den`` when asked and ``den`` is second order; slot k of X is ``nums[k]``)
-        and the common denominator ``d`` (``den`` times the channel's lags).
+        for ``s/den`` when asked and ``den`` is second order; slot k of X is ``nums[k]``),
+        the common denominator ``d`` (``den`` times the channel's lags), the channels it
+        filters as flat indices ``i n_u + j`` of an (n_y, n_u) array, and ``d``'s roots
+        when a lag multiplies ``den`` (the mode's and the lags' -1/tau, known in closed
+        form: no eigenvalue computation per filter), else None.
     groups : tuple of int arrays
         Output indices sharing one sensor lag.
     """
@@ -55,13 +59,42 @@ def _channel_filters(model, den, numerator_s: bool):
     two = den is not None and len(den) == 2 and numerator_s
     base = np.array([1.0]) if den is None else np.concatenate([[1.0], den])
     nums = _NUMS_TWO if two else _NUMS_ONE
-    filters = [
+    filters = []
+    den_roots = None
+    for g, cols, lag, flat, lag_roots in lag_sets:
+        if lag.size == 1:
+            filters.append(_Filter(g, cols, nums, base, flat, None))
+            continue
+        if den_roots is None:
+            den_roots = _den_roots(den)
         # np.convolve is np.polymul without its poly1d wrapping (both leading terms are
         # nonzero: nothing to trim), a tenth of the cost on a fit's hot path
-        (g, cols, nums, base if lag.size == 1 else np.convolve(base, lag))
-        for g, cols, lag in lag_sets
-    ]
+        d = np.convolve(base, lag)
+        filters.append(_Filter(g, cols, nums, d, flat, np.array(den_roots + lag_roots, complex)))
     return filters, groups
+
+
+class _Filter(NamedTuple):
+    """One filter of :func:`_channel_filters`."""
+
+    g: int
+    cols: np.ndarray
+    nums: tuple
+    d: np.ndarray
+    flat: np.ndarray
+    roots: np.ndarray | None
+
+
+def _den_roots(den) -> list:
+    """The roots of ``s^2 + a1 s + a0`` (``den`` = (a1, a0); rigid (0, 0): the double root 0)
+    or of ``s + a0`` (``den`` = (a0,)); none for ``den`` None."""
+    if den is None:
+        return []
+    if len(den) == 1:
+        return [complex(-den[0])]
+    h = 0.5 * float(den[0])
+    q = cmath.sqrt(h * h - float(den[1]))
+    return [-h + q, -h - q]
 
 
 _NUMS_ONE = (np.array([1.0]),)
@@ -73,7 +106,9 @@ def _channel_layout(out_bytes: bytes, in_bytes: bytes):
     """Output groups of equal sensor lag and, per group and input-lag set, the lags' polynomial.
 
     From the lags' bytes (cached: a model's lags change far less often than its modes).
-    Returns (groups, [(g, cols, lag_polynomial), ...]).
+    Returns (groups, [(g, cols, lag_polynomial, flat, lag_roots), ...]), ``flat`` the
+    channels (group g's outputs i, the set's inputs j) as flat indices ``i n_u + j``,
+    ``lag_roots`` the lag polynomial's roots ``-1/tau`` (a list).
     """
     taus, tin = np.frombuffer(out_bytes), np.frombuffer(in_bytes)
     uniq = np.unique(taus)
@@ -85,8 +120,11 @@ def _channel_layout(out_bytes: bytes, in_bytes: bytes):
             for tau in (ty, ti):
                 if tau > 0:
                     lag = np.convolve(lag, [tau, 1.0])  # np.polymul, without poly1d
-            sets.append((g, np.flatnonzero(tin == ti), lag))
-    for x in list(groups) + [a for _, c, p in sets for a in (c, p)]:
+            cols = np.flatnonzero(tin == ti)
+            flat = (groups[g][:, None] * tin.size + cols[None, :]).ravel()
+            roots = [complex(-1.0 / tau) for tau in (ty, ti) if tau > 0]
+            sets.append((g, cols, lag, flat, roots))
+    for x in list(groups) + [a for _, c, p, f, _ in sets for a in (c, p, f)]:
         x.flags.writeable = False
     return groups, sets
 
@@ -118,34 +156,35 @@ def filtered_inputs(model, den, u: np.ndarray, fs: float, *, numerator_s: bool =
     """
     filters, groups = _channel_filters(model, den, numerator_s)
     X = np.zeros((len(groups), u.shape[0], model.n_u, 2))
-    for g, cols, nums, d in filters:
-        for k, num in enumerate(nums):
-            X[g, :, cols, k] = zoh_filter(num, d, u[:, cols], 1.0 / fs, model.delay_s).T
+    for f in filters:
+        for k, num in enumerate(f.nums):
+            X[f.g, :, f.cols, k] = zoh_filter(num, f.d, u[:, f.cols], 1.0 / fs, model.delay_s).T
     return X, groups
 
 
 def line_responses(model, den, z: np.ndarray, fs: float, *, numerator_s=True, responses=None):
     """The filters of :func:`filtered_inputs` with their exact ZOH responses at the points ``z``.
 
-    Parameters as :func:`filtered_lines`. Returns ``([(g, cols, hs), ...], groups)``: per
-    filter its output group ``g``, input columns ``cols`` and the responses ``hs`` (one
+    Parameters as :func:`filtered_lines`. Returns ``([(g, cols, hs, flat), ...], groups)``:
+    per filter its output group ``g``, input columns ``cols``, the responses ``hs`` (one
     (n_l,) complex array per numerator: ``1/d``, and ``s/d`` when asked and ``den`` is
-    second order) of :func:`zoh_responses`, looked up in / added to ``responses``.
+    second order) of :func:`zoh_responses`, looked up in / added to ``responses``, and its
+    channels as flat indices (:func:`_channel_filters`).
     """
     filters, groups = _channel_filters(model, den, numerator_s)
     out = []
-    for g, cols, nums, d in filters:
+    for g, cols, nums, d, flat, roots in filters:
         hs = None
         if responses is not None:
             key = (d.tobytes(), len(nums), float(fs), float(model.delay_s))
             hs = responses.get(key)
         if hs is None:
-            hs = zoh_responses(nums, d, z, 1.0 / fs, model.delay_s)
+            hs = zoh_responses(nums, d, z, 1.0 / fs, model.delay_s, roots=roots)
             if responses is not None:
                 if len(responses) > RESPONSES_KEPT:
                     responses.clear()
                 responses[key] = hs
-        out.append((g, cols, hs))
+        out.append((g, cols, hs, flat))
     return out, groups
 
 
@@ -179,7 +218,7 @@ def filtered_lines(
     """
     lines, groups = line_responses(model, den, z, fs, numerator_s=numerator_s, responses=responses)
     X = np.zeros((len(groups), U.shape[0], model.n_u, 2), complex)
-    for g, cols, hs in lines:
+    for g, cols, hs, _ in lines:
         for k, h in enumerate(hs):
             X[g, :, cols, k] = (h[:, None] * U[:, cols]).T
     return X, groups
@@ -195,23 +234,26 @@ def mixed_lines(model, den, N0, N1, U: np.ndarray, z: np.ndarray, fs: float, *, 
     thousands of moved modes; their regressors are needed only by the linear fits).
     ``U``, ``z``, ``fs``, ``responses`` as :func:`filtered_lines`.
     """
-    lines, groups = line_responses(model, den, z, fs, responses=responses)
-    n_y, n_u = N0.shape
+    lines, _ = line_responses(model, den, z, fs, responses=responses)
     use_s = N1 is not None and np.any(N1)
-    Y = np.zeros((U.shape[0], n_y), complex)
-    for g, cols, hs in lines:
-        rows = groups[g]
-        whole = rows.size == n_y and cols.size == n_u
-        Uc = U if whole else U[:, cols]
-        N = N0 if whole else N0[np.ix_(rows, cols)]
-        part = hs[0][:, None] * (Uc @ N.T)
+    if len(lines) == 1:  # no lag tells the channels apart: one response for all
+        hs = lines[0][2]
+        Y = hs[0][:, None] * (U @ N0.T)
         if use_s and len(hs) > 1:
-            N = N1 if whole else N1[np.ix_(rows, cols)]
-            part += hs[1][:, None] * (Uc @ N.T)
-        if whole:
-            Y += part
-        else:
-            Y[:, rows] += part
+            Y += hs[1][:, None] * (U @ N1.T)
+        return Y
+    # lags per channel: every channel's response gathered, then one product (a filter per
+    # sensor and actuator lag pair would otherwise cost a few array operations each)
+    n_l, (n_y, n_u) = U.shape[0], N0.shape
+    Y = np.zeros((n_l, n_y), complex)
+    for k, N in enumerate((N0, N1) if use_s else (N0,)):
+        H = np.zeros((n_l, n_y * n_u), complex)
+        for _, _, hs, flat in lines:
+            if k < len(hs):
+                H[:, flat] = hs[k][:, None]
+        H = H.reshape(n_l, n_y, n_u)
+        H *= N
+        Y += np.einsum("lij,lj->li", H, U)
     return Y
 
 
@@ -350,8 +392,12 @@ def zoh_response(num, den, z: np.ndarray, dt: float, delay_s: float = 0.0) -> np
     return zoh_responses([num], den, z, dt, delay_s)[0]
 
 
-def zoh_responses(nums, den, z: np.ndarray, dt: float, delay_s: float = 0.0) -> list:
-    """:func:`zoh_response` of several numerators over one ``den`` (one pole computation)."""
+def zoh_responses(nums, den, z: np.ndarray, dt: float, delay_s: float = 0.0, *, roots=None):
+    """:func:`zoh_response` of several numerators over one ``den`` (one pole computation).
+
+    ``roots``: ``den``'s roots (complex array) when the caller knows them in closed form (a
+    mode's times its channel's lags), else None (computed here). Returns a list of (n,)
+    complex arrays, one per numerator."""
     padded, den = _monic(nums, den)
     n = den.size - 1
     m_int, frac = split_delay(delay_s, dt)
@@ -359,7 +405,7 @@ def zoh_responses(nums, den, z: np.ndarray, dt: float, delay_s: float = 0.0) -> 
     out = [np.zeros(zi.shape, complex) for _ in padded]
     if n > 0:
         strict = np.array([num[1:] - num[0] * den[1:] for num in padded])
-        hs = _distinct_pole_response(strict, den, zi, dt, frac)
+        hs = _distinct_pole_response(strict, den, zi, dt, frac, roots)
         if hs is None:
             hs = []
             for num in padded:
@@ -379,7 +425,7 @@ def zoh_responses(nums, den, z: np.ndarray, dt: float, delay_s: float = 0.0) -> 
 _POLE_SEPARATION = 1e-3
 
 
-def _distinct_pole_response(strict, den, zi, dt: float, frac: float):
+def _distinct_pole_response(strict, den, zi, dt: float, frac: float, roots=None):
     """ZOH responses of ``strict_i(s) / den(s)`` (monic ``den``) by partial fractions.
 
     Each simple pole ``lam`` with residue ``r`` samples exactly to
@@ -390,17 +436,17 @@ def _distinct_pole_response(strict, den, zi, dt: float, frac: float):
     of each other (or a pole is at 0 with another one): then the caller's discretization
     by the matrix exponential applies. The rigid body's double pole at 0 (behind lags) has
     its own closed form, :func:`_rigid_body_response`: more accurate than that
-    discretization's characteristic polynomials, and not recomputed per delay.
+    discretization's characteristic polynomials, and not recomputed per delay. ``roots``:
+    ``den``'s roots when known (:func:`zoh_responses`).
     """
     if _rigid_body(den):
-        return _rigid_body_response(strict, den, zi, dt, frac)
+        return _rigid_body_response(strict, den, zi, dt, frac, roots)
     if den.size == 3:  # a mode (no lag): the most frequent filter, in scalar arithmetic
         return _pair_response(strict, float(den[1]), float(den[2]), zi, dt, frac)
-    lam = np.roots(den)
+    lam = np.roots(den) if roots is None else roots
     if _too_close(lam):
         return None
-    r = _residues(strict, den, lam)  # (n_num, n_poles)
-    hs = r @ _simple_pole_responses(lam, zi, dt, frac).T
+    hs = _pole_sum(_residues(strict, den, lam), lam, zi, dt, frac)
     return hs if np.all(np.isfinite(hs)) else None
 
 
@@ -454,8 +500,9 @@ def _hold_integral(lam: complex, h: float) -> complex:
 
 
 def _pole_response(lam: complex, zi, dt: float, frac: float):
-    """(n_l,) ZOH response of ``1 / (s - lam)`` at ``zi`` = 1/z with the delay ``frac``: one
-    column of :func:`_simple_pole_responses`, for a scalar pole."""
+    """(n_l,) ZOH response of ``1 / (s - lam)`` at ``zi`` = 1/z with the delay ``frac``:
+    ``(b0 z^-1 + b1 z^-2) / (1 - exp(lam dt) z^-1)`` of :func:`_distinct_pole_response`
+    (``lam = 0``, the integrator, included)."""
     b0 = _hold_integral(lam, dt - frac)
     p = cmath.exp(lam * dt)
     if frac > 0:
@@ -464,23 +511,16 @@ def _pole_response(lam: complex, zi, dt: float, frac: float):
     return b0 * zi / (1.0 - p * zi)
 
 
-def _simple_pole_responses(lam, zi, dt: float, frac: float):
-    """(n_l, n_poles) ZOH responses of ``1 / (s - lam)`` per pole, at ``zi`` = 1/z, delay ``frac``.
-
-    ``(b0 z^-1 + b1 z^-2) / (1 - exp(lam dt) z^-1)`` of :func:`_distinct_pole_response`
-    (``lam = 0``, the integrator, included).
-    """
-
-    def integral(h):  # int_0^h exp(lam s) ds, its limit h at lam = 0
-        small = np.abs(lam * h) < 1e-8
-        safe = np.where(small, 1.0, lam)
-        return np.where(small, h * (1 + 0.5 * lam * h), np.expm1(lam * h) / safe)
-
-    b0 = integral(dt - frac)
-    b1 = np.exp(lam * (dt - frac)) * integral(frac) if frac > 0 else np.zeros_like(lam)
-    p = np.exp(lam * dt)
-    zc = zi[:, None]
-    return (b0 * zc + b1 * zc * zc) / (1.0 - p * zc)
+def _pole_sum(r: np.ndarray, lam: np.ndarray, zi, dt: float, frac: float) -> np.ndarray:
+    """``sum_k r[i, k] g_k`` (n_num, n_l): the simple poles' ZOH responses
+    (:func:`_pole_response`, ``lam = 0``, the integrator, included) weighted by the residues
+    ``r`` (n_num, n_poles), a pole at a time (a handful: a mode and its channel's lags)."""
+    hs = np.zeros((r.shape[0], zi.size), complex)
+    for k, lam_k in enumerate(lam.tolist()):
+        g = _pole_response(complex(lam_k), zi, dt, frac)
+        for i, r_ik in enumerate(r[:, k].tolist()):
+            hs[i] += r_ik * g
+    return hs
 
 
 #: the rigid body's closed form (:func:`_rigid_body_response`) takes the other poles down to
@@ -494,7 +534,7 @@ def _rigid_body(den) -> bool:
     return den.size >= 3 and den[-1] == 0.0 and den[-2] == 0.0 and den[-3] != 0.0
 
 
-def _rigid_body_response(strict, den, zi, dt: float, frac: float):
+def _rigid_body_response(strict, den, zi, dt: float, frac: float, roots=None):
     """ZOH responses of ``strict_i(s) / (s^2 q(s))`` in closed form (:func:`_rigid_body` ``den``).
 
     Partial fractions ``c2 / s^2 + c1 / s + sum r_k / (s - lam_k)`` over the simple roots
@@ -506,10 +546,12 @@ def _rigid_body_response(strict, den, zi, dt: float, frac: float):
     ``frac^2 / 2 w + dt^2 w / (1 - w)^2 - (dt^2 / 2 + dt frac) w / (1 - w)`` with ``w = z^-1``.
     Returns (n_num, n_l) complex, or None (the caller's matrix exponential then) when two of
     ``q``'s roots are within :data:`_POLE_SEPARATION` or one is within :data:`_RIGID_POLE_MIN`
-    of 0 (in ``|lam| dt``).
+    of 0 (in ``|lam| dt``). ``roots``: ``den``'s roots when known (the double 0 among them).
     """
     q = den[:-2]
-    if q.size == 1:
+    if roots is not None:
+        lam = roots[roots != 0]
+    elif q.size == 1:
         lam = np.zeros(0, complex)
     elif q.size == 2:  # one lag: its root directly (np.roots costs 20x more)
         lam = np.array([-q[1] / q[0]], complex)
@@ -529,5 +571,5 @@ def _rigid_body_response(strict, den, zi, dt: float, frac: float):
     double = (
         0.5 * frac**2 * w + dt**2 * w / (1.0 - w) ** 2 - (0.5 * dt**2 + dt * frac) * w / (1.0 - w)
     )
-    hs = r @ _simple_pole_responses(poles, zi, dt, frac).T + c2[:, None] * double[None, :]
+    hs = _pole_sum(r, poles, zi, dt, frac) + c2[:, None] * double[None, :]
     return hs if np.all(np.isfinite(hs)) else None
