@@ -785,6 +785,7 @@ class PeriodicProblem(_FilteredProblem):
         self._basis_key: dict = {}
         self._last_new: tuple | None = None  # the last key whose basis was not kept
         self._responses: dict = {}  # filter -> its responses at z (filtered_lines' cache)
+        self._products: dict = {}  # T_in -> numerator -> inputs mixed by it (mixed_lines')
 
     def _filter(self, model, den, u_in):
         X, groups = filtered_lines(model, den, u_in, self.z, self.fs, responses=self._responses)
@@ -794,7 +795,16 @@ class PeriodicProblem(_FilteredProblem):
         """The part on the lines from the filters' responses (:func:`mixed_lines`), the real
         parts of the lines stacked over the imaginary ones; the filtered inputs
         (:meth:`_filter`) only where a linear fit needs them as regressors."""
-        Y = mixed_lines(model, den, N0, N1, u_in, self.z, self.fs, responses=self._responses)
+        # the inputs mixed by a numerator are kept per input coupling (u_in's only variable)
+        T_in = _key(model.T_in)
+        products = self._products.get(T_in)
+        if products is None:
+            if len(self._products) > 8:
+                self._products.clear()
+            products = self._products[T_in] = {}
+        Y = mixed_lines(
+            model, den, N0, N1, u_in, self.z, self.fs, responses=self._responses, products=products
+        )
         return np.concatenate([Y.real, Y.imag])
 
     def _start_basis(self, model: ModalModel) -> np.ndarray:

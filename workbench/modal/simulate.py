@@ -224,7 +224,9 @@ def filtered_lines(
     return X, groups
 
 
-def mixed_lines(model, den, N0, N1, U: np.ndarray, z: np.ndarray, fs: float, *, responses=None):
+def mixed_lines(
+    model, den, N0, N1, U: np.ndarray, z: np.ndarray, fs: float, *, responses=None, products=None
+):
     """One mode's (or the feedthrough's) output at the lines, (n_l, n_y) complex.
 
     :func:`filtered_lines` mixed by the numerator ``N1 s + N0`` (``N0``, ``N1`` (n_y, n_u);
@@ -232,29 +234,65 @@ def mixed_lines(model, den, N0, N1, U: np.ndarray, z: np.ndarray, fs: float, *, 
     :func:`filtered_inputs`: per filter ``h_0(z) (U N0^T) + h_1(z) (U N1^T)`` over its
     output rows and input columns, without forming the filtered inputs (a fit evaluates
     thousands of moved modes; their regressors are needed only by the linear fits).
-    ``U``, ``z``, ``fs``, ``responses`` as :func:`filtered_lines`.
+    ``U``, ``z``, ``fs``, ``responses`` as :func:`filtered_lines`; ``products``: a cache of
+    the inputs mixed by a numerator (:class:`_Mixed`, keyed by the numerator's bytes) for
+    this ``U`` (the caller keeps one per ``U``): a moved mode keeps its numerator, and the
+    product would otherwise cost more than the rest of the evaluation.
     """
-    lines, _ = line_responses(model, den, z, fs, responses=responses)
-    use_s = N1 is not None and np.any(N1)
-    if len(lines) == 1:  # no lag tells the channels apart: one response for all
-        hs = lines[0][2]
-        Y = hs[0][:, None] * (U @ N0.T)
-        if use_s and len(hs) > 1:
-            Y += hs[1][:, None] * (U @ N1.T)
-        return Y
-    # lags per channel: every channel's response gathered, then one product (a filter per
-    # sensor and actuator lag pair would otherwise cost a few array operations each)
-    n_l, (n_y, n_u) = U.shape[0], N0.shape
-    Y = np.zeros((n_l, n_y), complex)
-    for k, N in enumerate((N0, N1) if use_s else (N0,)):
-        H = np.zeros((n_l, n_y * n_u), complex)
-        for _, _, hs, flat in lines:
-            if k < len(hs):
-                H[:, flat] = hs[k][:, None]
-        H = H.reshape(n_l, n_y, n_u)
-        H *= N
-        Y += np.einsum("lij,lj->li", H, U)
+    lines, groups = line_responses(model, den, z, fs, responses=responses)
+    n_y, n_u = N0.shape
+    Y = np.zeros((U.shape[0], n_y), complex)
+    for k, N in enumerate((N0, N1) if N1 is not None and np.any(N1) else (N0,)):
+        mixed = _mixed_inputs(U, N, products)
+        for g, cols, hs, _ in lines:
+            if k >= len(hs):
+                continue  # no s/den filter (a first-order or no denominator)
+            rows = groups[g]
+            if cols.size == n_u:
+                Q = mixed.all_inputs
+            elif cols.size == 1:  # a lag on one input
+                Q = mixed.per_input[:, :, cols[0]]
+            else:
+                Q = mixed.per_input[:, :, cols].sum(axis=-1)
+            if rows.size == n_y:
+                Y += hs[k][:, None] * Q
+            else:  # a lag on some outputs
+                Y[:, rows] += hs[k][:, None] * Q[:, rows]
     return Y
+
+
+class _Mixed:
+    """The inputs at the lines ``U`` (n_l, n_u) mixed by a numerator ``N`` (n_y, n_u):
+    ``all_inputs`` = ``U N^T`` (n_l, n_y) and, when a filter takes some inputs only (a lag
+    on an input), ``per_input`` (n_l, n_y, n_u) = ``N_ij U_lj`` (computed on first use)."""
+
+    def __init__(self, U: np.ndarray, N: np.ndarray):
+        self.U, self.N = U, N
+        self.all_inputs = U @ N.T
+        self._per_input = None
+
+    @property
+    def per_input(self) -> np.ndarray:
+        if self._per_input is None:
+            self._per_input = self.U[:, None, :] * self.N[None, :, :]
+        return self._per_input
+
+
+#: numerators whose mixed inputs a ``products`` cache of :func:`mixed_lines` keeps
+PRODUCTS_KEPT = 256
+
+
+def _mixed_inputs(U: np.ndarray, N: np.ndarray, products: dict | None) -> _Mixed:
+    """:class:`_Mixed` of ``U`` and ``N``, from / into the ``products`` cache when given."""
+    if products is None:
+        return _Mixed(U, N)
+    key = N.tobytes()
+    out = products.get(key)
+    if out is None:
+        if len(products) > PRODUCTS_KEPT:
+            products.clear()
+        out = products[key] = _Mixed(U, N)
+    return out
 
 
 #: filters whose line responses a ``responses`` cache of :func:`filtered_lines` keeps (~15 MB
