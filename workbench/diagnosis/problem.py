@@ -339,7 +339,11 @@ def _lstsq_std(X: np.ndarray, b: np.ndarray):
     Xs = X / scale
     M = Xs.T @ Xs
     M += 1e-12 * np.eye(M.shape[0])
-    cov = np.linalg.pinv(M, hermitian=True)
+    # np.linalg.pinv(M, hermitian=True) (its default cutoff 1e-15 of the largest eigenvalue)
+    # from one eigh, without pinv's SVD wrapper (a screen solves hundreds of these)
+    lam, V = np.linalg.eigh(M)
+    keep = np.abs(lam) > 1e-15 * np.max(np.abs(lam))
+    cov = (V * np.where(keep, 1.0 / np.where(keep, lam, 1.0), 0.0)) @ V.T
     x = cov @ (Xs.T @ b)
     s = 1.0 / scale if b.ndim == 1 else (1.0 / scale)[:, None]
     return x * s, np.sqrt(np.abs(np.diag(cov))) / scale
@@ -521,7 +525,11 @@ class _FilteredProblem:
     # --------------------------------------------------------- linear parts
     def _regress(self, model, X, groups):
         """Per output: LS of the residual on the columns of X[g] (n_rows, n_reg); coef, std."""
-        e = (self.target - self.fitted(model)) / self.scale
+        last = self._residual_last
+        if last is None or last[0] is not model:
+            # kept for the last model asked: a screen regresses hundreds of added terms on it
+            last = self._residual_last = (model, (self.target - self.fitted(model)) / self.scale)
+        e = last[1]
         n_reg = X.shape[-1]
         coef = np.zeros((self.target.shape[1], n_reg))
         std = np.zeros_like(coef)
@@ -624,6 +632,7 @@ class TimeProblem(_FilteredProblem):
         self._filter_cache: dict = {}
         self._basis_cache: dict = {}
         self._anchors: list = []  # (channels, items, parts, sum), see _parts_sum
+        self._residual_last = None  # (model, its weighted residual), see _regress
 
     def _filter(self, model, den, u_in):
         return filtered_inputs(model, den, u_in, self.fs)
@@ -744,10 +753,15 @@ class PeriodicProblem(_FilteredProblem):
     fewer rows than the record and no recursive filter: a 10,000-sample record's
     fit evaluates in a fraction of the simulation's time. A fit's evaluations reuse
     what did not change: each filter's line responses (a lag moved on one channel
-    recomputes that channel's filters), each mode's output, and the transient basis
-    of the other poles when one pole moves or is added (:meth:`_basis_near`); the
-    fit engine refines on these rows as on FRF data (Levenberg-Marquardt on normal
-    equations, :func:`workbench.diagnosis.fit.levenberg_marquardt`).
+    recomputes that channel's filters), the inputs mixed by each numerator (a moved
+    mode keeps its residues), each mode's output, the sum of the unchanged modes'
+    outputs (:meth:`_parts_sum`: a moved or added mode costs its own output only), and
+    the transient basis of the other poles when one pole moves or is added
+    (:meth:`_basis_near`); a mode's output is computed from its filters' responses
+    (:func:`~workbench.modal.simulate.mixed_lines`), its filtered inputs only where a
+    linear fit needs them as regressors. The fit engine refines on these rows as on
+    FRF data (Levenberg-Marquardt on normal equations,
+    :func:`workbench.diagnosis.fit.levenberg_marquardt`).
     """
 
     #: the record's data, its costs on the lines (FrfProblem's domain; ``kind`` stays "time")
@@ -782,6 +796,7 @@ class PeriodicProblem(_FilteredProblem):
         self._filter_cache: dict = {}
         self._basis_cache: dict = {}
         self._anchors: list = []  # (channels, items, parts, sum), see _parts_sum
+        self._residual_last = None  # (model, its weighted residual), see _regress
         self._basis_key: dict = {}
         self._last_new: tuple | None = None  # the last key whose basis was not kept
         self._responses: dict = {}  # filter -> its responses at z (filtered_lines' cache)
