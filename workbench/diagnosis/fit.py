@@ -241,11 +241,22 @@ def screen(structure: Structure, problem, base: ModalModel) -> Screening:
         return Screening(problem.cost(structure.build(np.zeros(0), problem, base).model), [])
     grid = [np.clip(np.asarray(g, float), lo, hi) for g in structure.grid(problem, base)]
     costs = []
-    for g in grid:
-        try:
-            costs.append(problem.cost(structure.build(g, problem, base).model))
-        except NUMERICAL_FAILURES:
-            costs.append(np.inf)
+    if callable(getattr(problem, "costs", None)):
+        # a problem that evaluates a grid's models together (a periodic record's lines:
+        # PeriodicProblem.costs), the same costs
+        models = []
+        for g in grid:
+            try:
+                models.append(structure.build(g, problem, base).model)
+            except NUMERICAL_FAILURES:
+                models.append(None)
+        costs = problem.costs(models)
+    else:
+        for g in grid:
+            try:
+                costs.append(problem.cost(structure.build(g, problem, base).model))
+            except NUMERICAL_FAILURES:
+                costs.append(np.inf)
     costs = np.asarray(costs, float)
     costs[~np.isfinite(costs)] = np.inf  # a NaN cost is a numerical failure too
     order = np.argsort(costs, kind="stable")

@@ -19,14 +19,21 @@ structure works on both kinds of data.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from workbench.core.errors import InputError
 from workbench.core.lti import relative_error_frf, relative_error_time
-from workbench.diagnosis.fit import cholesky_qr2
+from workbench.diagnosis.fit import NUMERICAL_FAILURES, cholesky_qr2
 from workbench.io.formats import FrfData, TimeData
 from workbench.modal.model import ModalModel, Mode
-from workbench.modal.simulate import filtered_inputs, filtered_lines, mixed_lines
+from workbench.modal.simulate import (
+    filtered_inputs,
+    filtered_lines,
+    mixed_lines,
+    mode_line_responses,
+)
 
 __all__ = ["FrfProblem", "PeriodicProblem", "TimeProblem", "make_problem", "moving_start"]
 
@@ -472,7 +479,14 @@ class _FilteredProblem:
             extra = len(items) - len(a_items)
             if a_channels != channels or not 0 <= extra <= 2:
                 continue
-            changed = [k for k in range(len(a_items)) if a_items[k] is not items[k]]
+            changed = [k for k in range(1, len(a_items)) if a_items[k] is not items[k]]
+            if a_items[0] is not items[0] and not (
+                # D: a model's copy, compared by value (None where it is zero)
+                a_items[0] is not None
+                and items[0] is not None
+                and np.array_equal(a_items[0], items[0])
+            ):
+                changed.insert(0, 0)
             if len(changed) + extra > 2:
                 continue
             y = a_sum.copy()
@@ -926,6 +940,174 @@ class PeriodicProblem(_FilteredProblem):
         if np.min(d) < NEAR_SPAN * np.max(d):
             return None
         return np.ascontiguousarray(np.column_stack([Q_rest, Q_new]))
+
+    def costs(self, models: list) -> np.ndarray:
+        """:meth:`cost` of each model (inf for None or a numerical failure), (n_models,).
+
+        A screen's grid (:func:`workbench.diagnosis.fit.screen`) moves the same modes of
+        one model, their numerators kept (a modal mismatch, a modal pattern, a
+        suspension): those models are evaluated together (:meth:`_moved_costs`), the
+        moved modes' line responses for the whole grid in one call
+        (:func:`~workbench.modal.simulate.mode_line_responses`), added to the other
+        modes' outputs summed once, the transient basis of the other poles extended by
+        the moved poles' columns per point as :meth:`_basis_near` extends it. Every
+        other model (and a point where a moved pole's columns come near the others'
+        span) is evaluated alone by :meth:`cost`.
+        """
+        out = np.full(len(models), np.nan)
+        together = self._moved_costs(models)
+        if together is not None:
+            idx, values = together
+            out[idx] = values
+        for i, m in enumerate(models):
+            if np.isnan(out[i]):
+                try:
+                    out[i] = np.inf if m is None else self.cost(m)
+                except NUMERICAL_FAILURES:
+                    out[i] = np.inf
+        out[~np.isfinite(out)] = np.inf
+        return out
+
+    #: fewest models of one pattern that :meth:`_moved_costs` evaluates together
+    MIN_TOGETHER = 8
+
+    def _moved_costs(self, models: list):
+        """The costs of the models that differ from the first only in moved modes, or None.
+
+        Together: every model has the first's channels (delay, no lags, no output
+        coupling), its feedthrough and its other modes (the same objects), and its
+        moved modes are second-order modes with the first's numerators (the same
+        objects). Returns (indices, costs); a cost is NaN where the point must be
+        evaluated alone (coinciding poles, an overdamped slow pole, a moved pole's
+        columns within :data:`NEAR_SPAN` of the span).
+        """
+        ms = [(i, m) for i, m in enumerate(models) if m is not None]
+        if len(ms) < self.MIN_TOGETHER:
+            return None
+        ref = ms[0][1]
+        if ref.T_out is not None or np.any(ref.lags("in")) or np.any(ref.lags("out")):
+            return None
+        n = len(ref.modes)
+        channels = self._channels_key(ref)
+        moved: set = set()
+        for _, m in ms:
+            # a model's arrays are its own copies (read-only): compared by value; its modes
+            # are kept as objects by a structure's build (Mode.moved: a new one)
+            if len(m.modes) != n or m.T_out is not None or not np.array_equal(m.D, ref.D):
+                return None
+            if self._channels_key(m) != channels:
+                return None
+            moved.update(k for k in range(n) if m.modes[k] is not ref.modes[k])
+        if not moved:
+            return None
+        ks = sorted(moved)
+
+        def same_numerator(a, b):
+            return all(
+                (x is None and y is None)
+                or (x is not None and y is not None and np.array_equal(x, y))
+                for x, y in ((a.b, b.b), (a.c, b.c), (a.N0, b.N0), (a.N1, b.N1))
+            )
+
+        keep = [
+            (i, m)
+            for i, m in ms
+            if all(
+                m.modes[k].kind == "flexible" and same_numerator(m.modes[k], ref.modes[k])
+                for k in ks
+            )
+        ]
+        if len(keep) < self.MIN_TOGETHER:
+            return None
+        idx = np.array([i for i, _ in keep])
+        u_in = self._u_in(ref)
+        # the other items' outputs summed once (as _parts_sum sums a model directly)
+        rest = np.zeros(self.target.shape)
+        items = ((ref.D if np.any(ref.D) else None),) + ref.modes
+        for j, item in enumerate(items):
+            if j - 1 not in moved:
+                part = self._item_part(ref, item, u_in, channels)
+                if part is not None:
+                    rest += part
+        n_l, n_y = self.z.size, self.target.shape[1]
+        P = len(keep)
+        # rows first, points second: every projection one matrix product
+        Y = np.zeros((n_l, P, n_y), complex)
+        ok = np.ones(P, bool)
+        w = np.empty((P, len(ks)))
+        zeta = np.empty((P, len(ks)))
+        for c, k in enumerate(ks):
+            w[:, c] = [2 * np.pi * m.modes[k].freq_hz for _, m in keep]
+            zeta[:, c] = [m.modes[k].damping for _, m in keep]
+            H, ok_k = mode_line_responses(
+                2 * zeta[:, c] * w[:, c], w[:, c] ** 2, self.z, self.fs, ref.delay_s
+            )
+            ok &= ok_k
+            for h, N in zip((H[:, 0], H[:, 1]), ref.modes[k].numerator()):
+                if np.any(N):
+                    Y += h.T[:, :, None] * (u_in @ N.T)[:, None, :]
+        R = (self.target - rest)[:, None, :] - np.concatenate([Y.real, Y.imag])
+        # the transient basis: the unmoved modes' poles, and each moved mode's where it has
+        # not settled (the same test as _start_basis)
+        others = replace(ref, modes=tuple(m for k, m in enumerate(ref.modes) if k not in moved))
+        Q_rest = self._start_basis(others)
+        Rf = R.reshape(2 * n_l, P * n_y)
+        Rf -= Q_rest @ (Q_rest.T @ Rf)
+        lam = -zeta * w + 1j * w * np.sqrt(np.maximum(1.0 - zeta**2, 0.0))  # upper half plane
+        poles = np.exp(lam / self.fs)
+        slow = np.abs(poles) ** self.settle > SETTLED
+        ok &= ~np.any(slow & (zeta >= 1.0), axis=1)  # an overdamped slow pole: alone
+        costs = np.full(P, np.nan)
+        for pattern in {tuple(row) for row in slow}:
+            sel = np.flatnonzero(np.all(slow == np.array(pattern, bool), axis=1) & ok)
+            if sel.size == 0:
+                continue
+            Rs = R[:, sel]  # (2 n_l, p, n_y)
+            if any(pattern):
+                Qn, fine = self._extension(Q_rest, poles[sel][:, np.array(pattern, bool)])
+                Rt = Rs.transpose(1, 0, 2)  # (p, 2 n_l, n_y)
+                Qt = Qn.transpose(1, 0, 2)  # (p, 2 n_l, m)
+                Rt = Rt - Qt @ (Qt.transpose(0, 2, 1) @ Rt)
+                sel, Rs = sel[fine], Rt[fine].transpose(1, 0, 2)
+            costs[sel] = np.sum(Rs**2, axis=(0, 2)) / self.scale**2
+        return idx, costs
+
+    def _extension(self, Q_rest: np.ndarray, poles: np.ndarray):
+        """Orthonormal columns (2 n_l, P, m) extending ``Q_rest`` by the transient columns
+        of each point's ``poles`` (P, k) (upper half plane, :meth:`_columns`), and which
+        points' columns stay out of the span (P,) (:meth:`_basis_near`'s :data:`NEAR_SPAN`
+        tests; the others are evaluated alone). Gram-Schmidt twice, as there."""
+        zi = self._zi[:, None]
+        cols = []
+        for j in range(poles.shape[1]):
+            pk = poles[None, :, j]
+            b = 1.0 / (1.0 - pk * zi)
+            bc = 1.0 / (1.0 - np.conj(pk) * zi)
+            cols += [b + bc, 1j * (b - bc)]
+        C = np.stack(cols, axis=-1)  # (n_l, P, 2k)
+        if len(self._blocks) > 1:
+            C = np.concatenate([C * blk[:, None, None] for blk in self._blocks], axis=-1)
+        W = np.concatenate([C.real, C.imag])  # (2 n_l, P, m)
+        n_rows, P, m = W.shape
+        W = W / np.linalg.norm(W, axis=0)
+        Wf = W.reshape(n_rows, P * m)
+        for _ in range(2):
+            Wf = Wf - Q_rest @ (Q_rest.T @ Wf)
+        W = Wf.reshape(n_rows, P, m)
+        norms = np.linalg.norm(W, axis=0)  # (P, m)
+        fine = np.min(norms, axis=1) >= NEAR_SPAN
+        W = W / np.where(norms > 0, norms, 1.0)
+        Qn = np.empty_like(W)
+        d = np.empty((P, m))
+        for j in range(m):
+            v = W[:, :, j]
+            for _ in range(2 if j else 0):
+                prev = Qn[:, :, :j]
+                v = v - np.sum(prev * np.sum(prev * v[:, :, None], axis=0), axis=2)
+            d[:, j] = np.linalg.norm(v, axis=0)
+            Qn[:, :, j] = v / np.where(d[:, j] > 0, d[:, j], 1.0)
+        fine &= np.min(d, axis=1) >= NEAR_SPAN * np.max(d, axis=1)
+        return Qn, fine
 
     def predict(self, model: ModalModel) -> np.ndarray:
         """The time-domain simulated output (N, n_y), as :meth:`TimeProblem.predict`."""

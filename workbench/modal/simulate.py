@@ -31,6 +31,7 @@ __all__ = [
     "filtered_lines",
     "line_responses",
     "mixed_lines",
+    "mode_line_responses",
     "simulate",
     "zoh_filter",
     "zoh_response",
@@ -430,6 +431,29 @@ def zoh_response(num, den, z: np.ndarray, dt: float, delay_s: float = 0.0) -> np
     return zoh_responses([num], den, z, dt, delay_s)[0]
 
 
+def mode_line_responses(a1, a0, z: np.ndarray, fs: float, delay_s: float = 0.0):
+    """The line responses of many modes without lags: ``1/den`` and ``s/den`` per mode.
+
+    :func:`line_responses`' filter for ``den = s^2 + a1_p s + a0_p`` (no lag), evaluated for
+    P denominators at once (a screen of a moved mode's grid). ``a1``, ``a0`` (P,) (1/s, 1/s^2);
+    ``z`` (n_l,), ``fs`` Hz, ``delay_s`` s as :func:`zoh_responses`. Returns ``H``
+    (P, 2, n_l) complex (``H[p, 0]`` the response of ``1/den_p``, ``H[p, 1]`` of
+    ``s/den_p``, as :func:`zoh_responses` gives them) and ``ok`` (P,): False where the
+    partial fractions do not apply (coinciding poles: :func:`zoh_responses` then).
+    """
+    dt = 1.0 / fs
+    m_int, frac = split_delay(delay_s, dt)
+    zi = 1.0 / np.asarray(z, complex)
+    # the numerators 1 and s over the monic den: strict parts (0, 1) and (1, 0)
+    H, ok = _pair_responses(_STRICT_TWO, np.asarray(a1, float), np.asarray(a0, float), zi, dt, frac)
+    if m_int:
+        H *= zi**m_int
+    return H, ok
+
+
+_STRICT_TWO = np.array([[0.0, 1.0], [1.0, 0.0]])
+
+
 def zoh_responses(nums, den, z: np.ndarray, dt: float, delay_s: float = 0.0, *, roots=None):
     """:func:`zoh_response` of several numerators over one ``den`` (one pole computation).
 
@@ -508,57 +532,66 @@ def _residues(strict: np.ndarray, den: np.ndarray, lam: np.ndarray) -> np.ndarra
 
 
 def _pair_response(strict, a1: float, a0: float, zi, dt: float, frac: float):
-    """:func:`_distinct_pole_response` of ``s^2 + a1 s + a0`` (a mode), its two poles in
-    scalar arithmetic: ``lam = -a1 / 2 +- q``, ``den'(lam) = +-2 q = +-(lam_1 - lam_2)``.
+    """:func:`_distinct_pole_response` of ``s^2 + a1 s + a0`` (a mode): one mode of
+    :func:`_pair_responses`; None when its poles coincide (a critically damped mode)."""
+    hs, ok = _pair_responses(strict, np.array([a1]), np.array([a0]), zi, dt, frac)
+    return hs[0] if ok[0] else None
 
-    The same partial fractions and closed forms, with a tenth of the array operations (a
-    screen or a fit evaluates thousands of moved modes). None when the poles coincide
-    within :data:`_POLE_SEPARATION` (a critically damped mode).
+
+def _pair_responses(strict, a1: np.ndarray, a0: np.ndarray, zi, dt: float, frac: float):
+    """:func:`_distinct_pole_response` of the modes ``s^2 + a1_p s + a0_p``, at once.
+
+    The two poles of each in closed form, ``lam = -a1 / 2 +- q``, ``den'(lam) = +-2 q =
+    +-(lam_1 - lam_2)``: the partial fractions of :func:`_distinct_pole_response` without
+    its root finding and polynomial evaluations (a screen or a fit evaluates thousands
+    of moved modes; a screen of a moved mode evaluates its whole grid in one call).
+
+    ``strict`` (n_num, 2) numerator coefficients; ``a1``, ``a0`` (P,). Returns ``hs``
+    (P, n_num, n_l) complex and ``ok`` (P,): False where the poles coincide within
+    :data:`_POLE_SEPARATION` or the response is not finite (the caller's discretization
+    by the matrix exponential applies there).
     """
-    h = 0.5 * a1
-    q = cmath.sqrt(h * h - a0)
-    l1, l2 = -h + q, -h - q
-    d = l1 - l2
-    if abs(d) <= _POLE_SEPARATION * max(abs(l1), abs(l2), 1e-300):
-        return None
-    g1 = _pole_response(l1, zi, dt, frac)
-    g2 = _pole_response(l2, zi, dt, frac)
-    hs = np.empty((strict.shape[0], zi.size), complex)
+    h = 0.5 * np.asarray(a1, float)
+    q = np.sqrt((h * h - a0).astype(complex))
+    l1, l2 = q - h, -h - q
+    d = 2.0 * q
+    ok = np.abs(d) > _POLE_SEPARATION * np.maximum(np.maximum(np.abs(l1), np.abs(l2)), 1e-300)
+    if not ok.all():
+        d = np.where(ok, d, 1.0)
+    G = _pole_responses(np.concatenate([l1, l2]), zi, dt, frac)
+    G1, G2 = G[: l1.size], G[l1.size :]
+    hs = np.empty((l1.size, strict.shape[0], zi.size), complex)
     for i, (c1, c0) in enumerate(strict.tolist()):
-        hs[i] = ((c1 * l1 + c0) / d) * g1 - ((c1 * l2 + c0) / d) * g2
-    return hs if np.all(np.isfinite(hs)) else None
+        hs[:, i] = ((c1 * l1 + c0) / d)[:, None] * G1 - ((c1 * l2 + c0) / d)[:, None] * G2
+    ok &= np.isfinite(hs).all(axis=(1, 2))
+    return hs, ok
 
 
-def _hold_integral(lam: complex, h: float) -> complex:
-    """``int_0^h exp(lam s) ds`` (s), its limit ``h`` near ``lam = 0`` (scalar ``lam``)."""
-    x = lam * h
-    if abs(x) < 1e-8:
-        return h * (1 + 0.5 * x)
-    return complex(np.expm1(x)) / lam
-
-
-def _pole_response(lam: complex, zi, dt: float, frac: float):
-    """(n_l,) ZOH response of ``1 / (s - lam)`` at ``zi`` = 1/z with the delay ``frac``:
+def _pole_responses(lam: np.ndarray, zi, dt: float, frac: float) -> np.ndarray:
+    """(m, n_l) ZOH responses of ``1 / (s - lam_k)`` at ``zi`` = 1/z with the delay ``frac``:
     ``(b0 z^-1 + b1 z^-2) / (1 - exp(lam dt) z^-1)`` of :func:`_distinct_pole_response`
-    (``lam = 0``, the integrator, included)."""
-    b0 = _hold_integral(lam, dt - frac)
-    p = cmath.exp(lam * dt)
+    (``lam = 0``, the integrator, included), ``lam`` (m,) complex."""
+
+    def integral(h):  # int_0^h exp(lam s) ds, its limit h at lam = 0
+        x = lam * h
+        small = np.abs(x) < 1e-8
+        if not small.any():
+            return np.expm1(x) / lam
+        return np.where(small, h * (1 + 0.5 * x), np.expm1(x) / np.where(small, 1.0, lam))
+
+    lam = np.asarray(lam, complex)
+    b0 = integral(dt - frac)[:, None]
+    p = np.exp(lam * dt)[:, None]
     if frac > 0:
-        b1 = cmath.exp(lam * (dt - frac)) * _hold_integral(lam, frac)
+        b1 = (np.exp(lam * (dt - frac)) * integral(frac))[:, None]
         return (b0 + b1 * zi) * zi / (1.0 - p * zi)
     return b0 * zi / (1.0 - p * zi)
 
 
 def _pole_sum(r: np.ndarray, lam: np.ndarray, zi, dt: float, frac: float) -> np.ndarray:
     """``sum_k r[i, k] g_k`` (n_num, n_l): the simple poles' ZOH responses
-    (:func:`_pole_response`, ``lam = 0``, the integrator, included) weighted by the residues
-    ``r`` (n_num, n_poles), a pole at a time (a handful: a mode and its channel's lags)."""
-    hs = np.zeros((r.shape[0], zi.size), complex)
-    for k, lam_k in enumerate(lam.tolist()):
-        g = _pole_response(complex(lam_k), zi, dt, frac)
-        for i, r_ik in enumerate(r[:, k].tolist()):
-            hs[i] += r_ik * g
-    return hs
+    (:func:`_pole_responses`) weighted by the residues ``r`` (n_num, n_poles)."""
+    return r @ _pole_responses(lam, zi, dt, frac)
 
 
 #: the rigid body's closed form (:func:`_rigid_body_response`) takes the other poles down to
