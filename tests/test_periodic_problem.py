@@ -419,3 +419,45 @@ def test_mixed_lines_is_the_filtered_inputs_mixed_by_the_numerators():
                     ref[:, rows] += X[g, :, :, 1] @ N1[rows].T
             Y = mixed_lines(model, den, N0, N1, U, z, FS)
             assert np.max(np.abs(Y - ref)) <= 1e-12 * np.max(np.abs(ref))
+
+
+def test_a_grid_evaluated_together_costs_what_each_model_costs_alone():
+    """PeriodicProblem.costs (a screen's grid: the same modes moved, numerators kept) against
+    cost() model by model: a slow mode that has not settled (its transient columns extend
+    the basis per point, some points settled), a settled one, both moved by a shared scale,
+    and a grid with a model of another pattern (evaluated alone)."""
+    from workbench.diagnosis.effects import ModalPattern
+
+    data = _open_loop_record(_two_mode_plant(), periods=3, seed=3)
+    problem = make_problem(data)
+    base = base_model(_two_mode_plant(), data)
+    slow = min(range(len(base.modes)), key=lambda i: base.modes[i].freq_hz)
+    grids = []
+    for k in range(len(base.modes)):
+        s = ModalMismatch(k)
+        # damping up to 0.5: the slow mode settles within the dropped period at some points
+        thetas = [
+            np.log([base.modes[k].freq_hz * a, zd])
+            for a in (0.9, 1.0, 1.1)
+            for zd in (0.002, 0.005, 0.05, 0.5)
+        ]
+        grids.append([s.build(t, problem, base).model for t in thetas])
+    p = ModalPattern()
+    grids.append(
+        [
+            p.build(np.log([a, b]), problem, base).model
+            for a in (0.95, 1.05)
+            for b in (0.5, 1.0, 2.0, 4.0)
+        ]
+    )
+    grids.append(grids[0][:6] + [None] + grids[1][:4])  # two patterns, a failed build
+    for models in grids:
+        together = problem.costs(models)
+        alone = np.array([np.inf if m is None else problem.cost(m) for m in models])
+        # rounding: ~1e-16 of the rows' squared size (a true model's cost is itself rounding)
+        scale = np.max(alone[np.isfinite(alone)])
+        assert np.allclose(together, alone, rtol=1e-9, atol=1e-12 * scale)
+    # the first grids were evaluated together, not model by model
+    assert problem._moved_costs(grids[0]) is not None
+    assert np.all(np.isfinite(problem._moved_costs(grids[0])[1][:8]))
+    assert base.modes[slow].freq_hz < 10
