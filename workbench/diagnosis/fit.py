@@ -234,7 +234,10 @@ def finite_difference_jacobian(residual, x, r, lo, hi, *, rel_step: float = DIFF
 def screen(structure: Structure, problem, base: ModalModel) -> Screening:
     """Projected cost on the structure's grid, grid points sorted by cost, numerical failures.
 
-    A structure without nonlinear parameters is evaluated once (its fit is exact).
+    A structure without nonlinear parameters is evaluated once (its fit is exact). A problem
+    with a ``costs(models)`` method (a periodic record's lines:
+    :meth:`~workbench.diagnosis.problem.PeriodicProblem.costs`) evaluates the grid's models
+    together, the same costs as one by one; elsewhere each point is built and evaluated in turn.
     """
     lo, hi = (np.asarray(b, float) for b in structure.bounds(problem, base))
     if lo.size == 0:
