@@ -391,3 +391,73 @@ def test_transient_basis_extended_by_a_moved_or_added_pole_spans_the_basis_afres
         assert np.max(np.abs(Q @ Q.T - Q_ref @ Q_ref.T)) <= 1e-9
     # computed afresh: the first model, the rest of the second; the others were extended
     assert len(fresh) == 2
+
+
+def test_mixed_lines_is_the_filtered_inputs_mixed_by_the_numerators():
+    """mixed_lines (a part's output at the lines from the filters' responses, lags per
+    channel gathered) against filtered_lines' filtered inputs mixed by the numerators as the
+    simulation mixes them; with lags on some inputs and outputs (several filters, the lag
+    poles' roots given in closed form) and without (one filter)."""
+    from workbench.modal.simulate import mixed_lines
+
+    base = replace(ModalModel.from_statespace(_two_mode_plant(), exact=True), delay_s=0.37e-3)
+    lines = np.arange(1, 301)
+    z = np.exp(2j * np.pi * lines / PERIOD)
+    rng = np.random.default_rng(5)
+    U = rng.normal(size=(lines.size, 2)) + 1j * rng.normal(size=(lines.size, 2))
+    for tau_in, tau_out in (([0.0, 0.0], [0.0, 0.0]), ([1e-3, 0.0], [0.0, 5e-4])):
+        model = replace(base, tau_in=np.array(tau_in), tau_out=np.array(tau_out))
+        for den, (N0, N1) in [(None, (base.D + 0.3, None))] + [
+            (m.denominator(), m.numerator()) for m in model.modes
+        ]:
+            N1 = None if N1 is None else N1 + rng.normal(size=N1.shape)  # s/den used too
+            X, groups = filtered_lines(model, den, U, z, FS)
+            ref = np.zeros((lines.size, 2), complex)
+            for g, rows in enumerate(groups):
+                ref[:, rows] = X[g, :, :, 0] @ N0[rows].T
+                if N1 is not None and den is not None and len(den) == 2:
+                    ref[:, rows] += X[g, :, :, 1] @ N1[rows].T
+            Y = mixed_lines(model, den, N0, N1, U, z, FS)
+            assert np.max(np.abs(Y - ref)) <= 1e-12 * np.max(np.abs(ref))
+
+
+def test_a_grid_evaluated_together_costs_what_each_model_costs_alone():
+    """PeriodicProblem.costs (a screen's grid: the same modes moved, numerators kept) against
+    cost() model by model: a slow mode that has not settled (its transient columns extend
+    the basis per point, some points settled), a settled one, both moved by a shared scale,
+    and a grid with a model of another pattern (evaluated alone)."""
+    from workbench.diagnosis.effects import ModalPattern
+
+    data = _open_loop_record(_two_mode_plant(), periods=3, seed=3)
+    problem = make_problem(data)
+    base = base_model(_two_mode_plant(), data)
+    slow = min(range(len(base.modes)), key=lambda i: base.modes[i].freq_hz)
+    grids = []
+    for k in range(len(base.modes)):
+        s = ModalMismatch(k)
+        # damping up to 0.5: the slow mode settles within the dropped period at some points
+        thetas = [
+            np.log([base.modes[k].freq_hz * a, zd])
+            for a in (0.9, 1.0, 1.1)
+            for zd in (0.002, 0.005, 0.05, 0.5)
+        ]
+        grids.append([s.build(t, problem, base).model for t in thetas])
+    p = ModalPattern()
+    grids.append(
+        [
+            p.build(np.log([a, b]), problem, base).model
+            for a in (0.95, 1.05)
+            for b in (0.5, 1.0, 2.0, 4.0)
+        ]
+    )
+    grids.append(grids[0][:6] + [None] + grids[1][:4])  # two patterns, a failed build
+    for models in grids:
+        together = problem.costs(models)
+        alone = np.array([np.inf if m is None else problem.cost(m) for m in models])
+        # rounding: ~1e-16 of the rows' squared size (a true model's cost is itself rounding)
+        scale = np.max(alone[np.isfinite(alone)])
+        assert np.allclose(together, alone, rtol=1e-9, atol=1e-12 * scale)
+    # the first grids were evaluated together, not model by model
+    assert problem._moved_costs(grids[0]) is not None
+    assert np.all(np.isfinite(problem._moved_costs(grids[0])[1][:8]))
+    assert base.modes[slow].freq_hz < 10

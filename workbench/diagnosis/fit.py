@@ -275,7 +275,12 @@ def finite_difference_jacobian(residual, x, r, lo, hi, *, rel_step: float = DIFF
 def screen(structure: Structure, problem, base: ModalModel) -> Screening:
     """Projected cost on the structure's grid, grid points sorted by cost, numerical failures.
 
-    A structure without nonlinear parameters is evaluated once (its fit is exact).
+    A structure without nonlinear parameters is evaluated once (its fit is exact). A
+    structure with lines on the problem (:func:`structure_lines`: FRF data, its residual
+    compressed line by line) is evaluated on them, no model built; else a problem
+    with a ``costs(models)`` method (a periodic record's lines:
+    :meth:`~workbench.diagnosis.problem.PeriodicProblem.costs`) evaluates the grid's models
+    together, the same costs as one by one; elsewhere each point is built and evaluated in turn.
     """
     lo, hi = (np.asarray(b, float) for b in structure.bounds(problem, base))
     if lo.size == 0:
@@ -289,11 +294,22 @@ def screen(structure: Structure, problem, base: ModalModel) -> Screening:
         return problem.cost(structure.build(g, problem, base).model)
 
     costs = []
-    for g in grid:
-        try:
-            costs.append(cost(g))
-        except NUMERICAL_FAILURES:
-            costs.append(np.inf)
+    if lines is None and callable(getattr(problem, "costs", None)):
+        # a problem that evaluates a grid's models together (a periodic record's lines:
+        # PeriodicProblem.costs), the same costs
+        models = []
+        for g in grid:
+            try:
+                models.append(structure.build(g, problem, base).model)
+            except NUMERICAL_FAILURES:
+                models.append(None)
+        costs = problem.costs(models)
+    else:
+        for g in grid:
+            try:
+                costs.append(cost(g))
+            except NUMERICAL_FAILURES:
+                costs.append(np.inf)
     costs = np.asarray(costs, float)
     costs[~np.isfinite(costs)] = np.inf  # a NaN cost is a numerical failure too
     order = np.argsort(costs, kind="stable")

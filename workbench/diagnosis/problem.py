@@ -19,14 +19,21 @@ structure works on both kinds of data.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from workbench.core.errors import InputError
 from workbench.core.lti import relative_error_frf, relative_error_time
-from workbench.diagnosis.fit import cholesky_qr2
+from workbench.diagnosis.fit import NUMERICAL_FAILURES, cholesky_qr2
 from workbench.io.formats import FrfData, TimeData
 from workbench.modal.model import ModalModel, Mode
-from workbench.modal.simulate import filtered_inputs, filtered_lines
+from workbench.modal.simulate import (
+    filtered_inputs,
+    filtered_lines,
+    mixed_lines,
+    mode_line_responses,
+)
 
 __all__ = [
     "FrfProblem",
@@ -519,7 +526,11 @@ def _lstsq_std(X: np.ndarray, b: np.ndarray):
     Xs = X / scale
     M = Xs.T @ Xs
     M += 1e-12 * np.eye(M.shape[0])
-    cov = np.linalg.pinv(M, hermitian=True)
+    # np.linalg.pinv(M, hermitian=True) (its default cutoff 1e-15 of the largest eigenvalue)
+    # from one eigh, without pinv's SVD wrapper (a screen solves hundreds of these)
+    lam, V = np.linalg.eigh(M)
+    keep = np.abs(lam) > 1e-15 * np.max(np.abs(lam))
+    cov = (V * np.where(keep, 1.0 / np.where(keep, lam, 1.0), 0.0)) @ V.T
     x = cov @ (Xs.T @ b)
     s = 1.0 / scale if b.ndim == 1 else (1.0 / scale)[:, None]
     return x * s, np.sqrt(np.abs(np.diag(cov))) / scale
@@ -557,6 +568,11 @@ def _remove(Q: np.ndarray | None, X: np.ndarray) -> np.ndarray:
         return X
     flat = X.reshape(X.shape[0], -1)
     return (flat - Q @ (Q.T @ flat)).reshape(X.shape)
+
+
+#: directly summed model outputs the time-record problems keep as anchors
+#: (:meth:`_FilteredProblem._parts_sum`)
+ROW_ANCHORS = 4
 
 
 class _FilteredProblem:
@@ -605,29 +621,88 @@ class _FilteredProblem:
         k = _key(den, N0, N1) + channels
         out = self._cache.get(k)
         if out is None:
-            X, groups = self._filtered(model, den, u_in, channels)
-            out = np.zeros(self.target.shape)
-            for g, rows in enumerate(groups):
-                out[:, rows] = X[g, :, :, 0] @ N0[rows].T
-                if N1 is not None and np.any(N1):
-                    out[:, rows] += X[g, :, :, 1] @ N1[rows].T
+            out = self._mixed(model, den, N0, N1, u_in, channels)
             if len(self._cache) > 200:
                 self._cache.clear()
             self._cache[k] = out
         return out
 
+    def _mixed(self, model: ModalModel, den, N0, N1, u_in, channels: tuple) -> np.ndarray:
+        """One mode's (or D's) output on the rows, (n_rows, n_y): its filtered inputs mixed
+        by its numerators ``N0``, ``N1`` (n_y, n_u; ``N1`` None for D)."""
+        X, groups = self._filtered(model, den, u_in, channels)
+        out = np.zeros(self.target.shape)
+        for g, rows in enumerate(groups):
+            out[:, rows] = X[g, :, :, 0] @ N0[rows].T
+            if N1 is not None and np.any(N1):
+                out[:, rows] += X[g, :, :, 1] @ N1[rows].T
+        return out
+
     def _u_in(self, model: ModalModel) -> np.ndarray:
         return self.u_rows if model.T_in is None else self.u_rows @ model.T_in.T
+
+    def _parts_sum(self, model: ModalModel, u_in, channels: tuple) -> np.ndarray:
+        """``D`` and every mode's output on the rows summed, (n_rows, n_y), a new array.
+
+        From a near anchor when there is one: a sum summed directly (kept, with its parts,
+        for the last :data:`ROW_ANCHORS` models so summed) of a model with the same
+        channels whose parts differ from this model's in at most two places (a screen or a
+        fit moving or adding one mode: most evaluations), the changed parts subtracted and
+        added; the unchanged parts are recognised by identity (a structure's ``build``
+        keeps the other modes' objects), which costs nothing, where looking each part up by
+        its values (the parts' cache) costs a key per mode. Rounding ~1e-16 of the
+        anchor's largest row, never chained: a sum derived so is not an anchor.
+        """
+        items = ((model.D if np.any(model.D) else None),) + model.modes
+        for anchor in reversed(self._anchors):
+            a_channels, a_items, a_parts, a_sum = anchor
+            extra = len(items) - len(a_items)
+            if a_channels != channels or not 0 <= extra <= 2:
+                continue
+            changed = [k for k in range(1, len(a_items)) if a_items[k] is not items[k]]
+            if a_items[0] is not items[0] and not (
+                # D: a model's copy, compared by value (None where it is zero)
+                a_items[0] is not None
+                and items[0] is not None
+                and np.array_equal(a_items[0], items[0])
+            ):
+                changed.insert(0, 0)
+            if len(changed) + extra > 2:
+                continue
+            y = a_sum.copy()
+            for k in changed:
+                if a_parts[k] is not None:
+                    y -= a_parts[k]
+                part = self._item_part(model, items[k], u_in, channels)
+                if part is not None:
+                    y += part
+            for item in items[len(a_items) :]:
+                y += self._item_part(model, item, u_in, channels)
+            return y
+        parts = [self._item_part(model, item, u_in, channels) for item in items]
+        y = np.zeros(self.target.shape)
+        for part in parts:
+            if part is not None:
+                y += part
+        if len(self._anchors) >= ROW_ANCHORS:
+            self._anchors.pop(0)
+        self._anchors.append((channels, items, parts, y.copy()))
+        return y
+
+    def _item_part(self, model: ModalModel, item, u_in, channels: tuple):
+        """The output of one item of :meth:`_parts_sum` (the feedthrough ``D``, None when it
+        is zero, or a mode) on the rows, or None."""
+        if item is None:
+            return None
+        if isinstance(item, np.ndarray):
+            return self._part(model, None, item, None, u_in, channels)
+        return self._part(model, item.denominator(), *item.numerator(), u_in, channels)
 
     def fitted(self, model: ModalModel) -> np.ndarray:
         """The model's output on the rows (n_rows, n_y), its start fitted when there is a basis."""
         u_in = self._u_in(model)
         channels = self._channels_key(model)
-        y = np.zeros(self.target.shape)
-        if np.any(model.D):
-            y += self._part(model, None, model.D, None, u_in, channels)
-        for m in model.modes:
-            y += self._part(model, m.denominator(), *m.numerator(), u_in, channels)
+        y = self._parts_sum(model, u_in, channels)
         if model.T_out is not None:
             y = y @ model.T_out.T
         Q = self._start_basis(model)
@@ -644,7 +719,11 @@ class _FilteredProblem:
     # --------------------------------------------------------- linear parts
     def _regress(self, model, X, groups):
         """Per output: LS of the residual on the columns of X[g] (n_rows, n_reg); coef, std."""
-        e = (self.target - self.fitted(model)) / self.scale
+        last = self._residual_last
+        if last is None or last[0] is not model:
+            # kept for the last model asked: a screen regresses hundreds of added terms on it
+            last = self._residual_last = (model, (self.target - self.fitted(model)) / self.scale)
+        e = last[1]
         n_reg = X.shape[-1]
         coef = np.zeros((self.target.shape[1], n_reg))
         std = np.zeros_like(coef)
@@ -746,6 +825,8 @@ class TimeProblem(_FilteredProblem):
         self._cache: dict = {}
         self._filter_cache: dict = {}
         self._basis_cache: dict = {}
+        self._anchors: list = []  # (channels, items, parts, sum), see _parts_sum
+        self._residual_last = None  # (model, its weighted residual), see _regress
 
     def _filter(self, model, den, u_in):
         return filtered_inputs(model, den, u_in, self.fs)
@@ -866,10 +947,15 @@ class PeriodicProblem(_FilteredProblem):
     fewer rows than the record and no recursive filter: a 10,000-sample record's
     fit evaluates in a fraction of the simulation's time. A fit's evaluations reuse
     what did not change: each filter's line responses (a lag moved on one channel
-    recomputes that channel's filters), each mode's output, and the transient basis
-    of the other poles when one pole moves or is added (:meth:`_basis_near`); the
-    fit engine refines on these rows as on FRF data (Levenberg-Marquardt on normal
-    equations, :func:`workbench.diagnosis.fit.levenberg_marquardt`).
+    recomputes that channel's filters), the inputs mixed by each numerator (a moved
+    mode keeps its residues), each mode's output, the sum of the unchanged modes'
+    outputs (:meth:`_parts_sum`: a moved or added mode costs its own output only), and
+    the transient basis of the other poles when one pole moves or is added
+    (:meth:`_basis_near`); a mode's output is computed from its filters' responses
+    (:func:`~workbench.modal.simulate.mixed_lines`), its filtered inputs only where a
+    linear fit needs them as regressors. The fit engine refines on these rows as on
+    FRF data (Levenberg-Marquardt on normal equations,
+    :func:`workbench.diagnosis.fit.levenberg_marquardt`).
     """
 
     #: the record's data, its costs on the lines (FrfProblem's domain; ``kind`` stays "time")
@@ -890,6 +976,8 @@ class PeriodicProblem(_FilteredProblem):
         self.block_of = np.concatenate([np.full(ln.size, b) for b, ln in enumerate(blocks)])
         lines = np.concatenate(blocks)
         self.z = np.exp(2j * np.pi * lines / rec.period)
+        self._zi = 1.0 / self.z
+        self._blocks = [self.block_of == b for b in np.unique(self.block_of)]
         #: the excited lines' frequencies (every block's), Hz, ascending
         self.line_hz = np.unique(lines) * self.fs / rec.period
         U = np.concatenate([rec.U[b, ln] for b, ln in enumerate(blocks)])
@@ -901,13 +989,32 @@ class PeriodicProblem(_FilteredProblem):
         self._cache: dict = {}
         self._filter_cache: dict = {}
         self._basis_cache: dict = {}
+        self._anchors: list = []  # (channels, items, parts, sum), see _parts_sum
+        self._residual_last = None  # (model, its weighted residual), see _regress
         self._basis_key: dict = {}
         self._last_new: tuple | None = None  # the last key whose basis was not kept
         self._responses: dict = {}  # filter -> its responses at z (filtered_lines' cache)
+        self._products: dict = {}  # T_in -> numerator -> inputs mixed by it (mixed_lines')
 
     def _filter(self, model, den, u_in):
         X, groups = filtered_lines(model, den, u_in, self.z, self.fs, responses=self._responses)
         return np.concatenate([X.real, X.imag], axis=1), groups
+
+    def _mixed(self, model, den, N0, N1, u_in, channels):
+        """The part on the lines from the filters' responses (:func:`mixed_lines`), the real
+        parts of the lines stacked over the imaginary ones; the filtered inputs
+        (:meth:`_filter`) only where a linear fit needs them as regressors."""
+        # the inputs mixed by a numerator are kept per input coupling (u_in's only variable)
+        T_in = _key(model.T_in)
+        products = self._products.get(T_in)
+        if products is None:
+            if len(self._products) > 8:
+                self._products.clear()
+            products = self._products[T_in] = {}
+        Y = mixed_lines(
+            model, den, N0, N1, u_in, self.z, self.fs, responses=self._responses, products=products
+        )
+        return np.concatenate([Y.real, Y.imag])
 
     def _start_basis(self, model: ModalModel) -> np.ndarray:
         """Orthonormal basis (2 n_l, r) of the transient terms of the model's poles, per block."""
@@ -941,7 +1048,7 @@ class PeriodicProblem(_FilteredProblem):
     def _columns(self, poles, drift: bool) -> np.ndarray:
         """Transient columns (n_l, k) complex: the rigid body's drift (``drift``) and the
         sampled ``poles``' free responses, one set per block."""
-        zi = 1.0 / self.z
+        zi = self._zi
         cols = [1.0 / (1.0 - zi), 1.0 / (1.0 - zi) ** 2] if drift else []
         for pk in poles:
             b = 1.0 / (1.0 - pk * zi)
@@ -951,9 +1058,10 @@ class PeriodicProblem(_FilteredProblem):
             else:
                 cols.append(b)
         C = np.column_stack(cols)
+        if len(self._blocks) == 1:
+            return C
         # one set of coefficients per block (each block starts from its own state)
-        blocks = [self.block_of == b for b in np.unique(self.block_of)]
-        return np.column_stack([C * blk[:, None] for blk in blocks])
+        return np.column_stack([C * blk[:, None] for blk in self._blocks])
 
     def _basis_of(self, key: tuple) -> np.ndarray:
         """Orthonormal basis (2 n_l, r) of the rigid drift and the poles of ``key``, afresh."""
@@ -996,13 +1104,190 @@ class PeriodicProblem(_FilteredProblem):
         norms = np.linalg.norm(W, axis=0)
         if np.min(norms) < NEAR_SPAN:
             return None
-        # the pole's own few columns: Householder QR (a pair's two columns may be near
-        # parallel for a pole near the real axis; then the whole basis afresh)
-        Q_new, R = np.linalg.qr(W / norms)
-        d = np.abs(np.diag(R))
+        # the pole's own few columns (a pair's two may be near parallel for a pole near the
+        # real axis; then the whole basis afresh): Gram-Schmidt twice per column, which for
+        # these 2-12 columns is Householder QR's Q (up to signs) and |diag R| at a tenth of
+        # np.linalg.qr's call overhead
+        W = W / norms
+        Q_new = np.empty_like(W)
+        d = np.empty(W.shape[1])
+        for j in range(W.shape[1]):
+            w = W[:, j]
+            for _ in range(2 if j else 0):
+                w = w - Q_new[:, :j] @ (Q_new[:, :j].T @ w)
+            d[j] = np.linalg.norm(w)
+            Q_new[:, j] = w / d[j] if d[j] > 0 else 0.0
         if np.min(d) < NEAR_SPAN * np.max(d):
             return None
         return np.ascontiguousarray(np.column_stack([Q_rest, Q_new]))
+
+    def costs(self, models: list) -> np.ndarray:
+        """:meth:`cost` of each model (inf for None or a numerical failure), (n_models,).
+
+        A screen's grid (:func:`workbench.diagnosis.fit.screen`) moves the same modes of
+        one model, their numerators kept (a modal mismatch, a modal pattern, a
+        suspension): those models are evaluated together (:meth:`_moved_costs`), the
+        moved modes' line responses for the whole grid in one call
+        (:func:`~workbench.modal.simulate.mode_line_responses`), added to the other
+        modes' outputs summed once, the transient basis of the other poles extended by
+        the moved poles' columns per point as :meth:`_basis_near` extends it. Every
+        other model (and a point where a moved pole's columns come near the others'
+        span) is evaluated alone by :meth:`cost`.
+        """
+        out = np.full(len(models), np.nan)
+        together = self._moved_costs(models)
+        if together is not None:
+            idx, values = together
+            out[idx] = values
+        for i, m in enumerate(models):
+            if np.isnan(out[i]):
+                try:
+                    out[i] = np.inf if m is None else self.cost(m)
+                except NUMERICAL_FAILURES:
+                    out[i] = np.inf
+        out[~np.isfinite(out)] = np.inf
+        return out
+
+    #: fewest models of one pattern that :meth:`_moved_costs` evaluates together
+    MIN_TOGETHER = 8
+
+    def _moved_costs(self, models: list):
+        """The costs of the models that differ from the first only in moved modes, or None.
+
+        Together: every model has the first's channels (delay, no lags, no output
+        coupling), its feedthrough and its other modes (the same objects), and its
+        moved modes are second-order modes with the first's numerators (the same
+        objects). Returns (indices, costs); a cost is NaN where the point must be
+        evaluated alone (coinciding poles, an overdamped slow pole, a moved pole's
+        columns within :data:`NEAR_SPAN` of the span).
+        """
+        ms = [(i, m) for i, m in enumerate(models) if m is not None]
+        if len(ms) < self.MIN_TOGETHER:
+            return None
+        ref = ms[0][1]
+        if ref.T_out is not None or np.any(ref.lags("in")) or np.any(ref.lags("out")):
+            return None
+        n = len(ref.modes)
+        channels = self._channels_key(ref)
+        moved: set = set()
+        for _, m in ms:
+            # a model's arrays are its own copies (read-only): compared by value; its modes
+            # are kept as objects by a structure's build (Mode.moved: a new one)
+            if len(m.modes) != n or m.T_out is not None or not np.array_equal(m.D, ref.D):
+                return None
+            if self._channels_key(m) != channels:
+                return None
+            moved.update(k for k in range(n) if m.modes[k] is not ref.modes[k])
+        if not moved:
+            return None
+        ks = sorted(moved)
+
+        def same_numerator(a, b):
+            return all(
+                (x is None and y is None)
+                or (x is not None and y is not None and np.array_equal(x, y))
+                for x, y in ((a.b, b.b), (a.c, b.c), (a.N0, b.N0), (a.N1, b.N1))
+            )
+
+        keep = [
+            (i, m)
+            for i, m in ms
+            if all(
+                m.modes[k].kind == "flexible" and same_numerator(m.modes[k], ref.modes[k])
+                for k in ks
+            )
+        ]
+        if len(keep) < self.MIN_TOGETHER:
+            return None
+        idx = np.array([i for i, _ in keep])
+        u_in = self._u_in(ref)
+        # the other items' outputs summed once (as _parts_sum sums a model directly)
+        rest = np.zeros(self.target.shape)
+        items = ((ref.D if np.any(ref.D) else None),) + ref.modes
+        for j, item in enumerate(items):
+            if j - 1 not in moved:
+                part = self._item_part(ref, item, u_in, channels)
+                if part is not None:
+                    rest += part
+        n_l, n_y = self.z.size, self.target.shape[1]
+        P = len(keep)
+        # rows first, points second: every projection one matrix product
+        Y = np.zeros((n_l, P, n_y), complex)
+        ok = np.ones(P, bool)
+        w = np.empty((P, len(ks)))
+        zeta = np.empty((P, len(ks)))
+        for c, k in enumerate(ks):
+            w[:, c] = [2 * np.pi * m.modes[k].freq_hz for _, m in keep]
+            zeta[:, c] = [m.modes[k].damping for _, m in keep]
+            H, ok_k = mode_line_responses(
+                2 * zeta[:, c] * w[:, c], w[:, c] ** 2, self.z, self.fs, ref.delay_s
+            )
+            ok &= ok_k
+            for h, N in zip((H[:, 0], H[:, 1]), ref.modes[k].numerator()):
+                if np.any(N):
+                    Y += h.T[:, :, None] * (u_in @ N.T)[:, None, :]
+        R = (self.target - rest)[:, None, :] - np.concatenate([Y.real, Y.imag])
+        # the transient basis: the unmoved modes' poles, and each moved mode's where it has
+        # not settled (the same test as _start_basis)
+        others = replace(ref, modes=tuple(m for k, m in enumerate(ref.modes) if k not in moved))
+        Q_rest = self._start_basis(others)
+        Rf = R.reshape(2 * n_l, P * n_y)
+        Rf -= Q_rest @ (Q_rest.T @ Rf)
+        lam = -zeta * w + 1j * w * np.sqrt(np.maximum(1.0 - zeta**2, 0.0))  # upper half plane
+        poles = np.exp(lam / self.fs)
+        slow = np.abs(poles) ** self.settle > SETTLED
+        ok &= ~np.any(slow & (zeta >= 1.0), axis=1)  # an overdamped slow pole: alone
+        costs = np.full(P, np.nan)
+        for pattern in {tuple(row) for row in slow}:
+            sel = np.flatnonzero(np.all(slow == np.array(pattern, bool), axis=1) & ok)
+            if sel.size == 0:
+                continue
+            Rs = R[:, sel]  # (2 n_l, p, n_y)
+            if any(pattern):
+                Qn, fine = self._extension(Q_rest, poles[sel][:, np.array(pattern, bool)])
+                Rt = Rs.transpose(1, 0, 2)  # (p, 2 n_l, n_y)
+                Qt = Qn.transpose(1, 0, 2)  # (p, 2 n_l, m)
+                Rt = Rt - Qt @ (Qt.transpose(0, 2, 1) @ Rt)
+                sel, Rs = sel[fine], Rt[fine].transpose(1, 0, 2)
+            costs[sel] = np.sum(Rs**2, axis=(0, 2)) / self.scale**2
+        return idx, costs
+
+    def _extension(self, Q_rest: np.ndarray, poles: np.ndarray):
+        """Orthonormal columns (2 n_l, P, m) extending ``Q_rest`` by the transient columns
+        of each point's ``poles`` (P, k) (upper half plane, :meth:`_columns`), and which
+        points' columns stay out of the span (P,) (:meth:`_basis_near`'s :data:`NEAR_SPAN`
+        tests; the others are evaluated alone). Gram-Schmidt twice, as there."""
+        zi = self._zi[:, None]
+        cols = []
+        for j in range(poles.shape[1]):
+            pk = poles[None, :, j]
+            b = 1.0 / (1.0 - pk * zi)
+            bc = 1.0 / (1.0 - np.conj(pk) * zi)
+            cols += [b + bc, 1j * (b - bc)]
+        C = np.stack(cols, axis=-1)  # (n_l, P, 2k)
+        if len(self._blocks) > 1:
+            C = np.concatenate([C * blk[:, None, None] for blk in self._blocks], axis=-1)
+        W = np.concatenate([C.real, C.imag])  # (2 n_l, P, m)
+        n_rows, P, m = W.shape
+        W = W / np.linalg.norm(W, axis=0)
+        Wf = W.reshape(n_rows, P * m)
+        for _ in range(2):
+            Wf = Wf - Q_rest @ (Q_rest.T @ Wf)
+        W = Wf.reshape(n_rows, P, m)
+        norms = np.linalg.norm(W, axis=0)  # (P, m)
+        fine = np.min(norms, axis=1) >= NEAR_SPAN
+        W = W / np.where(norms > 0, norms, 1.0)
+        Qn = np.empty_like(W)
+        d = np.empty((P, m))
+        for j in range(m):
+            v = W[:, :, j]
+            for _ in range(2 if j else 0):
+                prev = Qn[:, :, :j]
+                v = v - np.sum(prev * np.sum(prev * v[:, :, None], axis=0), axis=2)
+            d[:, j] = np.linalg.norm(v, axis=0)
+            Qn[:, :, j] = v / np.where(d[:, j] > 0, d[:, j], 1.0)
+        fine &= np.min(d, axis=1) >= NEAR_SPAN * np.max(d, axis=1)
+        return Qn, fine
 
     def predict(self, model: ModalModel) -> np.ndarray:
         """The time-domain simulated output (N, n_y), as :meth:`TimeProblem.predict`."""

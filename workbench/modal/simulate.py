@@ -16,7 +16,9 @@ Data flow::
 
 from __future__ import annotations
 
+import cmath
 import functools
+from typing import NamedTuple
 
 import numpy as np
 import scipy.linalg
@@ -27,6 +29,9 @@ from workbench.sim import c2d_zoh, split_delay
 __all__ = [
     "filtered_inputs",
     "filtered_lines",
+    "line_responses",
+    "mixed_lines",
+    "mode_line_responses",
     "simulate",
     "zoh_filter",
     "zoh_response",
@@ -39,10 +44,13 @@ def _channel_filters(model, den, numerator_s: bool):
 
     Returns
     -------
-    filters : list of (g, cols, nums, d)
+    filters : list of :class:`_Filter`
         Output group ``g``, input columns ``cols``, the numerators (``[1]``, and ``[1, 0]``
-        for ``s/den`` when asked and ``den`` is second order; slot k of X is ``nums[k]``)
-        and the common denominator ``d`` (``den`` times the channel's lags).
+        for ``s/den`` when asked and ``den`` is second order; slot k of X is ``nums[k]``),
+        the common denominator ``d`` (``den`` times the channel's lags), the channels it
+        filters as flat indices ``i n_u + j`` of an (n_y, n_u) array, and ``d``'s roots
+        when a lag multiplies ``den`` (the mode's and the lags' -1/tau, known in closed
+        form: no eigenvalue computation per filter), else None.
     groups : tuple of int arrays
         Output indices sharing one sensor lag.
     """
@@ -52,13 +60,42 @@ def _channel_filters(model, den, numerator_s: bool):
     two = den is not None and len(den) == 2 and numerator_s
     base = np.array([1.0]) if den is None else np.concatenate([[1.0], den])
     nums = _NUMS_TWO if two else _NUMS_ONE
-    filters = [
+    filters = []
+    den_roots = None
+    for g, cols, lag, flat, lag_roots in lag_sets:
+        if lag.size == 1:
+            filters.append(_Filter(g, cols, nums, base, flat, None))
+            continue
+        if den_roots is None:
+            den_roots = _den_roots(den)
         # np.convolve is np.polymul without its poly1d wrapping (both leading terms are
         # nonzero: nothing to trim), a tenth of the cost on a fit's hot path
-        (g, cols, nums, base if lag.size == 1 else np.convolve(base, lag))
-        for g, cols, lag in lag_sets
-    ]
+        d = np.convolve(base, lag)
+        filters.append(_Filter(g, cols, nums, d, flat, np.array(den_roots + lag_roots, complex)))
     return filters, groups
+
+
+class _Filter(NamedTuple):
+    """One filter of :func:`_channel_filters`."""
+
+    g: int
+    cols: np.ndarray
+    nums: tuple
+    d: np.ndarray
+    flat: np.ndarray
+    roots: np.ndarray | None
+
+
+def _den_roots(den) -> list:
+    """The roots of ``s^2 + a1 s + a0`` (``den`` = (a1, a0); rigid (0, 0): the double root 0)
+    or of ``s + a0`` (``den`` = (a0,)); none for ``den`` None."""
+    if den is None:
+        return []
+    if len(den) == 1:
+        return [complex(-den[0])]
+    h = 0.5 * float(den[0])
+    q = cmath.sqrt(h * h - float(den[1]))
+    return [-h + q, -h - q]
 
 
 _NUMS_ONE = (np.array([1.0]),)
@@ -70,7 +107,9 @@ def _channel_layout(out_bytes: bytes, in_bytes: bytes):
     """Output groups of equal sensor lag and, per group and input-lag set, the lags' polynomial.
 
     From the lags' bytes (cached: a model's lags change far less often than its modes).
-    Returns (groups, [(g, cols, lag_polynomial), ...]).
+    Returns (groups, [(g, cols, lag_polynomial, flat, lag_roots), ...]), ``flat`` the
+    channels (group g's outputs i, the set's inputs j) as flat indices ``i n_u + j``,
+    ``lag_roots`` the lag polynomial's roots ``-1/tau`` (a list).
     """
     taus, tin = np.frombuffer(out_bytes), np.frombuffer(in_bytes)
     uniq = np.unique(taus)
@@ -82,8 +121,11 @@ def _channel_layout(out_bytes: bytes, in_bytes: bytes):
             for tau in (ty, ti):
                 if tau > 0:
                     lag = np.convolve(lag, [tau, 1.0])  # np.polymul, without poly1d
-            sets.append((g, np.flatnonzero(tin == ti), lag))
-    for x in list(groups) + [a for _, c, p in sets for a in (c, p)]:
+            cols = np.flatnonzero(tin == ti)
+            flat = (groups[g][:, None] * tin.size + cols[None, :]).ravel()
+            roots = [complex(-1.0 / tau) for tau in (ty, ti) if tau > 0]
+            sets.append((g, cols, lag, flat, roots))
+    for x in list(groups) + [a for _, c, p, f, _ in sets for a in (c, p, f)]:
         x.flags.writeable = False
     return groups, sets
 
@@ -115,10 +157,36 @@ def filtered_inputs(model, den, u: np.ndarray, fs: float, *, numerator_s: bool =
     """
     filters, groups = _channel_filters(model, den, numerator_s)
     X = np.zeros((len(groups), u.shape[0], model.n_u, 2))
-    for g, cols, nums, d in filters:
-        for k, num in enumerate(nums):
-            X[g, :, cols, k] = zoh_filter(num, d, u[:, cols], 1.0 / fs, model.delay_s).T
+    for f in filters:
+        for k, num in enumerate(f.nums):
+            X[f.g, :, f.cols, k] = zoh_filter(num, f.d, u[:, f.cols], 1.0 / fs, model.delay_s).T
     return X, groups
+
+
+def line_responses(model, den, z: np.ndarray, fs: float, *, numerator_s=True, responses=None):
+    """The filters of :func:`filtered_inputs` with their exact ZOH responses at the points ``z``.
+
+    Parameters as :func:`filtered_lines`. Returns ``([(g, cols, hs, flat), ...], groups)``:
+    per filter its output group ``g``, input columns ``cols``, the responses ``hs`` (one
+    (n_l,) complex array per numerator: ``1/d``, and ``s/d`` when asked and ``den`` is
+    second order) of :func:`zoh_responses`, looked up in / added to ``responses``, and its
+    channels as flat indices (:func:`_channel_filters`).
+    """
+    filters, groups = _channel_filters(model, den, numerator_s)
+    out = []
+    for g, cols, nums, d, flat, roots in filters:
+        hs = None
+        if responses is not None:
+            key = (d.tobytes(), len(nums), float(fs), float(model.delay_s))
+            hs = responses.get(key)
+        if hs is None:
+            hs = zoh_responses(nums, d, z, 1.0 / fs, model.delay_s, roots=roots)
+            if responses is not None:
+                if len(responses) > RESPONSES_KEPT:
+                    responses.clear()
+                responses[key] = hs
+        out.append((g, cols, hs, flat))
+    return out, groups
 
 
 def filtered_lines(
@@ -149,22 +217,83 @@ def filtered_lines(
     X : (n_groups, n_l, n_u, 2) complex array
     groups : list of int arrays
     """
-    filters, groups = _channel_filters(model, den, numerator_s)
+    lines, groups = line_responses(model, den, z, fs, numerator_s=numerator_s, responses=responses)
     X = np.zeros((len(groups), U.shape[0], model.n_u, 2), complex)
-    for g, cols, nums, d in filters:
-        hs = None
-        if responses is not None:
-            key = (d.tobytes(), len(nums), float(fs), float(model.delay_s))
-            hs = responses.get(key)
-        if hs is None:
-            hs = zoh_responses(nums, d, z, 1.0 / fs, model.delay_s)
-            if responses is not None:
-                if len(responses) > RESPONSES_KEPT:
-                    responses.clear()
-                responses[key] = hs
+    for g, cols, hs, _ in lines:
         for k, h in enumerate(hs):
             X[g, :, cols, k] = (h[:, None] * U[:, cols]).T
     return X, groups
+
+
+def mixed_lines(
+    model, den, N0, N1, U: np.ndarray, z: np.ndarray, fs: float, *, responses=None, products=None
+):
+    """One mode's (or the feedthrough's) output at the lines, (n_l, n_y) complex.
+
+    :func:`filtered_lines` mixed by the numerator ``N1 s + N0`` (``N0``, ``N1`` (n_y, n_u);
+    ``N1`` None for the feedthrough, ``den`` None), as the simulation mixes
+    :func:`filtered_inputs`: per filter ``h_0(z) (U N0^T) + h_1(z) (U N1^T)`` over its
+    output rows and input columns, without forming the filtered inputs (a fit evaluates
+    thousands of moved modes; their regressors are needed only by the linear fits).
+    ``U``, ``z``, ``fs``, ``responses`` as :func:`filtered_lines`; ``products``: a cache of
+    the inputs mixed by a numerator (:class:`_Mixed`, keyed by the numerator's bytes) for
+    this ``U`` (the caller keeps one per ``U``): a moved mode keeps its numerator, and the
+    product would otherwise cost more than the rest of the evaluation.
+    """
+    lines, groups = line_responses(model, den, z, fs, responses=responses)
+    n_y, n_u = N0.shape
+    Y = np.zeros((U.shape[0], n_y), complex)
+    for k, N in enumerate((N0, N1) if N1 is not None and np.any(N1) else (N0,)):
+        mixed = _mixed_inputs(U, N, products)
+        for g, cols, hs, _ in lines:
+            if k >= len(hs):
+                continue  # no s/den filter (a first-order or no denominator)
+            rows = groups[g]
+            if cols.size == n_u:
+                Q = mixed.all_inputs
+            elif cols.size == 1:  # a lag on one input
+                Q = mixed.per_input[:, :, cols[0]]
+            else:
+                Q = mixed.per_input[:, :, cols].sum(axis=-1)
+            if rows.size == n_y:
+                Y += hs[k][:, None] * Q
+            else:  # a lag on some outputs
+                Y[:, rows] += hs[k][:, None] * Q[:, rows]
+    return Y
+
+
+class _Mixed:
+    """The inputs at the lines ``U`` (n_l, n_u) mixed by a numerator ``N`` (n_y, n_u):
+    ``all_inputs`` = ``U N^T`` (n_l, n_y) and, when a filter takes some inputs only (a lag
+    on an input), ``per_input`` (n_l, n_y, n_u) = ``N_ij U_lj`` (computed on first use)."""
+
+    def __init__(self, U: np.ndarray, N: np.ndarray):
+        self.U, self.N = U, N
+        self.all_inputs = U @ N.T
+        self._per_input = None
+
+    @property
+    def per_input(self) -> np.ndarray:
+        if self._per_input is None:
+            self._per_input = self.U[:, None, :] * self.N[None, :, :]
+        return self._per_input
+
+
+#: numerators whose mixed inputs a ``products`` cache of :func:`mixed_lines` keeps
+PRODUCTS_KEPT = 256
+
+
+def _mixed_inputs(U: np.ndarray, N: np.ndarray, products: dict | None) -> _Mixed:
+    """:class:`_Mixed` of ``U`` and ``N``, from / into the ``products`` cache when given."""
+    if products is None:
+        return _Mixed(U, N)
+    key = N.tobytes()
+    out = products.get(key)
+    if out is None:
+        if len(products) > PRODUCTS_KEPT:
+            products.clear()
+        out = products[key] = _Mixed(U, N)
+    return out
 
 
 #: filters whose line responses a ``responses`` cache of :func:`filtered_lines` keeps (~15 MB
@@ -302,8 +431,35 @@ def zoh_response(num, den, z: np.ndarray, dt: float, delay_s: float = 0.0) -> np
     return zoh_responses([num], den, z, dt, delay_s)[0]
 
 
-def zoh_responses(nums, den, z: np.ndarray, dt: float, delay_s: float = 0.0) -> list:
-    """:func:`zoh_response` of several numerators over one ``den`` (one pole computation)."""
+def mode_line_responses(a1, a0, z: np.ndarray, fs: float, delay_s: float = 0.0):
+    """The line responses of many modes without lags: ``1/den`` and ``s/den`` per mode.
+
+    :func:`line_responses`' filter for ``den = s^2 + a1_p s + a0_p`` (no lag), evaluated for
+    P denominators at once (a screen of a moved mode's grid). ``a1``, ``a0`` (P,) (1/s, 1/s^2);
+    ``z`` (n_l,), ``fs`` Hz, ``delay_s`` s as :func:`zoh_responses`. Returns ``H``
+    (P, 2, n_l) complex (``H[p, 0]`` the response of ``1/den_p``, ``H[p, 1]`` of
+    ``s/den_p``, as :func:`zoh_responses` gives them) and ``ok`` (P,): False where the
+    partial fractions do not apply (coinciding poles: :func:`zoh_responses` then).
+    """
+    dt = 1.0 / fs
+    m_int, frac = split_delay(delay_s, dt)
+    zi = 1.0 / np.asarray(z, complex)
+    # the numerators 1 and s over the monic den: strict parts (0, 1) and (1, 0)
+    H, ok = _pair_responses(_STRICT_TWO, np.asarray(a1, float), np.asarray(a0, float), zi, dt, frac)
+    if m_int:
+        H *= zi**m_int
+    return H, ok
+
+
+_STRICT_TWO = np.array([[0.0, 1.0], [1.0, 0.0]])
+
+
+def zoh_responses(nums, den, z: np.ndarray, dt: float, delay_s: float = 0.0, *, roots=None):
+    """:func:`zoh_response` of several numerators over one ``den`` (one pole computation).
+
+    ``roots``: ``den``'s roots (complex array) when the caller knows them in closed form (a
+    mode's times its channel's lags), else None (computed here). Returns a list of (n,)
+    complex arrays, one per numerator."""
     padded, den = _monic(nums, den)
     n = den.size - 1
     m_int, frac = split_delay(delay_s, dt)
@@ -311,7 +467,7 @@ def zoh_responses(nums, den, z: np.ndarray, dt: float, delay_s: float = 0.0) -> 
     out = [np.zeros(zi.shape, complex) for _ in padded]
     if n > 0:
         strict = np.array([num[1:] - num[0] * den[1:] for num in padded])
-        hs = _distinct_pole_response(strict, den, zi, dt, frac)
+        hs = _distinct_pole_response(strict, den, zi, dt, frac, roots)
         if hs is None:
             hs = []
             for num in padded:
@@ -331,7 +487,7 @@ def zoh_responses(nums, den, z: np.ndarray, dt: float, delay_s: float = 0.0) -> 
 _POLE_SEPARATION = 1e-3
 
 
-def _distinct_pole_response(strict, den, zi, dt: float, frac: float):
+def _distinct_pole_response(strict, den, zi, dt: float, frac: float, roots=None):
     """ZOH responses of ``strict_i(s) / den(s)`` (monic ``den``) by partial fractions.
 
     Each simple pole ``lam`` with residue ``r`` samples exactly to
@@ -342,43 +498,100 @@ def _distinct_pole_response(strict, den, zi, dt: float, frac: float):
     of each other (or a pole is at 0 with another one): then the caller's discretization
     by the matrix exponential applies. The rigid body's double pole at 0 (behind lags) has
     its own closed form, :func:`_rigid_body_response`: more accurate than that
-    discretization's characteristic polynomials, and not recomputed per delay.
+    discretization's characteristic polynomials, and not recomputed per delay. ``roots``:
+    ``den``'s roots when known (:func:`zoh_responses`).
     """
     if _rigid_body(den):
-        return _rigid_body_response(strict, den, zi, dt, frac)
-    if den.size == 3:  # a mode: the quadratic's roots directly (np.roots costs 20x more)
-        h, q = 0.5 * den[1], np.sqrt(complex(0.25 * den[1] ** 2 - den[2]))
-        lam = np.array([-h + q, -h - q])
-    else:
-        lam = np.roots(den)
-    if lam.size > 1:
-        diff = np.abs(lam[:, None] - lam[None, :]) + np.diag(np.full(lam.size, np.inf))
-        size = np.maximum(np.abs(lam[:, None]), np.abs(lam[None, :]))
-        if np.any(diff <= _POLE_SEPARATION * np.maximum(size, 1e-300)):
-            return None
-    dden = np.polyval(np.polyder(den), lam)
-    r = np.array([np.polyval(st, lam) for st in strict]) / dden  # (n_num, n_poles)
-    hs = r @ _simple_pole_responses(lam, zi, dt, frac).T
+        return _rigid_body_response(strict, den, zi, dt, frac, roots)
+    if den.size == 3:  # a mode (no lag): the most frequent filter, in scalar arithmetic
+        return _pair_response(strict, float(den[1]), float(den[2]), zi, dt, frac)
+    lam = np.roots(den) if roots is None else roots
+    if _too_close(lam):
+        return None
+    hs = _pole_sum(_residues(strict, den, lam), lam, zi, dt, frac)
     return hs if np.all(np.isfinite(hs)) else None
 
 
-def _simple_pole_responses(lam, zi, dt: float, frac: float):
-    """(n_l, n_poles) ZOH responses of ``1 / (s - lam)`` per pole, at ``zi`` = 1/z, delay ``frac``.
+def _too_close(lam: np.ndarray) -> bool:
+    """Whether two of the poles ``lam`` lie within :data:`_POLE_SEPARATION` (relative)."""
+    if lam.size < 2:
+        return False
+    diff = np.abs(lam[:, None] - lam[None, :]) + np.diag(np.full(lam.size, np.inf))
+    size = np.maximum(np.abs(lam[:, None]), np.abs(lam[None, :]))
+    return bool(np.any(diff <= _POLE_SEPARATION * np.maximum(size, 1e-300)))
 
-    ``(b0 z^-1 + b1 z^-2) / (1 - exp(lam dt) z^-1)`` of :func:`_distinct_pole_response`
-    (``lam = 0``, the integrator, included).
+
+def _residues(strict: np.ndarray, den: np.ndarray, lam: np.ndarray) -> np.ndarray:
+    """Residues (n_num, n_poles) of ``strict_i(s) / den(s)`` at the simple roots ``lam`` of the
+    monic ``den``: ``strict_i(lam) / den'(lam)``, both polynomials evaluated by one
+    Vandermonde product (``np.polyval`` per row costs ~20 us of call overhead each)."""
+    n = den.size - 1
+    V = lam[None, :] ** np.arange(n - 1, -1, -1)[:, None]  # (n, n_poles): lam^(n-1) .. 1
+    dden = (np.arange(n, 0, -1) * den[:-1]) @ V  # den' = sum_k (n - k) den_k s^(n-1-k)
+    return (strict @ V) / dden
+
+
+def _pair_response(strict, a1: float, a0: float, zi, dt: float, frac: float):
+    """:func:`_distinct_pole_response` of ``s^2 + a1 s + a0`` (a mode): one mode of
+    :func:`_pair_responses`; None when its poles coincide (a critically damped mode)."""
+    hs, ok = _pair_responses(strict, np.array([a1]), np.array([a0]), zi, dt, frac)
+    return hs[0] if ok[0] else None
+
+
+def _pair_responses(strict, a1: np.ndarray, a0: np.ndarray, zi, dt: float, frac: float):
+    """:func:`_distinct_pole_response` of the modes ``s^2 + a1_p s + a0_p``, at once.
+
+    The two poles of each in closed form, ``lam = -a1 / 2 +- q``, ``den'(lam) = +-2 q =
+    +-(lam_1 - lam_2)``: the partial fractions of :func:`_distinct_pole_response` without
+    its root finding and polynomial evaluations (a screen or a fit evaluates thousands
+    of moved modes; a screen of a moved mode evaluates its whole grid in one call).
+
+    ``strict`` (n_num, 2) numerator coefficients; ``a1``, ``a0`` (P,). Returns ``hs``
+    (P, n_num, n_l) complex and ``ok`` (P,): False where the poles coincide within
+    :data:`_POLE_SEPARATION` or the response is not finite (the caller's discretization
+    by the matrix exponential applies there).
     """
+    h = 0.5 * np.asarray(a1, float)
+    q = np.sqrt((h * h - a0).astype(complex))
+    l1, l2 = q - h, -h - q
+    d = 2.0 * q
+    ok = np.abs(d) > _POLE_SEPARATION * np.maximum(np.maximum(np.abs(l1), np.abs(l2)), 1e-300)
+    if not ok.all():
+        d = np.where(ok, d, 1.0)
+    G = _pole_responses(np.concatenate([l1, l2]), zi, dt, frac)
+    G1, G2 = G[: l1.size], G[l1.size :]
+    hs = np.empty((l1.size, strict.shape[0], zi.size), complex)
+    for i, (c1, c0) in enumerate(strict.tolist()):
+        hs[:, i] = ((c1 * l1 + c0) / d)[:, None] * G1 - ((c1 * l2 + c0) / d)[:, None] * G2
+    ok &= np.isfinite(hs).all(axis=(1, 2))
+    return hs, ok
+
+
+def _pole_responses(lam: np.ndarray, zi, dt: float, frac: float) -> np.ndarray:
+    """(m, n_l) ZOH responses of ``1 / (s - lam_k)`` at ``zi`` = 1/z with the delay ``frac``:
+    ``(b0 z^-1 + b1 z^-2) / (1 - exp(lam dt) z^-1)`` of :func:`_distinct_pole_response`
+    (``lam = 0``, the integrator, included), ``lam`` (m,) complex."""
 
     def integral(h):  # int_0^h exp(lam s) ds, its limit h at lam = 0
-        small = np.abs(lam * h) < 1e-8
-        safe = np.where(small, 1.0, lam)
-        return np.where(small, h * (1 + 0.5 * lam * h), np.expm1(lam * h) / safe)
+        x = lam * h
+        small = np.abs(x) < 1e-8
+        if not small.any():
+            return np.expm1(x) / lam
+        return np.where(small, h * (1 + 0.5 * x), np.expm1(x) / np.where(small, 1.0, lam))
 
-    b0 = integral(dt - frac)
-    b1 = np.exp(lam * (dt - frac)) * integral(frac) if frac > 0 else np.zeros_like(lam)
-    p = np.exp(lam * dt)
-    zc = zi[:, None]
-    return (b0 * zc + b1 * zc * zc) / (1.0 - p * zc)
+    lam = np.asarray(lam, complex)
+    b0 = integral(dt - frac)[:, None]
+    p = np.exp(lam * dt)[:, None]
+    if frac > 0:
+        b1 = (np.exp(lam * (dt - frac)) * integral(frac))[:, None]
+        return (b0 + b1 * zi) * zi / (1.0 - p * zi)
+    return b0 * zi / (1.0 - p * zi)
+
+
+def _pole_sum(r: np.ndarray, lam: np.ndarray, zi, dt: float, frac: float) -> np.ndarray:
+    """``sum_k r[i, k] g_k`` (n_num, n_l): the simple poles' ZOH responses
+    (:func:`_pole_responses`) weighted by the residues ``r`` (n_num, n_poles)."""
+    return r @ _pole_responses(lam, zi, dt, frac)
 
 
 #: the rigid body's closed form (:func:`_rigid_body_response`) takes the other poles down to
@@ -392,7 +605,7 @@ def _rigid_body(den) -> bool:
     return den.size >= 3 and den[-1] == 0.0 and den[-2] == 0.0 and den[-3] != 0.0
 
 
-def _rigid_body_response(strict, den, zi, dt: float, frac: float):
+def _rigid_body_response(strict, den, zi, dt: float, frac: float, roots=None):
     """ZOH responses of ``strict_i(s) / (s^2 q(s))`` in closed form (:func:`_rigid_body` ``den``).
 
     Partial fractions ``c2 / s^2 + c1 / s + sum r_k / (s - lam_k)`` over the simple roots
@@ -404,31 +617,30 @@ def _rigid_body_response(strict, den, zi, dt: float, frac: float):
     ``frac^2 / 2 w + dt^2 w / (1 - w)^2 - (dt^2 / 2 + dt frac) w / (1 - w)`` with ``w = z^-1``.
     Returns (n_num, n_l) complex, or None (the caller's matrix exponential then) when two of
     ``q``'s roots are within :data:`_POLE_SEPARATION` or one is within :data:`_RIGID_POLE_MIN`
-    of 0 (in ``|lam| dt``).
+    of 0 (in ``|lam| dt``). ``roots``: ``den``'s roots when known (the double 0 among them).
     """
     q = den[:-2]
-    if q.size == 1:
+    if roots is not None:
+        lam = roots[roots != 0]
+    elif q.size == 1:
         lam = np.zeros(0, complex)
     elif q.size == 2:  # one lag: its root directly (np.roots costs 20x more)
         lam = np.array([-q[1] / q[0]], complex)
     else:
         lam = np.roots(q).astype(complex)
-    if lam.size > 1:
-        diff = np.abs(lam[:, None] - lam[None, :]) + np.diag(np.full(lam.size, np.inf))
-        size = np.maximum(np.abs(lam[:, None]), np.abs(lam[None, :]))
-        if np.any(diff <= _POLE_SEPARATION * size):
-            return None
+    if _too_close(lam):
+        return None
     if np.any(np.abs(lam) * dt < _RIGID_POLE_MIN):
         return None
     q0, q1 = q[-1], (q[-2] if q.size > 1 else 0.0)  # q(0), q'(0)
     c2 = strict[:, -1] / q0
     c1 = (strict[:, -2] * q0 - strict[:, -1] * q1) / q0**2
     poles = np.concatenate([[0.0], lam])  # the integrator, then q's roots
-    r = np.array([np.polyval(st, lam) for st in strict]) / np.polyval(np.polyder(den), lam)
+    r = _residues(strict, den, lam)
     r = np.concatenate([c1[:, None], r], axis=1)  # (n_num, 1 + n_lam)
     w = zi
     double = (
         0.5 * frac**2 * w + dt**2 * w / (1.0 - w) ** 2 - (0.5 * dt**2 + dt * frac) * w / (1.0 - w)
     )
-    hs = r @ _simple_pole_responses(poles, zi, dt, frac).T + c2[:, None] * double[None, :]
+    hs = _pole_sum(r, poles, zi, dt, frac) + c2[:, None] * double[None, :]
     return hs if np.all(np.isfinite(hs)) else None
