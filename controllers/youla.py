@@ -629,9 +629,11 @@ def _refined(solve, maps: YoulaMaps, loops, ms_max: float, rounds: int) -> Youla
     """solve(maps) -> (theta, value, solves, status), re-solved on a grid with the
     lines where the last design peaks above ms_max, until none or ``rounds``."""
     t0, solves = time.perf_counter(), 0
-    for _ in range(int(rounds) + 1):
+    for k in range(int(rounds) + 1):
         theta, value, n, status, *rest = solve(maps)
         solves += n
+        if k == int(rounds):
+            break  # the design's grid is the one it was solved on (its figures are that grid's)
         extra = _worst_lines(maps, theta, loops, ms_max, dense=8)
         if not extra.size:
             break
