@@ -253,6 +253,9 @@ def effect_params(rng, plant: Plant, effect: str, kind: str) -> dict:
         return {"freq_hz": f, "damping": float(rng.uniform(0.005, 0.03)), "b": b, "c": c}
     if effect == "modal_mismatch":
         inband = [i for i in flex if plant.modes[i][0] < 0.8 * band]
+        if not inband:
+            # the benchmarks skip a case the plant cannot have (RuntimeError)
+            raise RuntimeError(f"no flexible mode below 0.8 x the band ({band:.4g} Hz) to mismatch")
         i = int(rng.choice(inband))
         f, z = plant.modes[i][:2]
         sgn = rng.choice([-1, 1])
