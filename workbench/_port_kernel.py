@@ -111,6 +111,41 @@ def _sens_start(x, a, CvT, Fc, iv0, dFc, dlv, dCvT, has_dcv, S, dr, dw):
 
 
 @numba.njit(cache=True, inline="always")
+def _gauss_solve(J, R, n_p):
+    """Solve ``J x = R[q]`` for every row q of R (n_rhs, n_p) in place: Gaussian elimination
+    with partial pivoting on J (n_p, n_p, overwritten), the solutions in R's rows."""
+    n_rhs = R.shape[0]
+    for c in range(n_p):
+        piv = c
+        big = abs(J[c, c])
+        for i in range(c + 1, n_p):
+            if abs(J[i, c]) > big:
+                big = abs(J[i, c])
+                piv = i
+        if piv != c:
+            for k in range(n_p):
+                tmp = J[c, k]
+                J[c, k] = J[piv, k]
+                J[piv, k] = tmp
+            for q in range(n_rhs):
+                tmp = R[q, c]
+                R[q, c] = R[q, piv]
+                R[q, piv] = tmp
+        for i in range(c + 1, n_p):
+            fct = J[i, c] / J[c, c]
+            for k in range(c, n_p):
+                J[i, k] -= fct * J[c, k]
+            for q in range(n_rhs):
+                R[q, i] -= fct * R[q, c]
+    for q in range(n_rhs):
+        for i in range(n_p - 1, -1, -1):
+            acc = R[q, i]
+            for k in range(i + 1, n_p):
+                acc -= J[i, k] * R[q, k]
+            R[q, i] = acc / J[i, i]
+
+
+@numba.njit(cache=True, inline="always")
 def _sens_end(x, CvT, G1T, Fc, iv0, Mv, dFc, dlv, dCvT, has_dcv, S, Sp, dr, w, dw, J):
     """S (in place): the sensitivities of the substep's end state ``x = xp + G1 r``, those of
     ``xp`` given (``Sp``, n_th x n); dr (n_th, n_p) those of the friction's end value ``r``.
@@ -138,34 +173,8 @@ def _sens_end(x, CvT, G1T, Fc, iv0, Mv, dFc, dlv, dCvT, has_dcv, S, Sp, dr, w, d
                 for m in range(n):
                     Sp_w += dCvT[q, m, i] * x[m]
             dr[q, i] = -dFc[q, i] * ti - si * (Sp_w - w[i] * dlv[q])
-    for c in range(n_p):
-        piv = c
-        big = abs(J[c, c])
-        for i in range(c + 1, n_p):
-            if abs(J[i, c]) > big:
-                big = abs(J[i, c])
-                piv = i
-        if piv != c:
-            for k in range(n_p):
-                tmp = J[c, k]
-                J[c, k] = J[piv, k]
-                J[piv, k] = tmp
-            for q in range(n_th):
-                tmp = dr[q, c]
-                dr[q, c] = dr[q, piv]
-                dr[q, piv] = tmp
-        for i in range(c + 1, n_p):
-            fct = J[i, c] / J[c, c]
-            for k in range(c, n_p):
-                J[i, k] -= fct * J[c, k]
-            for q in range(n_th):
-                dr[q, i] -= fct * dr[q, c]
+    _gauss_solve(J, dr, n_p)
     for q in range(n_th):
-        for i in range(n_p - 1, -1, -1):
-            acc = dr[q, i]
-            for k in range(i + 1, n_p):
-                acc -= J[i, k] * dr[q, k]
-            dr[q, i] = acc / J[i, i]
         for i in range(n):
             S[q, i] = Sp[q, i]
         for m in range(n_p):
@@ -295,31 +304,9 @@ def _advance(
                     J[i, i] += 1.0
                     rt[i] = -g[i]
                 # J dlt = rt by Gaussian elimination with partial pivoting
-                for c in range(n_p):
-                    piv = c
-                    big = abs(J[c, c])
-                    for i in range(c + 1, n_p):
-                        if abs(J[i, c]) > big:
-                            big = abs(J[i, c])
-                            piv = i
-                    if piv != c:
-                        for k in range(n_p):
-                            tmp = J[c, k]
-                            J[c, k] = J[piv, k]
-                            J[piv, k] = tmp
-                        tmp = rt[c]
-                        rt[c] = rt[piv]
-                        rt[piv] = tmp
-                    for i in range(c + 1, n_p):
-                        fct = J[i, c] / J[c, c]
-                        for k in range(c, n_p):
-                            J[i, k] -= fct * J[c, k]
-                        rt[i] -= fct * rt[c]
-                for i in range(n_p - 1, -1, -1):
-                    acc = rt[i]
-                    for k in range(i + 1, n_p):
-                        acc -= J[i, k] * dlt[k]
-                    dlt[i] = acc / J[i, i]
+                _gauss_solve(J, rt.reshape((1, n_p)), n_p)
+                for i in range(n_p):
+                    dlt[i] = rt[i]
                 dmax = 0.0
                 for i in range(n_p):
                     dmax = max(dmax, abs(dlt[i]))
