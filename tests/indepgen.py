@@ -305,6 +305,10 @@ def effect_params(rng, plant: Plant, effect: str, kind: str) -> dict:
     raise ValueError(effect)
 
 
+#: largest relative error of a mismatched mode's model frequency (the model within 0.5-1.5x)
+MAX_MISMATCH = 0.5
+
+
 def apply_effect(truth: Truth, nominal: Plant, effect: str, p: dict, s: float) -> dict:
     """Apply an effect at strength s to truth (and the nominal where the model is wrong).
 
@@ -321,7 +325,12 @@ def apply_effect(truth: Truth, nominal: Plant, effect: str, p: dict, s: float) -
     if effect == "modal_mismatch":
         i = p["index"]
         f, z, b, c = nominal.modes[i]
-        f_model = p["freq_hz"] * (1 + p["rel"] * s)
+        # the strength search doubles s until the effect is visible: on a mode the record hardly
+        # excites it drove the model's frequency to -0.63x (an unstable model) or 50x the truth.
+        # A model that far off holds another mode, not a mismatched one: the shift is bounded
+        # (MAX_MISMATCH), and a mismatch still invisible there is a case the plant cannot have
+        shift = float(np.clip(p["rel"] * s, -MAX_MISMATCH, MAX_MISMATCH))
+        f_model = p["freq_hz"] * (1 + shift)
         nominal.modes[i] = (f_model, z, b, c)
         return {"freq_hz": p["freq_hz"], "damping": p["damping"], "model_freq_hz": f_model}
     if effect == "residual_compliance":
