@@ -126,3 +126,58 @@ def test_friction_record_is_the_continuous_response(delay_samples):
     # the records' noise is 0.2-2 % of their rms; measured 4e-13 / 7e-13 (the comment at
     # indepgen._coulomb_step), the old 32-substep splitting 1.6e-2
     assert err < 1e-9, err
+
+
+def _stage_friction_record():
+    """(truth, u, y, y0, floor, case) of ``bench_diagnose_indep.py --seed 1 --kinds time
+    --plants stage --effects nonlinearity``'s clear case (friction on the six rigid bodies)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from diag_indep_friction_replay import _record
+
+    rec, floor = _record(1, "clear")
+    return rec["truth"], rec["u"], rec["y"], rec["y0"], floor, rec["case"]
+
+
+def test_port_kernel_converges_to_the_record():
+    """workbench's port kernel at the generator's true levels, its friction on the rigid bodies'
+    velocities only (as the generator's), reproduces the record: it converges to the event-exact
+    motion (benchmarks/diag_indep_friction_replay.py has the whole study). Measured: 1.02x the
+    floor, 0.20 floors from the noise-free record (the old 32-substep record: ~5 floors)."""
+    from workbench import sim
+    from workbench.core import lti
+
+    truth, u, y, y0, floor, _ = _stage_friction_record()
+    A, B, C, D = (np.asarray(M, float) for M in truth.ss_mats())
+    fs = truth.plant.fs
+    rig = [i for i, md in enumerate(truth.plant.modes) if md[0] == 0]
+    Cp = np.zeros((len(rig), A.shape[0]))
+    rows = np.zeros(A.shape[0], bool)
+    for i in rig:
+        b = truth.plant.modes[i][2]
+        j = int(np.argmax(np.abs(b)))
+        Cp[j, 2 * i] = b[j]  # the body's displacement at its actuator, m or rad
+        rows[2 * i + 1] = True
+    law = sim.PortLaw(
+        Cv=Cp @ A, Cp=Cp, friction_force=np.asarray(truth.nl["Fc"], float),
+        friction_velocity=1e-8, cubic_stiffness=0.0,
+    )  # fmt: skip
+    prop = sim.substep_zoh(A, B, B * rows[:, None], 1 / fs, 512, delay_s=truth.delay_s)
+    ys = prop.simulate(law, sim.delayed(u, prop.m), sim.delayed(u, prop.m + 1), C, D)[0]
+    assert lti.relative_error_time(y, ys) <= 1.1 * floor
+    assert lti.relative_error_time(y0, ys) <= 0.3 * floor
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="diagnosis's friction fit stalls (levels and port gains)")
+def test_diagnosis_reaches_the_floor_on_the_stage_friction_record():
+    """Open (session 29): on this record the diagnosis names Coulomb friction but lands 34.6x the
+    floor (levels 6-30 % off on three ports, a port gain of the second flexible mode 2.6 % of
+    its unit where the generator's friction has none). Its own simulation model at the true
+    levels, gains at their lower bound: 3.2x at its 64 substeps, 1.6x at 256 with v0 1e-8 m/s
+    (the friction through B adds ~1.1 floors of flexible-mode response the generator lacks)."""
+    from workbench.diagnosis import diagnose
+
+    *_, floor, case = _stage_friction_record()
+    res = diagnose(case.nominal, case.data)
+    assert res.findings[0].effect == "nonlinearity"
+    assert res.findings[-1].error_after <= 2.0 * floor
