@@ -525,7 +525,8 @@ def multisine(n_u, period, fs, f_max, rng, *, tilt=0.0, k_min=1, odd=False):
 def time_record(
     truth: Truth, nominal: Plant, rng, *, N, period, closed, r, noise_sd, gain=1.0, stats=None
 ):
-    """Simulate the true plant (linear part exact ZOH; friction per substep, others per sample)."""
+    """Simulate the true plant (linear part exact ZOH; friction event-exact, the cubic spring
+    per substep, the saturation clipping the held input)."""
     A, B, C, D = (np.asarray(M, float) for M in truth.ss_mats())
     fs = truth.plant.fs
     Ad, B0, B1, m = _c2d(A, B, 1 / fs, truth.delay_s)
