@@ -556,7 +556,7 @@ def time_record(
     off = n_lag if truth.act_cut is not None else 0
     q_sq = 0.0
     if nl.get("type") == "friction":
-        ip, iv, F_dec, B_v, seg = _friction_setup(truth, A, B, rig, fs, nl["Fc"])
+        ip_f, iv_f, F_dec, B_v, seg = _friction_setup(truth, A, B, rig, fs, nl["Fc"])
     n_cubic = nl.get("substeps", CUBIC_SUBSTEPS)
     if nl.get("type") == "cubic":
         Ph, Gn, Go = _c2d_substeps(A, B, 1 / fs, truth.delay_s, n_cubic)
@@ -592,12 +592,12 @@ def time_record(
             # the linear states exactly (the rigid bodies' entries redone below); each rigid
             # body over the sample's two input segments (u[k-m-1] until the delay's fraction,
             # then u[k-m]), its friction's stick / slip events exact
-            p_r, v_r = x[ip], x[iv]
+            p_r, v_r = x[ip_f], x[iv_f]
             x = Ad @ x + B0 @ ua + B1 @ ua1
             for T, u_seg in zip(seg, (ua1, ua)):
                 if T > 0:
                     p_r, v_r = _coulomb_step(p_r, v_r, B_v @ u_seg, F_dec, T)
-            x[ip], x[iv] = p_r, v_r
+            x[ip_f], x[iv_f] = p_r, v_r
             continue
         if nl.get("type") == "cubic":
             # Strang splitting per substep: half the spring's kick, the exact linear step, the
