@@ -33,6 +33,11 @@ noisy record (against the noise-free one):
   1e-9): converged 1.5 floors (1.1 from the noise-free record), the flexible modes' response
   to the friction force, which the generator's modal friction does not have.
 
+Seed 2 (clear; flexible modes at 507 / 569 Hz, floor 0.00284): the generator 1.00; session 28's
+scheme 9.85 / 1.74 / 1.08 at 32 / 128 / 512; the kernel on the rigid bodies only 1.09 at 512
+substeps (v0 1e-9; 1.51 at v0 1e-8, 2.86-3.30 at 64), through B 4.99-5.10 at 512: there the
+friction's flexible-mode response is 5 floors, more than the diagnosis's 2x target by itself.
+
 The diagnosis on that record (bench_diagnose_indep, session 29): Coulomb friction named, 34.6x
 the floor (4.35x on the old record), 57 s of CPU. Not the kernel: its own simulation model
 (SquarePorts, the friction through B) at the true levels, the flexible modes' port gains at
