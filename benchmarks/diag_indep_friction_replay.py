@@ -37,6 +37,13 @@ Seed 2 (clear; flexible modes at 507 / 569 Hz, floor 0.00284): the generator 1.0
 scheme 9.85 / 1.74 / 1.08 at 32 / 128 / 512; the kernel on the rigid bodies only 1.09 at 512
 substeps (v0 1e-9; 1.51 at v0 1e-8, 2.86-3.30 at 64), through B 4.99-5.10 at 512: there the
 friction's flexible-mode response is 5 floors, more than the diagnosis's 2x target by itself.
+Seed 3 (clear, floor 0.00378): session 28's scheme 1.93 at 32; the kernel on the rigid bodies
+only 1.00 at 512 (2.06 at 64), through B 1.48 at 512 (2.34 at 64).
+
+The diagnosis on seeds 2 / 3 (clear; before -> after the event-exact record): 144.7 -> 104.4x
+(port 3's level 2.2x its truth) and 180.2 -> 181.6x (the rotations' levels 7-20x their
+truths, near the translations': one level for every port): level fits that fail with either
+record, not the record's integration.
 
 The diagnosis on that record (bench_diagnose_indep, session 29): Coulomb friction named, 34.6x
 the floor (4.35x on the old record), 57 s of CPU. Not the kernel: its own simulation model
