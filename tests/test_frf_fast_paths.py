@@ -229,3 +229,41 @@ def test_levenberg_marquardt_path_matches_trust_region_reference(structure, effe
     assert np.allclose(ours.theta, ref.theta, rtol=1e-4, atol=1e-6)
     # standard deviations from the Gram matrix agree with the reference's Jacobian
     assert np.allclose(ours.theta_std, ref.theta_std, rtol=0.05)
+
+
+@pytest.mark.parametrize("plant,params", [(stage, stage_params), (beam, beam_params)])
+def test_composite_jacobian_matches_central_differences(plant, params):
+    """A joint refit's analytic Jacobian (parts moving the model by factors: delay, lags,
+    moved modes) against central differences of the composite's model residual; a part
+    that solves linear parameters from the misfit leaves it to finite differences."""
+    problem, base0 = _problem(plant, params, "modal_mismatch")
+    base = _with_outer(base0, T_in=False, T_out=False)
+    parts = [TimeDelay(), ActuatorDynamics(), SensorDynamics(), ModalMismatch(index=1)]
+    thetas = [
+        np.array([0.07]),
+        np.linspace(0.2, 1.5, base.n_u),
+        np.linspace(0.3, 2.0, base.n_y),
+        np.log([base.modes[1].freq_hz * 1.01, base.modes[1].damping * 1.3]),
+    ]
+    if any(m.kind == "rigid" for m in base.modes):
+        parts.append(SuspensionStiffness())
+        thetas.append(np.log([0.5 * problem.band_hz[0], 0.1]))
+    bases, model = [], base
+    for p, th in zip(parts, thetas):
+        bases.append(model)
+        model = p.build(th, problem, model).model
+    comp = fit_engine.Composite(parts=tuple(parts), bases=tuple(bases))
+    theta = np.concatenate(thetas)
+    lines = structure_lines(comp, problem, base)
+    J = lines.jacobian(theta)
+    Jc = _central(comp, theta, problem, base)
+    assert J.shape == Jc.shape == (problem.n_obs, theta.size)
+    assert np.max(np.abs(J - Jc)) < 1e-5 * np.max(np.abs(Jc))
+    assert np.array_equal(
+        lines.residual(theta), problem.residual(comp.build(theta, problem, base).model)
+    )
+    # an added mode's residue moves with the other parts: finite differences
+    mm = MissingMode()
+    th_mm = np.log([0.5 * sum(problem.band_hz), 0.02])
+    comp2 = fit_engine.Composite(parts=(TimeDelay(), mm), bases=(base, base))
+    assert comp2.jacobian(np.concatenate([[0.07], th_mm]), problem, base) is None
