@@ -261,14 +261,6 @@ class TimeDelay:
         dr = P * (problem.s * 1e-3)[:, None, None] * problem.w  # -(-s 1e-3 P) w
         return dr.view(float).reshape(-1, 1)
 
-    def channel_derivative(self, theta, problem, base):
-        """d h / d theta (1, n_f, n_y, n_u) of the channel factor ``h`` on FRF data (the
-        delay scales it by ``exp(-s tau)``: ``-s 1e-3 h``, theta in ms); else None."""
-        if problem.kind != "frf":
-            return None
-        h = problem._channel_factor(self.build(theta, problem, base).model)
-        return (-1e-3 * problem.s)[None, :, None, None] * h[None]
-
     def lines(self, problem, base):
         """:class:`_Lines` on FRF data: the prediction times ``exp(-s theta 1e-3)``; else None."""
         if problem.kind != "frf":
@@ -431,10 +423,6 @@ class ModalMismatch:
             problem, model, _mode_derivatives(problem, model.modes[self.index])
         )
 
-    def channel_derivative(self, theta, problem, base):
-        """0: moving modes leaves the channel factor (delay, lags) as it is."""
-        return 0.0
-
     def lines(self, problem, base):
         """:class:`_Lines` on FRF data (the moved mode's factor), else None."""
         return _moved_mode_lines(problem, base, self.index)
@@ -508,10 +496,6 @@ class ModalPattern:
         dF = numerators_times(modes, problem.s, np.stack([p[0] for p in phi], -1))
         dZ = numerators_times(modes, problem.s, np.stack([p[1] for p in phi], -1) * moves)
         return _residual_columns(problem, model, [dF, dZ])
-
-    def channel_derivative(self, theta, problem, base):
-        """0: moving modes leaves the channel factor (delay, lags) as it is."""
-        return 0.0
 
     def lines(self, problem, base):
         """:class:`_Lines` on FRF data (every moved mode's factor), else None."""
@@ -728,10 +712,6 @@ class SuspensionStiffness:
         return _residual_columns(
             problem, model, _mode_derivatives(problem, model.modes[self._rigid(base)])
         )
-
-    def channel_derivative(self, theta, problem, base):
-        """0: moving modes leaves the channel factor (delay, lags) as it is."""
-        return 0.0
 
     def lines(self, problem, base):
         """:class:`_Lines` on FRF data (the suspended rigid mode's factor), else None."""
@@ -1167,14 +1147,6 @@ class ResidualCompliance(_LinearOnly):
     effect: str = "residual_compliance"
     theta_names: tuple[str, ...] = ()
 
-    def projection(self, theta, problem, base):
-        """The per-line basis of the fitted term, ``phi`` (n_f, 1) complex (a constant: dD
-        through the channel factor, as :meth:`FrfProblem.fit_feedthrough` solves it), and
-        its derivative (0, n_f, 1) (no parameters); see
-        :meth:`~workbench.diagnosis.problem.FrfProblem.projected_jacobian`."""
-        n_f = problem.freq.size
-        return np.ones((n_f, 1), complex), np.zeros((0, n_f, 1), complex)
-
     def build(self, theta, problem, base):
         M, S = problem.fit_feedthrough(base)
         return Realized(replace(base, D=base.D + M), {"matrix": M}, {"matrix": S})
@@ -1221,34 +1193,6 @@ class UpperResidual:
             np.array([np.log(_UPPER_RANGE[0] * f_hi), _LOG_Z[0]]),
             np.array([np.log(_UPPER_RANGE[1] * f_hi), _LOG_Z[1]]),
         )
-
-    def projection(self, theta, problem, base):
-        """The per-line basis of the fitted term and its derivative with respect to theta:
-        ``phi`` (n_f, 3) = ``(1, w^2 / den, s w / den)`` (dD, N0 / w^2, N1 / w, as
-        :meth:`FrfProblem.fit_upper_residual` scales them) and ``dphi`` (2, n_f, 3) for
-        theta = (ln f, ln z): ``d w / d ln f = w``, ``d den / d ln f = 2 z w s + 2 w^2``,
-        ``d den / d ln z = 2 z w s``."""
-        f, z = _freq_damping(theta)
-        s, w = problem.s, 2 * np.pi * f
-        den = s**2 + 2 * z * w * s + w * w
-        d_lnz = 2 * z * w * s
-        d_lnf = d_lnz + 2 * w * w
-        ones, zeros = np.ones_like(s), np.zeros_like(s)
-        phi = np.stack([ones, w * w / den, s * w / den], -1)
-        dphi = np.stack(
-            [
-                np.stack(
-                    [
-                        zeros,
-                        2 * w * w / den - w * w * d_lnf / den**2,
-                        s * w / den - s * w * d_lnf / den**2,
-                    ],
-                    -1,
-                ),
-                np.stack([zeros, -w * w * d_lnz / den**2, -s * w * d_lnz / den**2], -1),
-            ]
-        )
-        return phi, dphi
 
     def _term(self, theta, problem, base):
         """The pseudo-mode (its residue solved) and dD at theta, their std (unit noise)."""
@@ -1387,24 +1331,6 @@ class _Lag:
             dr = P[at] * problem.w[at] * (dlog[:, j, None])
             Jt[j][at] = dr.view(float).reshape(dr.shape + (2,))
         return Jt.reshape(n, -1).T
-
-    def channel_derivative(self, theta, problem, base):
-        """d h / d theta (n, n_f, n_y, n_u) of the channel factor ``h`` on FRF data without
-        coupling on this side (theta_j scales channel j's by ``L_j``: :meth:`jacobian`'s
-        ``-s L_j / scale``), else None."""
-        coupling = base.T_in if self.side == "in" else base.T_out
-        if problem.kind != "frf" or coupling is not None:
-            return None
-        model = self.build(theta, problem, base).model
-        h = problem._channel_factor(model)
-        L = 1.0 / (1.0 + problem.s[:, None] * model.lags(self.side)[None, :])  # (n_f, n)
-        dlog = -problem.s[:, None] * L / self._scale(problem)
-        n = self._n(base)
-        dh = np.zeros((n,) + h.shape, complex)
-        for j in range(n):
-            at = (slice(None), slice(None), j) if self.side == "in" else (slice(None), j)
-            dh[(j,) + at] = h[at] * (dlog[:, j, None])
-        return dh
 
     def lines(self, problem, base):
         """:class:`_Lines` on FRF data without coupling on this side, else None.

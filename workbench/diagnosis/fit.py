@@ -686,70 +686,36 @@ class Composite:
         analytic ``jacobian`` hook and no linear parameters), the parts commute: the model
         after all of them is part i applied last, on the others applied to ``base``, so
         part i's columns are its own hook's there. Each such reordering is checked to give
-        the chain's model (same modes, feedthrough, delay, lags, coupling).
-
-        A last part that fits a term per channel by linear least squares on the misfit
-        the others leave (upper residual, residual compliance: a ``projection`` hook, its
-        basis) follows them: the movers' hooks give the misfit's derivative, their
-        ``channel_derivative`` the channel factor's, and
-        :meth:`~workbench.diagnosis.problem.FrfProblem.projected_jacobian` the derivative
-        after the projection (variable projection's full Jacobian).
-
-        None where a part has no such hooks, or solves linear parameters from the misfit
-        before the last (an added mode's rank-one residue, crosstalk: finite differences).
+        the chain's model (same modes, feedthrough, delay, lags, coupling); where one does
+        not, or a part solves linear parameters from the misfit (an added mode, compliance,
+        crosstalk: their solution moves with the other parts), None.
         """
         if getattr(problem, "kind", "") != "frf":
             return None
-        thetas = self.split(theta, problem)
-        chain = self.chain(theta, problem, base)
-        last = self.parts[-1]
-        project = len(self.parts) > 1 and callable(getattr(last, "projection", None))
-        movers = self.parts[:-1] if project else self.parts
         if not all(
             callable(getattr(p, "jacobian", None)) and p.n_linear(b) == 0
-            for p, b in zip(movers, self.bases)
+            for p, b in zip(self.parts, self.bases)
         ):
             return None
-        target = chain[len(movers) - 1].model  # the model after the movers
-        rows, dh = [], []
-        for i, part in enumerate(movers):
+        thetas = self.split(theta, problem)
+        final = self.chain(theta, problem, base)[-1].model
+        columns = []
+        for i, part in enumerate(self.parts):
             if thetas[i].size == 0:
                 continue
             others = base
-            for j, (p, th) in enumerate(zip(movers, thetas)):
+            for j, (p, th) in enumerate(zip(self.parts, thetas)):
                 if j != i:
                     others = p.build(th, problem, others).model
-            if not _same_model(part.build(thetas[i], problem, others).model, target):
+            if not _same_model(part.build(thetas[i], problem, others).model, final):
                 return None
             J = part.jacobian(thetas[i], problem, others)
             if J is None:
                 return None
-            rows.append(J.T)
-            if project:
-                g = getattr(part, "channel_derivative", None)
-                g = g(thetas[i], problem, others) if callable(g) else None
-                if g is None:
-                    return None
-                dh.append((thetas[i].size, g))
-        if not project:
-            # rows stacked (each part's columns contiguous, see effects._residual_columns): a
-            # column-wise hstack into a C-ordered tall array costs more than the columns
-            return np.vstack(rows).T
-        if target.T_in is not None or target.T_out is not None:
-            return None
-        shape = problem.data.G.shape
-        phi, dphi = last.projection(thetas[-1], problem, target)
-        if rows:  # each row the real view of a complex (n_f, n_y, n_u) derivative
-            dy = np.ascontiguousarray(np.vstack(rows)).view(complex).reshape((-1,) + shape)
-        else:
-            dy = np.zeros((0,) + shape, complex)
-        if all(np.ndim(g) == 0 for _, g in dh):
-            dhs = 0.0  # moved modes only: the channel factor stays
-        else:
-            dhs = np.concatenate(
-                [g if np.ndim(g) else np.zeros((n,) + shape, complex) for n, g in dh]
-            )
-        return problem.projected_jacobian(target, phi, dphi, dy, dhs).T
+            columns.append(J.T)
+        # rows stacked (each part's columns contiguous, see effects._residual_columns): a
+        # column-wise hstack into a C-ordered tall array costs more than the columns
+        return np.vstack(columns).T
 
     def n_linear(self, base):
         return sum(p.n_linear(b) for p, b in zip(self.parts, self.bases))

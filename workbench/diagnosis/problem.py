@@ -433,65 +433,6 @@ class FrfProblem:
             std[..., k] * scale[k] for k in range(3)
         )
 
-    def projected_jacobian(self, model: ModalModel, phi, dphi, dy, dh) -> np.ndarray:
-        """Jacobian rows (n_a + n_l, n_obs) of the residual after a per-channel linear fit.
-
-        The term ``h sum_p x_p phi_p(f)`` (``h`` the channel factor of ``model``, real
-        coefficients ``x`` (n_y, n_u, p) per channel solved by weighted least squares on
-        the misfit of ``model``, as :meth:`fit_upper_residual` and :meth:`fit_feedthrough`
-        solve them) leaves ``r = y - A x``, ``y = w (G - predict(model))``, ``A = w h phi``.
-        Its derivative with respect to parameters ``a`` of ``model`` (``dy`` (n_a, n_f, n_y,
-        n_u) complex: d y / d a, ``dh`` (n_a, n_f, n_y, n_u) or 0: d h / d a) and ``l`` of
-        the basis (``dphi`` (n_l, n_f, p)), the solution following (variable projection,
-        Golub & Pereyra 1973, the full derivative): ``dr = v - A M^-1 (A^T v + dA^T r)``,
-        ``v = dy - dA x``, ``M = A^T A``, per channel (real inner products of the stacked
-        real and imaginary parts). Rows laid out as :meth:`residual` lays out its vector.
-        Without coupling (``T_in``, ``T_out`` None: ``h`` is then the whole outer factor).
-        """
-        if model.T_in is not None or model.T_out is not None:
-            raise ValueError("projected_jacobian: a model with coupling")
-        hw, ew = self._linear_data(model)
-        e = self._linear_last[4]
-        M, rhs = _normal_parts(phi, hw, ew)
-        x = _solve_basis(M, rhs)[0]  # as the fits solve it: (n_y, n_u, p)
-        n_f, n_y, n_u = e.shape
-        p = phi.shape[1]
-        wh = self.w * self._channel_factor(model)
-        T = (phi @ x.reshape(-1, p).T).reshape(n_f, n_y, n_u)  # the fitted term
-        r = self.w * e - wh * T
-        cphi = np.conj(phi).T  # (p, n_f): sums over the lines as one product
-        n_a, n_l = dy.shape[0], dphi.shape[0]
-        v = np.empty((n_a + n_l, n_f, n_y, n_u), complex)
-        c = np.empty((n_a + n_l, p, n_y, n_u))
-        if n_a:
-            dhw = self.w * dh if np.ndim(dh) else None
-            v[:n_a] = dy if dhw is None else dy - dhw * T
-            z = np.conj(wh) * v[:n_a]
-            if dhw is not None:
-                z += np.conj(dhw) * r
-            c[:n_a] = (
-                (cphi @ np.moveaxis(z, 1, 0).reshape(n_f, -1))
-                .real.reshape(p, n_a, n_y, n_u)
-                .swapaxes(0, 1)
-            )
-        for i in range(n_l):
-            dT = (dphi[i] @ x.reshape(-1, p).T).reshape(n_f, n_y, n_u)
-            v[n_a + i] = -wh * dT
-            z = np.conj(wh) * v[n_a + i]
-            c[n_a + i] = (cphi @ z.reshape(n_f, -1)).real.reshape(p, n_y, n_u)
-            c[n_a + i] += (np.conj(dphi[i]).T @ (np.conj(wh) * r).reshape(n_f, -1)).real.reshape(
-                p, n_y, n_u
-            )
-        # M^-1 c per channel, diagonally scaled as _solve_basis solves (scales differ widely)
-        d = np.sqrt(np.maximum(np.einsum("ijpp->ijp", M), 1e-300))  # (n_y, n_u, p)
-        Ms = M / (d[..., :, None] * d[..., None, :])
-        rhs = np.moveaxis(c, 1, -1) / d  # (n_cols, n_y, n_u, p)
-        sol = np.stack([_solve_channels(Ms, b) for b in rhs]) / d
-        # dr = v - A sol: the basis times each column's solution, per channel
-        for k in range(v.shape[0]):
-            v[k] -= wh * (phi @ sol[k].reshape(-1, p).T).reshape(n_f, n_y, n_u)
-        return v.view(float).reshape(v.shape[0], -1)
-
     def fit_feedthrough(self, model: ModalModel):
         """Real matrix added to D, per channel; returns dD and its std (unit noise scale)."""
         e = self.data.G - self.predict(model)
