@@ -200,6 +200,7 @@ class FrfProblem:
         self._anchors: dict = {}  # mode keys -> (modes, sum of responses summed directly)
         self._linear_last = None  # [model, w2 |h|^2, w2 conj(h) e, w2 |e|^2, e], _linear_data
         self._factors: dict = {}  # (delay, lags) -> channel factor, see _channel_factor
+        self._weights_last = None  # (channel factor, its weighted forms), _factor_weights
         self._term_last = None  # (model, den key, M, r) of the last fit_new_term
         self._added_last = None  # (model, w e, w h), see added_term_residual
         self.lines_cache: dict = {}  # ids -> (structure, base, its lines), see structure_lines
@@ -315,6 +316,19 @@ class FrfProblem:
             self._factors[k] = h
         return h
 
+    def _factor_weights(self, model: ModalModel):
+        """``(w2 |h|^2, w2 conj(h), w h)`` of the channel factor ``h`` of ``model``, (n_f,
+        n_y, n_u) each, kept for the last factor asked (a joint refit's evaluations see one
+        delay and lags while they move modes; each was three passes over the lines)."""
+        h = self._channel_factor(model)
+        last = self._weights_last
+        if last is None or last[0] is not h:
+            last = (h, self.w2 * (h.real**2 + h.imag**2), self.w2 * np.conj(h), self.w * h)
+            for a in last[1:]:
+                a.flags.writeable = False  # shared by every evaluation on this factor
+            self._weights_last = last
+        return last[1:]
+
     def _linear_data(self, model: ModalModel):
         """``(w2 |h|^2, w2 conj(h) e)`` of the misfit ``e`` and channel factor ``h`` of
         ``model`` (:func:`_normal_parts`), kept for the last model asked (a grid screens
@@ -322,9 +336,9 @@ class FrfProblem:
         last = self._linear_last
         if last is None or last[0] is not model:
             e = self.data.G - self.predict(model)
-            h = self._channel_factor(model)
+            hw, w2h, _ = self._factor_weights(model)
             # the per-channel cost w2 |e|^2 (added_term_cost) is summed when first asked
-            last = [model, self.w2 * (h.real**2 + h.imag**2), self.w2 * np.conj(h) * e, None, e]
+            last = [model, hw, w2h * e, None, e]
             self._linear_last = last
         return last[1], last[2]
 
@@ -409,7 +423,7 @@ class FrfProblem:
         if last is None or last[0] is not model:
             lin = self._linear_last  # the misfit a linear fit on this model formed, if any
             e = lin[4] if lin is not None and lin[0] is model else self.data.G - self.predict(model)
-            last = (model, e * self.w, self.w * self._channel_factor(model))
+            last = (model, e * self.w, self._factor_weights(model)[2])
             self._added_last = last
         r = mode.response(self.s)
         if dD is not None:
