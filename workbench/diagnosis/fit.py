@@ -5,8 +5,9 @@ nonlinear parameters ``theta`` (a delay, a frequency and damping, cutoffs) are
 found by Levenberg-Marquardt least squares. On FRF data and on a periodic record's
 excited lines (the problems whose ``domain`` is "frequency") :func:`levenberg_marquardt`
 solves the small normal equations of the structure's analytic ``jacobian`` (FRF data: a
-delay, lags, moved modes) or of a finite-difference Jacobian (``theta`` has at most a
-handful of entries, or the modal fit's dozens with its own ``normal_equations``);
+delay, lags, moved modes, and a joint refit of such parts, :meth:`Composite.jacobian`) or
+of a finite-difference Jacobian (an added mode or term, whose linear parts are solved from
+the misfit; the modal fit's dozens of parameters have their own ``normal_equations``);
 on a simulated time record ``scipy.optimize.least_squares`` (trust-region reflective,
 finite differences; :data:`FRF_SOLVER` selects it on the lines too, the reference of
 ``benchmarks/bench_speed.py --frf`` and of the tests), while the parameters that enter
