@@ -267,3 +267,31 @@ def test_composite_jacobian_matches_central_differences(plant, params):
     th_mm = np.log([0.5 * sum(problem.band_hz), 0.02])
     comp2 = fit_engine.Composite(parts=(TimeDelay(), mm), bases=(base, base))
     assert comp2.jacobian(np.concatenate([[0.07], th_mm]), problem, base) is None
+
+
+@pytest.mark.parametrize("m", [3, 16])
+def test_line_terms_keep_norms_and_inner_products(m):
+    """LineTerms against the weighted residual ``w (G - fixed - sum_k phi_k terms_k)`` formed
+    directly: the cost, J^T J and J^T r, with fewer terms than channels (a QR per line) and
+    with as many or more (the lines as they are)."""
+    problem, _ = _problem(beam, beam_params, "modal_mismatch")
+    rng = np.random.default_rng(5)
+    G = problem.data.G
+    n_f = G.shape[0]
+    scale = np.max(np.abs(G))
+
+    def cplx(*shape):
+        return scale * (rng.standard_normal(shape) + 1j * rng.standard_normal(shape))
+
+    fixed, terms = cplx(*G.shape), cplx(m, *G.shape)
+    phi, dphi = cplx(m, n_f) / scale, cplx(2, m, n_f) / scale
+    lines = problem.lines(fixed, terms)
+    r = ((G - fixed - np.einsum("mf,mfyu->fyu", phi, terms)) * problem.w).view(float).ravel()
+    J = np.stack(
+        [(-np.einsum("mf,mfyu->fyu", d, terms) * problem.w).view(float).ravel() for d in dphi],
+        -1,
+    )
+    rc, Jc = lines.residual(phi), lines.jacobian(dphi)
+    assert abs(rc @ rc / (r @ r) - 1) < 1e-12
+    assert np.max(np.abs(Jc.T @ Jc - J.T @ J)) < 1e-12 * np.max(np.abs(J.T @ J))
+    assert np.allclose(Jc.T @ rc, J.T @ r, rtol=0, atol=1e-12 * np.sqrt(np.max(J.T @ J) * (r @ r)))
