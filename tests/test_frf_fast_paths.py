@@ -229,3 +229,69 @@ def test_levenberg_marquardt_path_matches_trust_region_reference(structure, effe
     assert np.allclose(ours.theta, ref.theta, rtol=1e-4, atol=1e-6)
     # standard deviations from the Gram matrix agree with the reference's Jacobian
     assert np.allclose(ours.theta_std, ref.theta_std, rtol=0.05)
+
+
+@pytest.mark.parametrize("plant,params", [(stage, stage_params), (beam, beam_params)])
+def test_composite_jacobian_matches_central_differences(plant, params):
+    """A joint refit's analytic Jacobian (parts moving the model by factors: delay, lags,
+    moved modes) against central differences of the composite's model residual; a part
+    that solves linear parameters from the misfit leaves it to finite differences."""
+    problem, base0 = _problem(plant, params, "modal_mismatch")
+    base = _with_outer(base0, T_in=False, T_out=False)
+    parts = [TimeDelay(), ActuatorDynamics(), SensorDynamics(), ModalMismatch(index=1)]
+    thetas = [
+        np.array([0.07]),
+        np.linspace(0.2, 1.5, base.n_u),
+        np.linspace(0.3, 2.0, base.n_y),
+        np.log([base.modes[1].freq_hz * 1.01, base.modes[1].damping * 1.3]),
+    ]
+    if any(m.kind == "rigid" for m in base.modes):
+        parts.append(SuspensionStiffness())
+        thetas.append(np.log([0.5 * problem.band_hz[0], 0.1]))
+    bases, model = [], base
+    for p, th in zip(parts, thetas):
+        bases.append(model)
+        model = p.build(th, problem, model).model
+    comp = fit_engine.Composite(parts=tuple(parts), bases=tuple(bases))
+    theta = np.concatenate(thetas)
+    lines = structure_lines(comp, problem, base)
+    J = lines.jacobian(theta)
+    Jc = _central(comp, theta, problem, base)
+    assert J.shape == Jc.shape == (problem.n_obs, theta.size)
+    assert np.max(np.abs(J - Jc)) < 1e-5 * np.max(np.abs(Jc))
+    assert np.array_equal(
+        lines.residual(theta), problem.residual(comp.build(theta, problem, base).model)
+    )
+    # an added mode's residue moves with the other parts: finite differences
+    mm = MissingMode()
+    th_mm = np.log([0.5 * sum(problem.band_hz), 0.02])
+    comp2 = fit_engine.Composite(parts=(TimeDelay(), mm), bases=(base, base))
+    assert comp2.jacobian(np.concatenate([[0.07], th_mm]), problem, base) is None
+
+
+@pytest.mark.parametrize("m", [3, 16])
+def test_line_terms_keep_norms_and_inner_products(m):
+    """LineTerms against the weighted residual ``w (G - fixed - sum_k phi_k terms_k)`` formed
+    directly: the cost, J^T J and J^T r, with fewer terms than channels (a QR per line) and
+    with as many or more (the lines as they are)."""
+    problem, _ = _problem(beam, beam_params, "modal_mismatch")
+    rng = np.random.default_rng(5)
+    G = problem.data.G
+    n_f = G.shape[0]
+    scale = np.max(np.abs(G))
+
+    def cplx(*shape):
+        return scale * (rng.standard_normal(shape) + 1j * rng.standard_normal(shape))
+
+    fixed, terms = cplx(*G.shape), cplx(m, *G.shape)
+    phi, dphi = cplx(m, n_f) / scale, cplx(2, m, n_f) / scale
+    lines = problem.lines(fixed, terms)
+    r = ((G - fixed - np.einsum("mf,mfyu->fyu", phi, terms)) * problem.w).view(float).ravel()
+    J = np.stack(
+        [(-np.einsum("mf,mfyu->fyu", d, terms) * problem.w).view(float).ravel() for d in dphi],
+        -1,
+    )
+    rc, Jc = lines.residual(phi), lines.jacobian(dphi)
+    assert abs(rc @ rc / (r @ r) - 1) < 1e-12
+    assert np.max(np.abs(Jc.T @ Jc - J.T @ J)) < 1e-12 * np.max(np.abs(J.T @ J))
+    assert np.allclose(Jc.T @ rc, J.T @ r, rtol=0, atol=1e-12 * np.sqrt(np.max(J.T @ J) * (r @ r)))

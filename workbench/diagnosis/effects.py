@@ -88,13 +88,24 @@ def _residual_columns(problem, model: ModalModel, dcores: list) -> np.ndarray:
     """Jacobian columns (n_obs, n) of the FRF residual for derivatives of the core response.
 
     The outer factors (lags, coupling, delay) are linear in the core, so a column is
-    ``-w outer(dcore)``, stacked as :meth:`FrfProblem.residual` stacks the residual.
+    ``-w outer(dcore)``, stacked as :meth:`FrfProblem.residual` stacks the residual. Without
+    coupling the outer factor is per channel: the problem's kept channel factor times the
+    weights, one product a column (``apply_outer`` would form the lag factors anew for
+    each). Returned as the transpose of a C-ordered (n, n_obs): each column is written
+    contiguously, and ``J.T @ J`` reads it so.
     """
-    J = np.empty((problem.n_obs, len(dcores)))
-    for i, dG in enumerate(dcores):
-        dr = model.outer(problem.freq, dG) * problem.w
-        J[:, i] = -dr.view(float).ravel()
-    return J
+    Jt = np.empty((len(dcores), problem.n_obs))
+    if model.T_in is None and model.T_out is None:
+        hw = problem.w * problem._channel_factor(model)
+        for i, dG in enumerate(dcores):
+            dr = dG * hw
+            Jt[i] = dr.view(float).ravel()
+    else:
+        for i, dG in enumerate(dcores):
+            dr = model.outer(problem.freq, dG) * problem.w
+            Jt[i] = dr.view(float).ravel()
+    np.negative(Jt, out=Jt)
+    return Jt.T
 
 
 class _Lines:
@@ -1310,7 +1321,7 @@ class _Lag:
         L = 1.0 / (1.0 + problem.s[:, None] * model.lags(self.side)[None, :])  # (n_f, n)
         dlog = problem.s[:, None] * L / self._scale(problem)  # -(d ln L / d theta)
         n = self._n(base)
-        J = np.zeros(P.shape + (2, n))
+        Jt = np.zeros((n,) + P.shape + (2,))  # one contiguous row a column (as _residual_columns)
         for j in range(n):
             at = (
                 (slice(None), slice(None), j)
@@ -1318,8 +1329,8 @@ class _Lag:
                 else (slice(None), j, slice(None))
             )
             dr = P[at] * problem.w[at] * (dlog[:, j, None])
-            J[at + (slice(None), j)] = dr.view(float).reshape(dr.shape + (2,))
-        return J.reshape(-1, n)
+            Jt[j][at] = dr.view(float).reshape(dr.shape + (2,))
+        return Jt.reshape(n, -1).T
 
     def lines(self, problem, base):
         """:class:`_Lines` on FRF data without coupling on this side, else None.

@@ -5,8 +5,9 @@ nonlinear parameters ``theta`` (a delay, a frequency and damping, cutoffs) are
 found by Levenberg-Marquardt least squares. On FRF data and on a periodic record's
 excited lines (the problems whose ``domain`` is "frequency") :func:`levenberg_marquardt`
 solves the small normal equations of the structure's analytic ``jacobian`` (FRF data: a
-delay, lags, moved modes) or of a finite-difference Jacobian (``theta`` has at most a
-handful of entries, or the modal fit's dozens with its own ``normal_equations``);
+delay, lags, moved modes, and a joint refit of such parts, :meth:`Composite.jacobian`) or
+of a finite-difference Jacobian (an added mode or term, whose linear parts are solved from
+the misfit; the modal fit's dozens of parameters have their own ``normal_equations``);
 on a simulated time record ``scipy.optimize.least_squares`` (trust-region reflective,
 finite differences; :data:`FRF_SOLVER` selects it on the lines too, the reference of
 ``benchmarks/bench_speed.py --frf`` and of the tests), while the parameters that enter
@@ -677,20 +678,87 @@ class Composite:
             before = chain[-2].model if len(chain) > 1 else base
             return problem.appended_residual(chain[-1].model, before)
 
-        return _Residual(residual)
+        return _Residual(residual, lambda theta: self.jacobian(theta, problem, base))
+
+    def jacobian(self, theta, problem, base):
+        """d residual / d theta (n_obs, n_theta) on FRF data, analytic, or None (differences).
+
+        Where every part moves the model by factors alone (a delay, lags, moved modes: an
+        analytic ``jacobian`` hook and no linear parameters), the parts commute: the model
+        after all of them is part i applied last, on the others applied to ``base``, so
+        part i's columns are its own hook's there. Each such reordering is checked to give
+        the chain's model (same modes, feedthrough, delay, lags, coupling); where one does
+        not, or a part solves linear parameters from the misfit (an added mode, compliance,
+        crosstalk: their solution moves with the other parts), None.
+        """
+        if getattr(problem, "kind", "") != "frf":
+            return None
+        if not all(
+            callable(getattr(p, "jacobian", None)) and p.n_linear(b) == 0
+            for p, b in zip(self.parts, self.bases)
+        ):
+            return None
+        thetas = self.split(theta, problem)
+        final = self.chain(theta, problem, base)[-1].model
+        columns = []
+        for i, part in enumerate(self.parts):
+            if thetas[i].size == 0:
+                continue
+            others = base
+            for j, (p, th) in enumerate(zip(self.parts, thetas)):
+                if j != i:
+                    others = p.build(th, problem, others).model
+            if not _same_model(part.build(thetas[i], problem, others).model, final):
+                return None
+            J = part.jacobian(thetas[i], problem, others)
+            if J is None:
+                return None
+            columns.append(J.T)
+        # rows stacked (each part's columns contiguous, see effects._residual_columns): a
+        # column-wise hstack into a C-ordered tall array costs more than the columns
+        return np.vstack(columns).T
 
     def n_linear(self, base):
         return sum(p.n_linear(b) for p, b in zip(self.parts, self.bases))
 
 
+def _same_model(a: ModalModel, b: ModalModel) -> bool:
+    """True when ``a`` and ``b`` have the same response: equal modes (kind, frequency,
+    damping, numerator), feedthrough, delay, lags and coupling."""
+
+    def same_mode(m, n):
+        return m is n or (
+            m.kind == n.kind
+            and m.freq_hz == n.freq_hz
+            and m.damping == n.damping
+            and all(np.array_equal(x, y) for x, y in zip(m.numerator(), n.numerator()))
+        )
+
+    def same(x, y):
+        return (x is None and y is None) or (
+            x is not None and y is not None and np.array_equal(x, y)
+        )
+
+    return (
+        len(a.modes) == len(b.modes)
+        and all(same_mode(m, n) for m, n in zip(a.modes, b.modes))
+        and np.array_equal(a.D, b.D)
+        and a.delay_s == b.delay_s
+        and np.array_equal(a.lags("in"), b.lags("in"))
+        and np.array_equal(a.lags("out"), b.lags("out"))
+        and same(a.T_in, b.T_in)
+        and same(a.T_out, b.T_out)
+    )
+
+
 class _Residual:
     """Lines (:func:`structure_lines`) with a residual in the model residual's own layout
-    and no Jacobian (finite differences of it)."""
+    and, where ``jacobian(theta)`` is given and does not return None, its analytic
+    Jacobian (n_obs, n_theta) in that layout; else finite differences of the residual."""
 
-    jacobian = None
-
-    def __init__(self, residual):
+    def __init__(self, residual, jacobian=None):
         self.residual = residual
+        self.jacobian = jacobian
 
     def cost(self, theta) -> float:
         r = self.residual(theta)

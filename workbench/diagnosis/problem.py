@@ -122,7 +122,13 @@ class LineTerms:
         A = np.empty((n_f, w.shape[1], m + 1), complex)
         A[:, :, :m] = np.moveaxis(terms.reshape(m, n_f, -1), 0, -1) * w[:, :, None]
         A[:, :, m] = (problem.data.G - fixed).reshape(n_f, -1) * w
-        R = np.linalg.qr(A, mode="r")  # (n_f, k, m + 1), batched over the lines
+        if A.shape[1] <= m + 1:
+            # as many terms as channels: the QR would not shorten a line's residual (k =
+            # n_ch), and A itself keeps the norms and inner products (Q = I); a pattern of
+            # many modes on a beam (15 channels, 19 terms, 7 000 lines) spent 0.2 s a QR
+            R = A
+        else:
+            R = np.linalg.qr(A, mode="r")  # (n_f, k, m + 1), batched over the lines
         self.terms = np.ascontiguousarray(R[:, :, :m])  # (n_f, k, m)
         self.by_term = np.ascontiguousarray(np.moveaxis(R[:, :, :m], -1, 0))  # (m, n_f, k)
         self.target = np.ascontiguousarray(R[:, :, m])  # (n_f, k)
@@ -195,17 +201,32 @@ class FrfProblem:
         self.n_obs = 2 * G.size
         self.band_hz = (float(data.freq[0]), float(data.freq[-1]))
         self._cache: dict = {}  # mode key -> its response
+        self._mode_keys: dict = {}  # id(mode) -> (mode, its key), see _mode_key
         self._core_cache: dict = {}  # (mode keys, D) -> core, oldest first
         self._anchors: dict = {}  # mode keys -> (modes, sum of responses summed directly)
         self._linear_last = None  # [model, w2 |h|^2, w2 conj(h) e, w2 |e|^2, e], _linear_data
         self._factors: dict = {}  # (delay, lags) -> channel factor, see _channel_factor
+        self._weights_last = None  # (channel factor, its weighted forms), _factor_weights
         self._term_last = None  # (model, den key, M, r) of the last fit_new_term
         self._added_last = None  # (model, w e, w h), see added_term_residual
         self.lines_cache: dict = {}  # ids -> (structure, base, its lines), see structure_lines
 
     # ------------------------------------------------------------ prediction
-    def _mode_response(self, m: Mode) -> np.ndarray:
+    def _mode_key(self, m: Mode) -> tuple:
+        """The values a mode's response depends on (denominator, numerator) as bytes, kept
+        per mode object (a model's modes are frozen; a fit rebuilds models that share all
+        but one or two of them, and every core() asks for every mode's key)."""
+        hit = self._mode_keys.get(id(m))
+        if hit is not None and hit[0] is m:  # the object itself is kept: its id is not reused
+            return hit[1]
+        if len(self._mode_keys) > 4096:
+            self._mode_keys.clear()
         k = _key(m.denominator(), *m.numerator())
+        self._mode_keys[id(m)] = (m, k)
+        return k
+
+    def _mode_response(self, m: Mode) -> np.ndarray:
+        k = self._mode_key(m)
         out = self._cache.get(k)
         if out is None:
             out = m.response(self.s)
@@ -224,7 +245,7 @@ class FrfProblem:
         and added (rounding ~1e-16 of the anchor's largest line, never chained: a sum
         derived so is not an anchor).
         """
-        keys = tuple(_key(m.denominator(), *m.numerator()) for m in model.modes)
+        keys = tuple(self._mode_key(m) for m in model.modes)
         full = (keys, _key(model.D))
         G = self._core_cache.get(full)
         if G is None:
@@ -301,6 +322,19 @@ class FrfProblem:
             self._factors[k] = h
         return h
 
+    def _factor_weights(self, model: ModalModel):
+        """``(w2 |h|^2, w2 conj(h), w h)`` of the channel factor ``h`` of ``model``, (n_f,
+        n_y, n_u) each, kept for the last factor asked (a joint refit's evaluations see one
+        delay and lags while they move modes; each was three passes over the lines)."""
+        h = self._channel_factor(model)
+        last = self._weights_last
+        if last is None or last[0] is not h:
+            last = (h, self.w2 * (h.real**2 + h.imag**2), self.w2 * np.conj(h), self.w * h)
+            for a in last[1:]:
+                a.flags.writeable = False  # shared by every evaluation on this factor
+            self._weights_last = last
+        return last[1:]
+
     def _linear_data(self, model: ModalModel):
         """``(w2 |h|^2, w2 conj(h) e)`` of the misfit ``e`` and channel factor ``h`` of
         ``model`` (:func:`_normal_parts`), kept for the last model asked (a grid screens
@@ -308,9 +342,9 @@ class FrfProblem:
         last = self._linear_last
         if last is None or last[0] is not model:
             e = self.data.G - self.predict(model)
-            h = self._channel_factor(model)
+            hw, w2h, _ = self._factor_weights(model)
             # the per-channel cost w2 |e|^2 (added_term_cost) is summed when first asked
-            last = [model, self.w2 * (h.real**2 + h.imag**2), self.w2 * np.conj(h) * e, None, e]
+            last = [model, hw, w2h * e, None, e]
             self._linear_last = last
         return last[1], last[2]
 
@@ -395,7 +429,7 @@ class FrfProblem:
         if last is None or last[0] is not model:
             lin = self._linear_last  # the misfit a linear fit on this model formed, if any
             e = lin[4] if lin is not None and lin[0] is model else self.data.G - self.predict(model)
-            last = (model, e * self.w, self.w * self._channel_factor(model))
+            last = (model, e * self.w, self._factor_weights(model)[2])
             self._added_last = last
         r = mode.response(self.s)
         if dD is not None:
