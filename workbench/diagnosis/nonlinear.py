@@ -61,6 +61,7 @@ __all__ = [
     "with_ports",
     "square_ports",
     "SquarePorts",
+    "ModalPort",
     "fit_friction",
     "fit_port_element",
     "fit_saturation",
@@ -85,6 +86,13 @@ class PortNonlinearity:
         Symmetric saturation of each input, N; inf = none.
     substeps : int
         Substeps per sample.
+    port_forces, port_displacements : (n, n_p) and (n_p, n) arrays, optional
+        Ports that are not the inputs: where each port force enters the model's state
+        (n states, n_p ports) and the port displacement it acts on, for the model the
+        element sits on in its own realization (:class:`ModalPort`: one mode's
+        coordinate, the modal Duffing). The levels are then per port (n_p,), in that
+        port's units (modal force per modal displacement cubed for a mode). None: the
+        ports are the inputs (forces through B, displacements from the collocated outputs).
     """
 
     friction_force: np.ndarray
@@ -93,6 +101,8 @@ class PortNonlinearity:
     saturation: np.ndarray | None = None
     substeps: int = 8
     notes: tuple[str, ...] = field(default=())
+    port_forces: np.ndarray | None = None
+    port_displacements: np.ndarray | None = None
 
 
 def _ports(sys, port_outputs=None):
@@ -320,6 +330,76 @@ def square_ports(model) -> SquarePorts | None:
     return SquarePorts(model=model, modes=modes, unit=unit)
 
 
+@dataclass(frozen=True)
+class ModalPort:
+    """A port on one flexible mode's coordinate: where a modal cubic spring (a modal Duffing,
+    the geometric stiffening of a beam's mode) acts.
+
+    The force ``-k3 q^3`` on the mode's modal displacement ``q`` enters the mode's own
+    equation, ``q'' + 2 z w q' + w^2 q = b^T u - k3 q^3``, not any input: a model that is
+    not square, with no output at the inputs, has this port all the same. ``q`` is the
+    coordinate of :meth:`ModalModel.to_statespace`'s companion form (``b``, ``c`` of the
+    mode as the model holds them), so ``k3`` (modal force per modal displacement cubed)
+    absorbs the mode's normalization. :func:`fit_port_element` fits the spring on it.
+
+    Attributes
+    ----------
+    model : ModalModel
+        The linear model the spring sits on.
+    mode : int
+        Index into ``model.modes`` of a flexible mode realized by one 2-state block (an
+        ideal mode or a rank-one residue).
+    """
+
+    model: Any
+    mode: int
+
+    def __post_init__(self):
+        modes = self.model.modes
+        if not 0 <= self.mode < len(modes) or modes[self.mode].kind != "flexible":
+            raise InputError(
+                f"ModalPort: expected the index of a flexible mode of the model, got {self.mode}"
+            )
+        if self.maps is None:
+            raise InputError(
+                f"ModalPort: mode {self.mode} has a residue of rank > 1 (several coordinates)"
+            )
+
+    @property
+    def freq_hz(self) -> float:
+        """The mode's natural frequency, Hz."""
+        return float(self.model.modes[self.mode].freq_hz)
+
+    @functools.cached_property
+    def lti(self):
+        """The model's companion-form realization (LTIModel, with its delay)."""
+        return self.model.to_lti()
+
+    @functools.cached_property
+    def maps(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(Bp (n, 1), Cp (1, n)) in :attr:`lti`'s states: the mode's velocity row, where its
+        force enters, and its displacement; None when its block is not one 2-state block."""
+        from workbench.modal.model import _mode_blocks
+
+        m = self.model
+        tau_in = m.tau_in
+        # wrap_outer: the actuator lags' states first (lagged inputs only), then the modes'
+        off = int(np.count_nonzero(tau_in)) if tau_in is not None else 0
+        for mode in m.modes[: self.mode]:
+            off += _mode_blocks(mode, "companion")[0].shape[0]
+        if _mode_blocks(m.modes[self.mode], "companion")[0].shape[0] != 2:
+            return None
+        A = np.asarray(self.lti.A, float)
+        # the companion block [[0, 1], [-w^2, -2 z w]]: displacement off, velocity off + 1
+        if not (A[off, off + 1] == 1.0 and A[off, off] == 0.0):
+            return None
+        Bp = np.zeros((A.shape[0], 1))
+        Bp[off + 1, 0] = 1.0
+        Cp = np.zeros((1, A.shape[0]))
+        Cp[0, off] = 1.0
+        return Bp, Cp
+
+
 def simulate_nonlinear(
     sys,
     u: np.ndarray,
@@ -345,11 +425,28 @@ def simulate_nonlinear(
 def _simulate(sys, u, fs, nl, delay_s=0.0, port_outputs=None, sens=None):
     """(y, p): :func:`simulate_nonlinear`'s measured outputs and the port displacements; with
     ``sens`` (:class:`workbench.sim.PortSensitivity`, its port velocity map's derivative
-    ``Cv`` as ``dCp A``) also dy / dtheta, (N, n_y, n_th)."""
-    A, B, C, D, Cp, _ = _ports(sys, port_outputs)
+    ``Cv`` as ``dCp A``) also dy / dtheta, (N, n_y, n_th). Ports of the element's own
+    (``nl.port_forces``, e.g. a mode's coordinate) instead of the inputs: every output is
+    measured, the forces enter through ``nl.port_forces``."""
+    if nl.port_forces is None:
+        A, B, C, D, Cp, _ = _ports(sys, port_outputs)
+        Bp = B  # the held input enters at the ports like the port forces
+    else:
+        if port_outputs is not None:
+            raise InputError("nonlinear simulation: an element on its own ports takes no outputs")
+        A, B, C, D, dt = lti.as_matrices(sys)
+        if dt:
+            raise InputError("nonlinear simulation: expected a continuous model (dt = 0)")
+        Bp = np.asarray(nl.port_forces, float)
+        Cp = np.asarray(nl.port_displacements, float)
+        if Bp.ndim != 2 or Bp.shape[0] != A.shape[0] or Cp.shape != Bp.shape[::-1]:
+            raise InputError(
+                f"nonlinear simulation: expected port_forces ({A.shape[0]}, n_p) and "
+                f"port_displacements (n_p, {A.shape[0]}), got {Bp.shape} and {Cp.shape}"
+            )
     delay_s = float(delay_s) + float(getattr(sys, "delay_s", 0.0))  # the model's delay travels
-    # the held input enters at the ports like the port forces (B both), whole-sample delay
-    prop = sim.substep_zoh(A, B, B, 1.0 / fs, nl.substeps)
+    # the held input with a whole-sample delay, the port forces directly
+    prop = sim.substep_zoh(A, B, Bp, 1.0 / fs, nl.substeps)
     m = int(round(delay_s * fs))
     u = np.asarray(u, float)
     n_u = u.shape[1]
@@ -690,13 +787,17 @@ def fit_port_element(
 
     Parameters
     ----------
-    sys : LTIModel, control.StateSpace or SquarePorts
+    sys : LTIModel, control.StateSpace, SquarePorts or ModalPort
         The linear model (continuous, square: output j measures the displacement where
         input j pushes; or with its port displacements as extra outputs, ``port_outputs``);
         an LTIModel's delay is part of it. A :class:`SquarePorts` (:func:`square_ports`):
         a square model some of whose modes are not collocated; their port gains are
         fitted with the element (``parameters["port_gains"]``, m/N per mode, and
-        ``parameters["port_gain_freq_hz"]``, the modes' frequencies).
+        ``parameters["port_gain_freq_hz"]``, the modes' frequencies). A
+        :class:`ModalPort`: one port on a mode's coordinate, every output measured; only
+        the cubic spring is tried there (a modal Duffing: ``parameters["cubic_stiffness"]``
+        one k3 in modal units, ``"mode"`` the mode's index in the model, ``"mode_freq_hz"``
+        its frequency); ``ports`` of the result is empty (no input is the port).
     u, y : (N, n_u), (N, n_y) arrays
         Recorded input and output.
     fs : float
@@ -733,30 +834,47 @@ def fit_port_element(
     model gives (at the true level that is the true motion: a consistent fixed point), and
     the levels are then refined on the simulation model's output error (``refine``).
     """
+    from dataclasses import replace
+
     from workbench.core.model import as_model
 
     family = sys if isinstance(sys, SquarePorts) else None
+    modal = sys if isinstance(sys, ModalPort) else None
+    if (family is not None or modal is not None) and port_outputs is not None:
+        raise InputError(f"fit_port_element: a {type(sys).__name__} sets its own ports")
     if family is not None:
-        if port_outputs is not None:
-            raise InputError("fit_port_element: a SquarePorts model sets its own port_outputs")
         port_outputs = family.port_outputs
         # any gains: the measured outputs (and the regressors below) do not depend on them
         lin = as_model(family.system(family.unit))
+    elif modal is not None:
+        lin = as_model(modal.lti)
     else:
         lin = as_model(sys)
-    _, _, _, _, _, meas = _ports(lin, port_outputs)
     u = np.asarray(u, float)
     y = np.asarray(y, float)
     n_u = u.shape[1]
+    if modal is not None:
+        meas = np.arange(lin.C.shape[0])  # every output measured, the port is the mode's
+        Bp, Cp = modal.maps
+    else:
+        _, _, _, _, _, meas = _ports(lin, port_outputs)
+    n_p = n_u if modal is None else 1  # ports: the inputs', or the mode's coordinate
     y_all = sim.simulate_zoh(lin, u, fs)
     y_lin = y_all[:, meas]
     before = lti.relative_error_time(y, y_lin)
     port = lin.without_delay()  # port forces act directly, not through the input delay
+    if modal is not None:  # ... and enter the mode's velocity row, not through B
+        no_d = np.zeros((lin.C.shape[0], 1))
+        port = replace(port, B=Bp, D=no_d, input_names=())
     # a square model's outputs are its ports' motion: exactly for the collocated modes and,
     # with non-collocated ones (SquarePorts), up to their share of the displacement (small
-    # for modes far above the motion's band); the regression takes them as measured
+    # for modes far above the motion's band); the regression takes them as measured. A
+    # mode's coordinate is never measured: the linear model's estimate, then its own
     measured_ports = (port_outputs is None or family is not None) and motion is None
-    if motion is None:
+    measured_ports = measured_ports and modal is None
+    if motion is None and modal is not None:
+        motion = sim.simulate_zoh(replace(lin, C=Cp, D=np.zeros((1, n_u)), output_names=()), u, fs)
+    elif motion is None:
         motion = y if measured_ports else y_all[:, np.asarray(port_outputs, int)]
     motion = np.asarray(motion, float)
     v0 = 1e-3 * float(np.sqrt(np.mean(np.gradient(motion, 1.0 / fs, axis=0) ** 2))) or 1e-12
@@ -780,7 +898,7 @@ def fit_port_element(
         return p**3
 
     def regress(name, common, p):
-        """Levels (n_u,) >= 0 of element ``name`` by least squares, the motion ``p`` given;
+        """Levels (n_p,) >= 0 of element ``name`` by least squares, the motion ``p`` given;
         friction's on the residual and the regressors high-passed (:data:`HIGH_PASS`; causal,
         both start from rest): its law's errors, not its level, dominate their low frequencies."""
         phi = law(name, p)
@@ -788,17 +906,17 @@ def fit_port_element(
         # resisting force
         X = np.stack(
             [
-                -sim.simulate_zoh(port, np.eye(n_u)[j] * phi[:, [j]], fs)[:, meas]
-                for j in range(n_u)
+                -sim.simulate_zoh(port, np.eye(n_p)[j] * phi[:, [j]], fs)[:, meas]
+                for j in range(n_p)
             ],
             -1,
-        )  # (N, n_meas, n_u)
+        )  # (N, n_meas, n_p)
         r = y - y_lin
         if name == "coulomb_friction":
             sos = scipy.signal.butter(HIGH_PASS_ORDER, HIGH_PASS * fs, "high", fs=fs, output="sos")
             X = scipy.signal.sosfilt(sos, X, axis=0)
             r = scipy.signal.sosfilt(sos, r, axis=0)
-        X = X.reshape(-1, n_u)
+        X = X.reshape(-1, n_p)
         Xc = X.sum(axis=1, keepdims=True) if common else X
         scale = np.linalg.norm(Xc, axis=0)
         ok = scale > 0
@@ -814,7 +932,7 @@ def fit_port_element(
         c = np.maximum(c, 0.0)
         share = c * scale if name == "coulomb_friction" else c
         c[share < 0.05 * share.max()] = 0.0
-        return np.broadcast_to(c, (n_u,)).copy()
+        return np.broadcast_to(c, (n_p,)).copy()
 
     def make_element(name, c, n_sub=substeps, v=None, g=None):
         """(PortNonlinearity, parameters); ``g``: the port gains (SquarePorts), reported."""
@@ -829,6 +947,16 @@ def fit_port_element(
             nl = PortNonlinearity(friction_force=c, friction_velocity=v, substeps=n_sub)
             params = {"friction_force": [float(x) for x in c], "friction_velocity": v}
             return nl, params | {"substeps": n_sub} | gains
+        if modal is not None:
+            nl = PortNonlinearity(
+                friction_force=np.zeros(n_p),
+                cubic_stiffness=c,
+                substeps=n_sub,
+                port_forces=Bp,
+                port_displacements=Cp,
+            )
+            where = {"mode": modal.mode, "mode_freq_hz": modal.freq_hz}
+            return nl, {"cubic_stiffness": [float(x) for x in c], "substeps": n_sub} | where
         nl = PortNonlinearity(friction_force=np.zeros(n_u), cubic_stiffness=c, substeps=n_sub)
         return nl, {"cubic_stiffness": [float(x) for x in c], "substeps": n_sub} | gains
 
@@ -900,7 +1028,7 @@ def fit_port_element(
         out = []
 
         def unpack(theta):
-            levels = np.zeros(n_u)
+            levels = np.zeros(n_p)
             levels[active] = np.exp(theta[:n_lvl])
             vel = float(np.exp(theta[n_lvl])) if friction else None
             gains = np.exp(theta[n_lvl + n_v :]) if fit_g else g
@@ -1099,21 +1227,24 @@ def fit_port_element(
             out.append((simulated(nl, g)[0], name, nl, params))
         return out + refine_levels(name, c, n_sub, None, g)
 
-    # saturation: the linear response to the clipped input (it needs no port)
-    best_sat, best_err = _fit_saturation_levels(lin, meas, u, y, fs, refine=refine)
-    scored = [
-        (
-            float(best_err),
-            "saturation",
-            PortNonlinearity(friction_force=np.zeros(n_u), saturation=best_sat, substeps=1),
-            {"saturation": [float(x) for x in best_sat]},
+    # saturation: the linear response to the clipped input (it needs no port; not a mode's)
+    scored = []
+    if modal is None:
+        best_sat, best_err = _fit_saturation_levels(lin, meas, u, y, fs, refine=refine)
+        scored.append(
+            (
+                float(best_err),
+                "saturation",
+                PortNonlinearity(friction_force=np.zeros(n_u), saturation=best_sat, substeps=1),
+                {"saturation": [float(x) for x in best_sat]},
+            )
         )
-    ]
     # friction and the spring: judged by the nonlinear simulation itself (the regression's
     # motion is the measured or estimated one; a from-rest simulation of a rigid body is far
     # more sensitive), so what is reported is what the simulation model reproduces
     best = None  # (error, name, common, levels, port motion, port gains)
-    for name in ("coulomb_friction", "cubic_stiffness"):
+    # on a mode's coordinate the spring only: friction acts where parts slide (the ports)
+    for name in ("coulomb_friction", "cubic_stiffness") if modal is None else ("cubic_stiffness",):
         per_port = None
         for common in (False, True):  # one level per port, or one level for all
             c = regress(name, common, motion)
@@ -1160,6 +1291,9 @@ def fit_port_element(
         # the port gains are fitted with the levels (the regression has no gains: its motion
         # is the measured one), on the converged simulation
         scored += fit_with_gains(best[1], best[3], best[5])
+    if not scored:  # no spring regressed on the mode (none >= 0 lowers the residual)
+        nl, params = make_element("cubic_stiffness", np.zeros(n_p))
+        scored.append((float(before), "cubic_stiffness", nl, params))
     after, element, nl, params = min(scored, key=lambda t: t[0])
     if refine and element != "saturation":
         # the levels above are fitted on a simulation of ``substeps`` substeps; the reported
@@ -1189,7 +1323,9 @@ def fit_port_element(
     for err, name, _, _ in scored:
         preds[name] = min(preds.get(name, np.inf), err)
     vals = np.asarray(next(iter(params.values())), float)
-    if element == "saturation":
+    if modal is not None:
+        ports = ()  # no input is the port: ``parameters["mode"]`` says which mode
+    elif element == "saturation":
         ports = tuple(int(j) for j in np.flatnonzero(np.isfinite(vals)))
     else:
         ports = tuple(int(j) for j in np.flatnonzero(vals > 0))
