@@ -105,6 +105,10 @@ DRIFT_RATIO = 2.0
 NL_STATIONARY = (0.5, 1.2)
 #: candidates refitted jointly with the earlier findings each round
 JOINT_CANDIDATES = 3
+#: a spring on a mode's coordinate is tried on the flexible modes within this factor of the
+#: excited band either way (a hardening spring on a mode just above the band still moves
+#: what the band shows of it)
+MODAL_BAND = 1.25
 #: linear effects a port element's describing function is: friction's equivalent viscous
 #: damping (4 F_c / (pi omega A)) and the equivalent stiffness of stiction or a hardening
 #: spring move the modes their port moves (a modal mismatch) or suspend a rigid body
@@ -1069,14 +1073,15 @@ def _nonlinearity_finding(
     # error; a residual that is merely not explained needs the element to explain it
     needed = cur_err if direct else ERROR_RATIO * cur_err
     fitted = (
-        _fit_element(data, linear, stop_above=needed if only_given else None)
+        _fit_element(data, linear, stop_above=needed if only_given else None, band_hz=nl.band_hz)
         if isinstance(data, TimeData)
         else None
     )
     portless = False  # only an input saturation was tried (no port located)
     if fitted is not None:
         ef, _, pair = fitted
-        portless = pair is None and data.n_y != data.n_u
+        on_mode = "mode" in ef.parameters  # a spring on a mode's coordinate needs no port
+        portless = pair is None and data.n_y != data.n_u and not on_mode
         if not ef.error_after < needed:
             tried = dict(params, element=ef.element, ports=list(ef.ports), **ef.parameters)
             tried["element_errors"] = ef.candidates
@@ -1118,10 +1123,18 @@ def _nonlinearity_finding(
         ins = outs = tuple(ef.ports)
         if pair is not None or portless:
             outs = tuple(range(data.n_y))
+        where = f"at port(s) {', '.join(str(j) for j in ef.ports)}"
+        if on_mode:
+            # the mode's coordinate: every input drives it, every output sees it
+            ins, outs = tuple(range(data.n_u)), tuple(range(data.n_y))
+            where = (
+                f"on the coordinate of mode {ef.parameters['mode']} "
+                f"({ef.parameters['mode_freq_hz']:.4g} Hz; k3 "
+                f"{ef.parameters['cubic_stiffness'][0]:.4g} in its modal units, a modal Duffing)"
+            )
         note = (
-            f" Fitted element: {ef.element.replace('_', ' ')} at port(s) "
-            f"{', '.join(str(j) for j in ef.ports)}; the nonlinear simulation model "
-            f"(workbench.diagnosis.nonlinear) brings the error from {ef.error_before:.4g} "
+            f" Fitted element: {ef.element.replace('_', ' ')} {where}; the nonlinear simulation "
+            f"model (workbench.diagnosis.nonlinear) brings the error from {ef.error_before:.4g} "
             f"to {ef.error_after:.4g}."
         )
         if "port_gains" in ef.parameters:
@@ -1192,7 +1205,12 @@ def _nonlinearity_finding(
     return finding, None
 
 
-def _fit_element(data: TimeData, linear: list, stop_above: float | None = None):
+def _fit_element(
+    data: TimeData,
+    linear: list,
+    stop_above: float | None = None,
+    band_hz: tuple[float, float] | None = None,
+):
     """The port element that explains the record best: (ElementFit, linear model, pair) or None.
 
     ``linear``: the final linear model first, then the model as given. The ports are the
@@ -1208,8 +1226,17 @@ def _fit_element(data: TimeData, linear: list, stop_above: float | None = None):
     at or above it, that fit is returned and the other linear models are not tried (a
     caller that wants only a finding on the model as given, below this error). Each
     model's fit does not depend on the others', so what is returned otherwise is the same.
+
+    On a model that is not square, a cubic spring on one mode's coordinate (a modal
+    Duffing, :class:`~workbench.diagnosis.nonlinear.ModalPort`: no port needed) is a
+    hypothesis beside the port elements, on each flexible mode within MODAL_BAND of the
+    excited band ``band_hz`` (Hz): each mode's spring fitted cheaply (its level's scale
+    scanned through the simulation), the best refined, and it is the element when it
+    leaves the lower error (one level against the ports' several). Its pair is None.
+    Square models (the ports are their outputs) are not given it: not validated there.
     """
     from workbench.diagnosis.nonlinear import (
+        ModalPort,
         SquarePorts,
         collocated_pairs,
         fit_port_element,
@@ -1260,8 +1287,38 @@ def _fit_element(data: TimeData, linear: list, stop_above: float | None = None):
     several = len(hyps) > 1
     given = len(linear) - 1
 
+    def modal_ports(m) -> list:
+        """The ModalPorts of model ``m``'s flexible modes near the excited band (non-square)."""
+        if n_y == n_u or band_hz is None:
+            return []
+        lo, hi = band_hz[0] / MODAL_BAND, band_hz[1] * MODAL_BAND
+        out = []
+        for k, mode in enumerate(m.modes):
+            if mode.kind == "flexible" and lo <= mode.freq_hz <= hi:
+                try:
+                    out.append(ModalPort(m, k))
+                except InputError:  # no single coordinate (a residue of rank > 1)
+                    continue
+        return out
+
     def fit_on(i):
-        """The element's fit on linear model ``i``: (ElementFit, hypothesis)."""
+        """The element's fit on linear model ``i``: (ElementFit, hypothesis); the port
+        elements' best, or the modal spring's when it leaves the lower error."""
+        ef, h = fit_on_ports(i)
+        modal = modal_ports(linear[i])
+        if not modal:
+            return ef, h
+        cheap = [(fit_port_element(mp, data.u, data.y, data.fs, refine=False), mp) for mp in modal]
+        ef_m, mp = min(cheap, key=lambda t: t[0].error_after)
+        if not ef_m.error_after < ef.error_after:
+            return ef, h
+        ef_m = fit_port_element(mp, data.u, data.y, data.fs)
+        if not ef_m.error_after < ef.error_after:
+            return ef, h
+        return ef_m, (i, mp, None, None, None)
+
+    def fit_on_ports(i):
+        """The port elements' fit on linear model ``i``: (ElementFit, hypothesis)."""
         mine = [h for h in hyps if h[0] == i]
         if saturation_only:
             (h,) = mine

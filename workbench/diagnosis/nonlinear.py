@@ -362,7 +362,8 @@ class ModalPort:
             )
         if self.maps is None:
             raise InputError(
-                f"ModalPort: mode {self.mode} has a residue of rank > 1 (several coordinates)"
+                f"ModalPort: mode {self.mode} has no single coordinate (its residue has rank > 1 "
+                "or a velocity term)"
             )
 
     @property
@@ -371,33 +372,65 @@ class ModalPort:
         return float(self.model.modes[self.mode].freq_hz)
 
     @functools.cached_property
+    def _ideal(self):
+        """The model with the mode in its ideal form (``N0 = c b^T``, ``N1 = 0``), or None.
+
+        A mode kept with its exact numerator is realized in (Re, Im) coordinates in which the
+        input enters both states: neither is the modal displacement. When that numerator is
+        the ideal one to :data:`IDEAL_TOL` (rank one, no velocity term: a structural mode of
+        a mechanical model), the ideal form is the same transfer function and its first state
+        is ``q``; otherwise the mode has no single coordinate (None)."""
+        from dataclasses import replace
+
+        m = self.model.modes[self.mode]
+        if m.N0 is not None or m.N1 is not None:
+            N0, N1 = m.numerator()
+            scale = max(float(np.linalg.norm(N0, 2)), 1e-300)
+            off_rank = float(np.linalg.norm(N0 - np.outer(m.c, m.b), 2))
+            if off_rank > IDEAL_TOL * scale or m.omega * np.linalg.norm(N1, 2) > IDEAL_TOL * scale:
+                return None
+        ideal = replace(m, N0=None, N1=None)
+        modes = self.model.modes
+        return replace(self.model, modes=modes[: self.mode] + (ideal,) + modes[self.mode + 1 :])
+
+    @functools.cached_property
     def lti(self):
-        """The model's companion-form realization (LTIModel, with its delay)."""
-        return self.model.to_lti()
+        """The model's companion-form realization (LTIModel, with its delay), the mode ideal."""
+        return self._ideal.to_lti()
 
     @functools.cached_property
     def maps(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(Bp (n, 1), Cp (1, n)) in :attr:`lti`'s states: the mode's velocity row, where its
-        force enters, and its displacement; None when its block is not one 2-state block."""
+        force enters, and its displacement; None when the mode has no single coordinate."""
         from workbench.modal.model import _mode_blocks
 
-        m = self.model
+        m = self._ideal
+        if m is None:
+            return None
         tau_in = m.tau_in
         # wrap_outer: the actuator lags' states first (lagged inputs only), then the modes'
         off = int(np.count_nonzero(tau_in)) if tau_in is not None else 0
         for mode in m.modes[: self.mode]:
             off += _mode_blocks(mode, "companion")[0].shape[0]
-        if _mode_blocks(m.modes[self.mode], "companion")[0].shape[0] != 2:
-            return None
         A = np.asarray(self.lti.A, float)
-        # the companion block [[0, 1], [-w^2, -2 z w]]: displacement off, velocity off + 1
+        # the ideal companion block [[0, 1], [-w^2, -2 z w]]: displacement off, velocity off + 1
         if not (A[off, off + 1] == 1.0 and A[off, off] == 0.0):
-            return None
+            raise AssertionError("ModalPort: the mode's block is not where the realization has it")
         Bp = np.zeros((A.shape[0], 1))
         Bp[off + 1, 0] = 1.0
         Cp = np.zeros((1, A.shape[0]))
         Cp[0, off] = 1.0
         return Bp, Cp
+
+
+#: a spring on a mode's coordinate (:class:`ModalPort`) is scanned over levels within
+#: MODAL_SPAN either way of MODAL_CENTER times ``w^2 / q_rms^2`` (the levels that change the
+#: mode's stiffness at the rms motion by 0.1 % to 10^4 times: a strong spring holds the mode's
+#: resonant motion to a fraction of its linear rms, where its force is what a much smaller one
+#: is at the linear motion), on a grid of ratio MODAL_STEP
+MODAL_CENTER, MODAL_SPAN, MODAL_STEP = 10.0**0.5, 10.0**3.5, 10.0**0.25
+#: a mode's exact numerator is its ideal one (:class:`ModalPort`) within this share of its size
+IDEAL_TOL = 1e-6
 
 
 def simulate_nonlinear(
@@ -1168,7 +1201,7 @@ def fit_port_element(
         errs = [rms(simulated(nl, s * family.unit, residual=True, n=n)[0]) for s in GAIN_GRID]
         return GAIN_GRID[int(np.argmin(errs))] * family.unit
 
-    def scale_levels(name, c, n_sub, v, g, span):
+    def scale_levels(name, c, n_sub, v, g, span, ratio=LEVEL_STEP):
         """The levels ``c`` times the common factor (within ``span`` either way) whose
         simulation fits best: the best of a grid of ratio LEVEL_STEP, then a bounded 1-D
         search between its neighbours. The regressed levels may be far off (an equation
@@ -1182,7 +1215,7 @@ def fit_port_element(
             nl = make_element(name, np.exp(log_s) * c, n_sub, v)[0]
             return rms(simulated(nl, g, residual=True, n=start_n(name))[0])
 
-        step = np.log(LEVEL_STEP)
+        step = np.log(ratio)
         grid = np.arange(-np.log(span), np.log(span) + 0.5 * step, step)
         errs = [cost(x) for x in grid]
         i = int(np.argmin(errs))
@@ -1227,6 +1260,20 @@ def fit_port_element(
             out.append((simulated(nl, g)[0], name, nl, params))
         return out + refine_levels(name, c, n_sub, None, g)
 
+    def modal_start():
+        """The spring on the mode: its level's scale scanned through the simulation
+        (:func:`scale_levels`) within MODAL_SPAN either way of MODAL_CENTER times the mode's
+        unit ``w^2 / q_rms^2`` (the linear stiffness at the estimated motion's rms). The
+        regressed level is no start there: a lightly damped mode's response moves with its
+        frequency, far from linearly in k3 over the levels a record shows (an indepgen beam
+        mode at 91 Hz, zeta 0.019, a spring 1 % of its stiffness: the regression gives half
+        the level; 3 %, twice the noise, a twentieth)."""
+        w = 2 * np.pi * modal.freq_hz
+        unit = w**2 / max(float(np.mean(motion**2)), 1e-300)
+        c = np.array([MODAL_CENTER * unit])
+        with np.errstate(invalid="ignore"):  # a diverging trial scores inf in the 1-D search
+            return scale_levels("cubic_stiffness", c, substeps, None, None, MODAL_SPAN, MODAL_STEP)
+
     # saturation: the linear response to the clipped input (it needs no port; not a mode's)
     scored = []
     if modal is None:
@@ -1246,8 +1293,9 @@ def fit_port_element(
     # on a mode's coordinate the spring only: friction acts where parts slide (the ports)
     for name in ("coulomb_friction", "cubic_stiffness") if modal is None else ("cubic_stiffness",):
         per_port = None
-        for common in (False, True):  # one level per port, or one level for all
-            c = regress(name, common, motion)
+        # one level per port, or one level for all (one port on a mode: one level)
+        for common in (False, True) if modal is None else (False,):
+            c = regress(name, common, motion) if modal is None else modal_start()
             if not common:
                 per_port = c
             elif family is not None and not c.max() > 0 and per_port.max() > 0:
