@@ -579,6 +579,51 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s, domain
                 )
                 nl_early = finding
                 break
+        moved = found[-1].parameters if found else {}
+        if (
+            isinstance(data, TimeData)
+            and nl_first is None
+            and not early_tried
+            and last.effect == "modal_mismatch"
+            and data.n_y != data.n_u
+            and moved.get("model_freq_hz", np.inf) <= problem.band_hz[1] < moved["freq_hz"]
+        ):
+            # the mismatch moved a mode of the band out of it: the record shows only that the
+            # mode does not resonate where the model has it, which is also what a hardening
+            # spring on the mode's coordinate does when it holds the mode's motion (a modal
+            # Duffing). At the noise floor (estimated from the periods) the record cannot
+            # choose between them: the spring on the model as given, one level on the mode the
+            # mismatch moved, is taken when it reaches the floor as well (the mismatch moved
+            # the mode by more than the record resolves: no resonance of it is left to place)
+            early_tried = True
+            time_floor = detect.noise_floor(data, problem.predict(current))
+            if time_floor is not None and cur_err <= FLOOR_RATIO * time_floor:
+                ev = detect.NonlinearityEvidence(
+                    level=float(min(cur_err**2, 1.0)),
+                    f_stat=float(F_given) if F_given is not None else 0.0,
+                    n_lines=0,
+                    band_hz=problem.band_hz,
+                )
+                finding, _ = _nonlinearity_finding(
+                    ev,
+                    data,
+                    error_before,
+                    [base],
+                    cur_err,
+                    direct=False,
+                    needed=FLOOR_RATIO * time_floor,
+                    mode_hz=float(moved["model_freq_hz"]),
+                )
+                if finding is not None:
+                    notes.append(
+                        f"round {round_ + 1}: {last.effect} (error {cur_err:.4g}) moves the mode "
+                        f"at {moved['model_freq_hz']:.4g} Hz out of the excited band; a cubic "
+                        f"spring on that mode's coordinate, on the model as given, reaches "
+                        f"{finding.error_after:.4g}, at the noise floor as well "
+                        f"({time_floor:.4g}): the nonlinearity, with one parameter, is taken"
+                    )
+                    nl_early = finding
+                    break
     found = _merge_compliance(found)
     if nl_early is not None:
         found, current = [nl_early], base
@@ -1043,7 +1088,16 @@ def _above_band(params: dict, problem) -> bool:
 
 
 def _nonlinearity_finding(
-    nl, data, err, linear: list, cur_err: float, *, direct: bool, only_given: bool = False
+    nl,
+    data,
+    err,
+    linear: list,
+    cur_err: float,
+    *,
+    direct: bool,
+    only_given: bool = False,
+    needed: float | None = None,
+    mode_hz: float | None = None,
 ):
     """The nonlinearity finding with its fitted port element, or (None, alternative).
 
@@ -1065,15 +1119,26 @@ def _nonlinearity_finding(
     ``only_given``: only a finding on the model as given (``linear[-1]``) is wanted; the
     element is fitted on the other linear models only when it is one there (the same
     answer, one element fit instead of two when it is not).
+
+    ``needed``: the error the element must go below (default: ``cur_err`` with ``direct``
+    evidence, ``ERROR_RATIO * cur_err`` without). ``mode_hz``: only a cubic spring on the
+    mode of this frequency (Hz) is fitted (:func:`_fit_element`).
     """
     params: dict[str, Any] = {"level": nl.level, "f_stat": nl.f_stat}
     ins, outs = tuple(range(data.n_u)), tuple(range(data.n_y))
     error_after, model, note = cur_err, None, ""
     # distortion on unexcited lines is direct evidence: the element must only lower the
     # error; a residual that is merely not explained needs the element to explain it
-    needed = cur_err if direct else ERROR_RATIO * cur_err
+    if needed is None:
+        needed = cur_err if direct else ERROR_RATIO * cur_err
     fitted = (
-        _fit_element(data, linear, stop_above=needed if only_given else None, band_hz=nl.band_hz)
+        _fit_element(
+            data,
+            linear,
+            stop_above=needed if only_given else None,
+            band_hz=nl.band_hz,
+            mode_hz=mode_hz,
+        )
         if isinstance(data, TimeData)
         else None
     )
@@ -1210,6 +1275,7 @@ def _fit_element(
     linear: list,
     stop_above: float | None = None,
     band_hz: tuple[float, float] | None = None,
+    mode_hz: float | None = None,
 ):
     """The port element that explains the record best: (ElementFit, linear model, pair) or None.
 
@@ -1234,6 +1300,9 @@ def _fit_element(
     scanned through the simulation), the best refined, and it is the element when it
     leaves the lower error (one level against the ports' several). Its pair is None.
     Square models (the ports are their outputs) are not given it: not validated there.
+
+    ``mode_hz``: only the spring on the flexible mode of this frequency (Hz, within 1e-6
+    relative) of each linear model, refined; None when no model has it.
     """
     from workbench.diagnosis.nonlinear import (
         ModalPort,
@@ -1246,6 +1315,20 @@ def _fit_element(
     )
 
     n_y, n_u = data.n_y, data.n_u
+    if mode_hz is not None:
+        fits = []
+        for i, m in enumerate(linear):
+            for k, mode in enumerate(m.modes):
+                if mode.kind == "flexible" and abs(mode.freq_hz - mode_hz) <= 1e-6 * mode_hz:
+                    try:
+                        mp = ModalPort(m, k)
+                    except InputError:  # no single coordinate (a residue of rank > 1)
+                        continue
+                    fits.append((fit_port_element(mp, data.u, data.y, data.fs), i))
+        if not fits:
+            return None
+        ef, i = min(fits, key=lambda t: t[0].error_after)
+        return ef, linear[i], None
     if n_y == n_u:
         pairs: list = [None]
     else:
