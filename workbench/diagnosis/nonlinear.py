@@ -34,6 +34,13 @@ displacements to the model's outputs (``port_outputs`` of
 :func:`collocated_pairs` lists the pairs a model allows (every mode's
 driving-point residue positive, as a collocated pair's is).
 
+A hardening spring may sit on a mode instead of a port (a modal Duffing: the geometric
+stiffening of a beam's bending mode): the force ``-k3 q^3`` on the mode's modal displacement
+``q`` enters the mode's own equation. :class:`ModalPort` gives that port in the model's
+companion realization (the element's own ``port_forces`` / ``port_displacements`` in
+:class:`PortNonlinearity`, the same substep propagation and kernel), and
+:func:`fit_port_element` fits the spring there; it needs no sensor at an input.
+
 A saturation of the inputs needs no port: the applied force ``clip(u_j, -l_j, l_j)`` does
 not depend on the motion, so any linear model driven by the clipped recorded input is its
 simulation model (:func:`fit_saturation`, on a model with no port to locate).
