@@ -128,3 +128,25 @@ def test_the_fit_finds_the_spring_on_the_mode():
 def test_a_port_on_a_rigid_mode_is_refused():
     with pytest.raises(InputError, match="flexible mode"):
         ModalPort(_model(), 0)
+
+
+def test_a_mode_without_one_coordinate_is_refused():
+    # a residue of rank two: two coordinates share the pole, no single q for the spring
+    m = _model()
+    mode = m.modes[1]
+    N0 = np.outer(C, B) + np.outer([1e-3, -1e-3, 0.0], [0.0, 1.0])
+    from dataclasses import replace
+
+    two = replace(m, modes=(m.modes[0], replace(mode, N0=N0, N1=np.zeros_like(N0))))
+    with pytest.raises(InputError, match="no single coordinate"):
+        ModalPort(two, 1)
+
+
+def test_own_ports_take_no_port_outputs():
+    port = ModalPort(_model(), 1)
+    Bp, Cp = port.maps
+    nl = PortNonlinearity(
+        friction_force=np.zeros(1), cubic_stiffness=[1.0], port_forces=Bp, port_displacements=Cp
+    )
+    with pytest.raises(InputError, match="takes no outputs"):
+        simulate_nonlinear(port.lti, np.zeros((10, 2)), FS, nl, port_outputs=[0, 1])
