@@ -105,6 +105,10 @@ DRIFT_RATIO = 2.0
 NL_STATIONARY = (0.5, 1.2)
 #: candidates refitted jointly with the earlier findings each round
 JOINT_CANDIDATES = 3
+#: a spring on a mode's coordinate is tried on the flexible modes within this factor of the
+#: excited band either way (a hardening spring on a mode just above the band still moves
+#: what the band shows of it)
+MODAL_BAND = 1.25
 #: linear effects a port element's describing function is: friction's equivalent viscous
 #: damping (4 F_c / (pi omega A)) and the equivalent stiffness of stiction or a hardening
 #: spring move the modes their port moves (a modal mismatch) or suspend a rigid body
@@ -575,6 +579,51 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s, domain
                 )
                 nl_early = finding
                 break
+        moved = found[-1].parameters if found else {}
+        if (
+            isinstance(data, TimeData)
+            and nl_first is None
+            and not early_tried
+            and last.effect == "modal_mismatch"
+            and data.n_y != data.n_u
+            and moved.get("model_freq_hz", np.inf) <= problem.band_hz[1] < moved["freq_hz"]
+        ):
+            # the mismatch moved a mode of the band out of it: the record shows only that the
+            # mode does not resonate where the model has it, which is also what a hardening
+            # spring on the mode's coordinate does when it holds the mode's motion (a modal
+            # Duffing). At the noise floor (estimated from the periods) the record cannot
+            # choose between them: the spring on the model as given, one level on the mode the
+            # mismatch moved, is taken when it reaches the floor as well (the mismatch moved
+            # the mode by more than the record resolves: no resonance of it is left to place)
+            early_tried = True
+            time_floor = detect.noise_floor(data, problem.predict(current))
+            if time_floor is not None and cur_err <= FLOOR_RATIO * time_floor:
+                ev = detect.NonlinearityEvidence(
+                    level=float(min(cur_err**2, 1.0)),
+                    f_stat=float(F_given) if F_given is not None else 0.0,
+                    n_lines=0,
+                    band_hz=problem.band_hz,
+                )
+                finding, _ = _nonlinearity_finding(
+                    ev,
+                    data,
+                    error_before,
+                    [base],
+                    cur_err,
+                    direct=False,
+                    needed=FLOOR_RATIO * time_floor,
+                    mode_hz=float(moved["model_freq_hz"]),
+                )
+                if finding is not None:
+                    notes.append(
+                        f"round {round_ + 1}: {last.effect} (error {cur_err:.4g}) moves the mode "
+                        f"at {moved['model_freq_hz']:.4g} Hz out of the excited band; a cubic "
+                        f"spring on that mode's coordinate, on the model as given, reaches "
+                        f"{finding.error_after:.4g}, at the noise floor as well "
+                        f"({time_floor:.4g}): the nonlinearity, with one parameter, is taken"
+                    )
+                    nl_early = finding
+                    break
     found = _merge_compliance(found)
     if nl_early is not None:
         found, current = [nl_early], base
@@ -1044,7 +1093,16 @@ def _above_band(params: dict, problem) -> bool:
 
 
 def _nonlinearity_finding(
-    nl, data, err, linear: list, cur_err: float, *, direct: bool, only_given: bool = False
+    nl,
+    data,
+    err,
+    linear: list,
+    cur_err: float,
+    *,
+    direct: bool,
+    only_given: bool = False,
+    needed: float | None = None,
+    mode_hz: float | None = None,
 ):
     """The nonlinearity finding with its fitted port element, or (None, alternative).
 
@@ -1066,22 +1124,34 @@ def _nonlinearity_finding(
     ``only_given``: only a finding on the model as given (``linear[-1]``) is wanted; the
     element is fitted on the other linear models only when it is one there (the same
     answer, one element fit instead of two when it is not).
+
+    ``needed``: the error the element must go below (default: ``cur_err`` with ``direct``
+    evidence, ``ERROR_RATIO * cur_err`` without). ``mode_hz``: only a cubic spring on the
+    mode of this frequency (Hz) is fitted (:func:`_fit_element`).
     """
     params: dict[str, Any] = {"level": nl.level, "f_stat": nl.f_stat}
     ins, outs = tuple(range(data.n_u)), tuple(range(data.n_y))
     error_after, model, note = cur_err, None, ""
     # distortion on unexcited lines is direct evidence: the element must only lower the
     # error; a residual that is merely not explained needs the element to explain it
-    needed = cur_err if direct else ERROR_RATIO * cur_err
+    if needed is None:
+        needed = cur_err if direct else ERROR_RATIO * cur_err
     fitted = (
-        _fit_element(data, linear, stop_above=needed if only_given else None)
+        _fit_element(
+            data,
+            linear,
+            stop_above=needed if only_given else None,
+            band_hz=nl.band_hz,
+            mode_hz=mode_hz,
+        )
         if isinstance(data, TimeData)
         else None
     )
     portless = False  # only an input saturation was tried (no port located)
     if fitted is not None:
         ef, _, pair = fitted
-        portless = pair is None and data.n_y != data.n_u
+        on_mode = "mode" in ef.parameters  # a spring on a mode's coordinate needs no port
+        portless = pair is None and data.n_y != data.n_u and not on_mode
         if not ef.error_after < needed:
             tried = dict(params, element=ef.element, ports=list(ef.ports), **ef.parameters)
             tried["element_errors"] = ef.candidates
@@ -1123,10 +1193,18 @@ def _nonlinearity_finding(
         ins = outs = tuple(ef.ports)
         if pair is not None or portless:
             outs = tuple(range(data.n_y))
+        where = f"at port(s) {', '.join(str(j) for j in ef.ports)}"
+        if on_mode:
+            # the mode's coordinate: every input drives it, every output sees it
+            ins, outs = tuple(range(data.n_u)), tuple(range(data.n_y))
+            where = (
+                f"on the coordinate of mode {ef.parameters['mode']} "
+                f"({ef.parameters['mode_freq_hz']:.4g} Hz; k3 "
+                f"{ef.parameters['cubic_stiffness'][0]:.4g} in its modal units, a modal Duffing)"
+            )
         note = (
-            f" Fitted element: {ef.element.replace('_', ' ')} at port(s) "
-            f"{', '.join(str(j) for j in ef.ports)}; the nonlinear simulation model "
-            f"(workbench.diagnosis.nonlinear) brings the error from {ef.error_before:.4g} "
+            f" Fitted element: {ef.element.replace('_', ' ')} {where}; the nonlinear simulation "
+            f"model (workbench.diagnosis.nonlinear) brings the error from {ef.error_before:.4g} "
             f"to {ef.error_after:.4g}."
         )
         if "port_gains" in ef.parameters:
@@ -1197,7 +1275,13 @@ def _nonlinearity_finding(
     return finding, None
 
 
-def _fit_element(data: TimeData, linear: list, stop_above: float | None = None):
+def _fit_element(
+    data: TimeData,
+    linear: list,
+    stop_above: float | None = None,
+    band_hz: tuple[float, float] | None = None,
+    mode_hz: float | None = None,
+):
     """The port element that explains the record best: (ElementFit, linear model, pair) or None.
 
     ``linear``: the final linear model first, then the model as given. The ports are the
@@ -1213,8 +1297,20 @@ def _fit_element(data: TimeData, linear: list, stop_above: float | None = None):
     at or above it, that fit is returned and the other linear models are not tried (a
     caller that wants only a finding on the model as given, below this error). Each
     model's fit does not depend on the others', so what is returned otherwise is the same.
+
+    On a model that is not square, a cubic spring on one mode's coordinate (a modal
+    Duffing, :class:`~workbench.diagnosis.nonlinear.ModalPort`: no port needed) is a
+    hypothesis beside the port elements, on each flexible mode within MODAL_BAND of the
+    excited band ``band_hz`` (Hz): each mode's spring fitted cheaply (its level's scale
+    scanned through the simulation), the best refined, and it is the element when it
+    leaves the lower error (one level against the ports' several). Its pair is None.
+    Square models (the ports are their outputs) are not given it: not validated there.
+
+    ``mode_hz``: only the spring on the flexible mode of this frequency (Hz, within 1e-6
+    relative) of each linear model, refined; None when no model has it.
     """
     from workbench.diagnosis.nonlinear import (
+        ModalPort,
         SquarePorts,
         collocated_pairs,
         fit_port_element,
@@ -1224,6 +1320,20 @@ def _fit_element(data: TimeData, linear: list, stop_above: float | None = None):
     )
 
     n_y, n_u = data.n_y, data.n_u
+    if mode_hz is not None:
+        fits = []
+        for i, m in enumerate(linear):
+            for k, mode in enumerate(m.modes):
+                if mode.kind == "flexible" and abs(mode.freq_hz - mode_hz) <= 1e-6 * mode_hz:
+                    try:
+                        mp = ModalPort(m, k)
+                    except InputError:  # no single coordinate (a residue of rank > 1)
+                        continue
+                    fits.append((fit_port_element(mp, data.u, data.y, data.fs), i))
+        if not fits:
+            return None
+        ef, i = min(fits, key=lambda t: t[0].error_after)
+        return ef, linear[i], None
     if n_y == n_u:
         pairs: list = [None]
     else:
@@ -1265,8 +1375,38 @@ def _fit_element(data: TimeData, linear: list, stop_above: float | None = None):
     several = len(hyps) > 1
     given = len(linear) - 1
 
+    def modal_ports(m) -> list:
+        """The ModalPorts of model ``m``'s flexible modes near the excited band (non-square)."""
+        if n_y == n_u or band_hz is None:
+            return []
+        lo, hi = band_hz[0] / MODAL_BAND, band_hz[1] * MODAL_BAND
+        out = []
+        for k, mode in enumerate(m.modes):
+            if mode.kind == "flexible" and lo <= mode.freq_hz <= hi:
+                try:
+                    out.append(ModalPort(m, k))
+                except InputError:  # no single coordinate (a residue of rank > 1)
+                    continue
+        return out
+
     def fit_on(i):
-        """The element's fit on linear model ``i``: (ElementFit, hypothesis)."""
+        """The element's fit on linear model ``i``: (ElementFit, hypothesis); the port
+        elements' best, or the modal spring's when it leaves the lower error."""
+        ef, h = fit_on_ports(i)
+        modal = modal_ports(linear[i])
+        if not modal:
+            return ef, h
+        cheap = [(fit_port_element(mp, data.u, data.y, data.fs, refine=False), mp) for mp in modal]
+        ef_m, mp = min(cheap, key=lambda t: t[0].error_after)
+        if not ef_m.error_after < ef.error_after:
+            return ef, h
+        ef_m = fit_port_element(mp, data.u, data.y, data.fs)
+        if not ef_m.error_after < ef.error_after:
+            return ef, h
+        return ef_m, (i, mp, None, None, None)
+
+    def fit_on_ports(i):
+        """The port elements' fit on linear model ``i``: (ElementFit, hypothesis)."""
         mine = [h for h in hyps if h[0] == i]
         if saturation_only:
             (h,) = mine
