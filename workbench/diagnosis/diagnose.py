@@ -1303,8 +1303,9 @@ def _fit_element(
     hypothesis beside the port elements, on each flexible mode within MODAL_BAND of the
     excited band ``band_hz`` (Hz): each mode's spring fitted cheaply (its level's scale
     scanned through the simulation), the best refined, and it is the element when it
-    leaves the lower error (one level against the ports' several). Its pair is None.
-    Square models (the ports are their outputs) are not given it: not validated there.
+    leaves the lower error (one level against the ports' several). Its pair is None. It is
+    not tried when the port element already leaves only the record's noise. Square models
+    (the ports are their outputs) are not given it: not validated there.
 
     ``mode_hz``: only the spring on the flexible mode of this frequency (Hz, within 1e-6
     relative) of each linear model, refined; None when no model has it.
@@ -1315,6 +1316,7 @@ def _fit_element(
         collocated_pairs,
         fit_port_element,
         fit_saturation,
+        simulate_nonlinear,
         square_ports,
         with_ports,
     )
@@ -1389,10 +1391,30 @@ def _fit_element(
                     continue
         return out
 
+    def at_floor(ef, h) -> bool:
+        """Whether the port element ``ef`` leaves only the record's noise (periodic records:
+        within FLOOR_RATIO of the floor from the periods, taken as white noise too): a spring
+        on a mode could then only fit the noise, and its scans (about 1 s a mode) are not
+        run; nor, on the model as given, the element on the other linear models.
+        """
+        if saturation_only or data.period is None:
+            return False
+        _, sys, port_outputs, _, _ = h
+        if isinstance(sys, SquarePorts):  # the model with the fitted port gains
+            g = ef.parameters.get("port_gains")
+            port_outputs = sys.port_outputs
+            sys = sys.system(sys.unit if g is None else np.asarray(g, float))
+        y_el = simulate_nonlinear(sys, data.u, data.fs, ef.nonlinearity, port_outputs=port_outputs)
+        floor = detect.noise_floor(data, y_el, white=True)
+        return floor is not None and ef.error_after <= FLOOR_RATIO * floor
+
     def fit_on(i):
         """The element's fit on linear model ``i``: (ElementFit, hypothesis); the port
         elements' best, or the modal spring's when it leaves the lower error."""
         ef, h = fit_on_ports(i)
+        if at_floor(ef, h):
+            floor_reached.add(i)
+            return ef, h
         modal = modal_ports(linear[i])
         if not modal:
             return ef, h
@@ -1423,11 +1445,16 @@ def _fit_element(
 
     order = sorted({h[0] for h in hyps}, key=lambda i: i != given)  # the model as given first
     chosen: dict[int, tuple] = {}
+    floor_reached: set[int] = set()
     for i in order:
         chosen[i] = fit_on(i)
         if i == given and stop_above is not None and chosen[i][0].error_after >= stop_above:
             ef, h = chosen[i]
             return ef, linear[h[0]], h[3]
+        if i == given and i in floor_reached:
+            # the element on the model as given leaves only the noise: on another linear
+            # model it would have to go ERROR_RATIO below that, 0.94x the noise itself
+            break
     i_pick = max(chosen)  # the model as given (last), unless the linear findings are needed
     if 0 in chosen and i_pick != 0:
         if chosen[0][0].error_after <= ERROR_RATIO * chosen[i_pick][0].error_after:
