@@ -109,6 +109,9 @@ JOINT_CANDIDATES = 3
 #: excited band either way (a hardening spring on a mode just above the band still moves
 #: what the band shows of it)
 MODAL_BAND = 1.25
+#: whether friction on a square model's rigid-body motion
+#: (:class:`~workbench.diagnosis.nonlinear.RigidPorts`) is a hypothesis beside the ports'
+RIGID_FRICTION = True
 #: linear effects a port element's describing function is: friction's equivalent viscous
 #: damping (4 F_c / (pi omega A)) and the equivalent stiffness of stiction or a hardening
 #: spring move the modes their port moves (a modal mismatch) or suspend a rigid body
@@ -1311,6 +1314,7 @@ def _fit_element(
     """
     from workbench.diagnosis.nonlinear import (
         ModalPort,
+        RigidPorts,
         SquarePorts,
         collocated_pairs,
         fit_port_element,
@@ -1391,8 +1395,19 @@ def _fit_element(
 
     def fit_on(i):
         """The element's fit on linear model ``i``: (ElementFit, hypothesis); the port
-        elements' best, or the modal spring's when it leaves the lower error."""
+        elements' best, or the modal spring's (the rigid-body friction's) when it leaves the
+        lower error."""
         ef, h = fit_on_ports(i)
+        rigid = rigid_ports(linear[i])
+        if rigid is not None and RIGID_FRICTION:
+            # friction on the rigid bodies' motion (at their bearings, driving no flexible
+            # mode) beside the ports' (through the actuators): its start cheaply, refined
+            # only when that start already leaves the lower error
+            ef_r = fit_port_element(rigid, data.u, data.y, data.fs, refine=False)
+            if ef_r.error_after < ef.error_after:
+                ef_r = fit_port_element(rigid, data.u, data.y, data.fs)
+                if ef_r.error_after < ef.error_after:
+                    return ef_r, (i, rigid, None, None, None)
         modal = modal_ports(linear[i])
         if not modal:
             return ef, h
@@ -1404,6 +1419,15 @@ def _fit_element(
         if not ef_m.error_after < ef.error_after:
             return ef, h
         return ef_m, (i, mp, None, None, None)
+
+    def rigid_ports(m):
+        """The RigidPorts of a square model ``m`` with rigid modes (else None)."""
+        if n_y != n_u or not any(mode.kind == "rigid" for mode in m.modes):
+            return None
+        try:
+            return RigidPorts(m)
+        except InputError:  # e.g. sensor lags: no rigid displacement output
+            return None
 
     def fit_on_ports(i):
         """The port elements' fit on linear model ``i``: (ElementFit, hypothesis)."""
