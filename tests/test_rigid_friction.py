@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from indepgen import _coulomb_step
 
 from workbench import sim
 from workbench.core.errors import InputError
@@ -20,8 +21,6 @@ from workbench.diagnosis.nonlinear import (
     simulate_nonlinear,
 )
 from workbench.modal.model import ModalModel, Mode
-
-from indepgen import _coulomb_step
 
 FS = 1000.0
 N = 600
