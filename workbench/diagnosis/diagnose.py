@@ -1197,6 +1197,11 @@ def _nonlinearity_finding(
         if pair is not None or portless:
             outs = tuple(range(data.n_y))
         where = f"at port(s) {', '.join(str(j) for j in ef.ports)}"
+        if ef.parameters.get("on") == "rigid_modes":
+            where += (
+                " on the rigid bodies' motion (at their bearings: the friction force enters "
+                "the rigid-body modes only, not the flexible ones)"
+            )
         if on_mode:
             # the mode's coordinate: every input drives it, every output sees it
             ins, outs = tuple(range(data.n_u)), tuple(range(data.n_y))
