@@ -659,7 +659,7 @@ RIGID_SUBSTEPS, RIGID_MAX_SUBSTEPS = 32, 256
 #: bearing's Coulomb friction is hard, and the rigid bodies' simulation resolves it
 RIGID_VELOCITY = 1e-4
 #: ... its levels started port by port within RIGID_SPAN either way, in RIGID_SWEEPS sweeps
-RIGID_SPAN, RIGID_SWEEPS = 4.0, 2
+RIGID_SPAN, RIGID_SWEEPS = 4.0, 1
 #: rounds of (converge the substeps, refit the levels there)
 CONVERGE_ROUNDS = 3
 #: friction's Gauss-Newton uses the exact Jacobian while a step lowers the squared error by at
@@ -1421,7 +1421,8 @@ def fit_port_element(
     for name in names:
         per_port = None
         # one level per port, or one level for all (one port on a mode: one level)
-        for common in (False, True) if modal is None else (False,):
+        # (friction on the rigid bodies: a level per bearing, each body's own)
+        for common in (False, True) if modal is None and rigid is None else (False,):
             c = regress(name, common, motion) if modal is None else modal_start()
             if rigid is not None and c.max() > 0:  # the rigid ports' start (scale_each)
                 c = scale_levels(name, c, substeps, None, None, LEVEL_SPAN)
