@@ -1314,6 +1314,12 @@ def _fit_element(
     leaves the lower error (one level against the ports' several). Its pair is None.
     Square models (the ports are their outputs) are not given it: not validated there.
 
+    On a square model with rigid modes, friction on the rigid bodies' motion
+    (:class:`~workbench.diagnosis.nonlinear.RigidPorts`: at their bearings, driving no
+    flexible mode) is a hypothesis beside the ports' elements (:data:`RIGID_FRICTION`): its
+    start fitted cheaply, refined when that start already leaves a lower error than the
+    ports' best, and it is the element when it leaves the lower error. Its pair is None.
+
     ``mode_hz``: only the spring on the flexible mode of this frequency (Hz, within 1e-6
     relative) of each linear model, refined; None when no model has it.
     """

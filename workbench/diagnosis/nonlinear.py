@@ -41,6 +41,12 @@ companion realization (the element's own ``port_forces`` / ``port_displacements`
 :class:`PortNonlinearity`, the same substep propagation and kernel), and
 :func:`fit_port_element` fits the spring there; it needs no sensor at an input.
 
+Friction may act on a square model's rigid-body motion instead of at its inputs (a
+bearing's friction on a stage's rigid bodies, which drives no flexible mode, where a force
+at the inputs drives them through B): :class:`RigidPorts` gives those ports (the rigid
+modes' rows of B and columns of C, one port per input), and :func:`fit_port_element` fits
+friction there; the diagnosis lets the record choose between the two.
+
 A saturation of the inputs needs no port: the applied force ``clip(u_j, -l_j, l_j)`` does
 not depend on the motion, so any linear model driven by the clipped recorded input is its
 simulation model (:func:`fit_saturation`, on a model with no port to locate).
@@ -918,7 +924,10 @@ def fit_port_element(
         :class:`ModalPort`: one port on a mode's coordinate, every output measured; only
         the cubic spring is tried there (a modal Duffing: ``parameters["cubic_stiffness"]``
         one k3 in modal units, ``"mode"`` the mode's index in the model, ``"mode_freq_hz"``
-        its frequency); ``ports`` of the result is empty (no input is the port).
+        its frequency); ``ports`` of the result is empty (no input is the port). A
+        :class:`RigidPorts`: friction on the rigid bodies' motion only (one level per input,
+        ``parameters["on"] == "rigid_modes"``), started from the regression at two high-pass
+        corners scaled port by port, simulated at RIGID_SUBSTEPS .. RIGID_MAX_SUBSTEPS.
     u, y : (N, n_u), (N, n_y) arrays
         Recorded input and output.
     fs : float
