@@ -1319,6 +1319,9 @@ def _fit_element(
     flexible mode) is a hypothesis beside the ports' elements (:data:`RIGID_FRICTION`): its
     start fitted cheaply, refined when that start already leaves a lower error than the
     ports' best, and it is the element when it leaves the lower error. Its pair is None.
+    Not tried when the ports' element already leaves at most FLOOR_RATIO times the noise
+    floor (a periodic record's, white: :func:`~workbench.diagnosis.detect.noise_floor`, the
+    lower estimate): nothing is left for it to explain.
 
     ``mode_hz``: only the spring on the flexible mode of this frequency (Hz, within 1e-6
     relative) of each linear model, refined; None when no model has it.
@@ -1410,7 +1413,7 @@ def _fit_element(
         lower error."""
         ef, h = fit_on_ports(i)
         rigid = rigid_ports(linear[i])
-        if rigid is not None and RIGID_FRICTION:
+        if rigid is not None and RIGID_FRICTION and not at_floor(ef.error_after):
             # friction on the rigid bodies' motion (at their bearings, driving no flexible
             # mode) beside the ports' (through the actuators): its start cheaply, refined
             # only when that start already leaves the lower error
@@ -1430,6 +1433,10 @@ def _fit_element(
         if not ef_m.error_after < ef.error_after:
             return ef, h
         return ef_m, (i, mp, None, None, None)
+
+    def at_floor(err):
+        floor = detect.noise_floor(data, white=True)
+        return floor is not None and err <= FLOOR_RATIO * floor
 
     def rigid_ports(m):
         """The RigidPorts of a square model ``m`` with rigid modes (else None)."""
