@@ -171,7 +171,7 @@ def test_port_kernel_converges_to_the_record():
 def test_diagnosis_reaches_the_floor_on_the_stage_friction_record():
     """The diagnosis names Coulomb friction on the rigid bodies' motion (RigidPorts: the
     generator's friction drives no flexible mode) and reaches the floor: measured 1.03x, levels
-    within 0.1 % of the generator's (~200 s CPU with the ports' hypothesis fitted beside it).
+    within 0.1 % of the generator's (~110 s CPU with the ports' hypothesis fitted beside it).
     Before the rigid-body hypothesis (session 29): 34.6x, the ports' friction through B with
     levels 6-30 % off on three ports and a spurious port gain."""
     from workbench.diagnosis import diagnose
