@@ -55,6 +55,11 @@ second flexible mode's port gain to 2.6 % of its unit (at the true levels those 
 make 29.9x; started from the gains' lower bound the levels stay 50-120 % off on the
 rotations, 78.8x). Reaching 2x needs the levels found (the fit), then >= 256 substeps and v0
 ~1e-8 m/s (10x below what it fits).
+
+Since (session 29, branch s29-modal-friction) the diagnosis also tries friction on the rigid
+bodies' motion (nonlinear.RigidPorts: the rigid modes' rows of B, columns of C), fitted at
+32 .. 256 substeps from a per-port level start: seeds 1 / 2 / 3 clear 1.03 / 1.04 / 1.01x the
+floor (levels within 0.1-0.5 %), the record choosing it over the ports' friction by error.
 """
 
 from __future__ import annotations

@@ -109,6 +109,9 @@ JOINT_CANDIDATES = 3
 #: excited band either way (a hardening spring on a mode just above the band still moves
 #: what the band shows of it)
 MODAL_BAND = 1.25
+#: whether friction on a square model's rigid-body motion
+#: (:class:`~workbench.diagnosis.nonlinear.RigidPorts`) is a hypothesis beside the ports'
+RIGID_FRICTION = True
 #: linear effects a port element's describing function is: friction's equivalent viscous
 #: damping (4 F_c / (pi omega A)) and the equivalent stiffness of stiction or a hardening
 #: spring move the modes their port moves (a modal mismatch) or suspend a rigid body
@@ -1194,6 +1197,11 @@ def _nonlinearity_finding(
         if pair is not None or portless:
             outs = tuple(range(data.n_y))
         where = f"at port(s) {', '.join(str(j) for j in ef.ports)}"
+        if ef.parameters.get("on") == "rigid_modes":
+            where += (
+                " on the rigid bodies' motion (at their bearings: the friction force enters "
+                "the rigid-body modes only, not the flexible ones)"
+            )
         if on_mode:
             # the mode's coordinate: every input drives it, every output sees it
             ins, outs = tuple(range(data.n_u)), tuple(range(data.n_y))
@@ -1307,11 +1315,21 @@ def _fit_element(
     not tried when the port element already leaves only the record's noise. Square models
     (the ports are their outputs) are not given it: not validated there.
 
+    On a square model with rigid modes, friction on the rigid bodies' motion
+    (:class:`~workbench.diagnosis.nonlinear.RigidPorts`: at their bearings, driving no
+    flexible mode) is a hypothesis beside the ports' elements (:data:`RIGID_FRICTION`): its
+    start fitted cheaply, refined when that start already leaves a lower error than the
+    ports' best, and it is the element when it leaves the lower error. Its pair is None.
+    Not tried when the ports' element already leaves at most FLOOR_RATIO times the noise
+    floor (a periodic record's, white: :func:`~workbench.diagnosis.detect.noise_floor`, the
+    lower estimate): nothing is left for it to explain.
+
     ``mode_hz``: only the spring on the flexible mode of this frequency (Hz, within 1e-6
     relative) of each linear model, refined; None when no model has it.
     """
     from workbench.diagnosis.nonlinear import (
         ModalPort,
+        RigidPorts,
         SquarePorts,
         collocated_pairs,
         fit_port_element,
@@ -1394,8 +1412,9 @@ def _fit_element(
     def at_floor(ef, h) -> bool:
         """Whether the port element ``ef`` leaves only the record's noise (periodic records:
         within FLOOR_RATIO of the floor from the periods, taken as white noise too): a spring
-        on a mode could then only fit the noise, and its scans (about 1 s a mode) are not
-        run; nor, on the model as given, the element on the other linear models.
+        on a mode or the rigid-body friction could then only fit the noise, and their scans
+        (about 1 s a mode, 15-40 s the rigid bodies) are not run; nor, on the model as given,
+        the element on the other linear models.
         """
         if saturation_only or data.period is None:
             return False
@@ -1410,11 +1429,22 @@ def _fit_element(
 
     def fit_on(i):
         """The element's fit on linear model ``i``: (ElementFit, hypothesis); the port
-        elements' best, or the modal spring's when it leaves the lower error."""
+        elements' best, or the modal spring's (the rigid-body friction's) when it leaves the
+        lower error."""
         ef, h = fit_on_ports(i)
         if at_floor(ef, h):
             floor_reached.add(i)
             return ef, h
+        rigid = rigid_ports(linear[i])
+        if rigid is not None and RIGID_FRICTION:
+            # friction on the rigid bodies' motion (at their bearings, driving no flexible
+            # mode) beside the ports' (through the actuators): its start cheaply, refined
+            # only when that start already leaves the lower error
+            ef_r = fit_port_element(rigid, data.u, data.y, data.fs, refine=False)
+            if ef_r.error_after < ef.error_after:
+                ef_r = fit_port_element(rigid, data.u, data.y, data.fs)
+                if ef_r.error_after < ef.error_after:
+                    return ef_r, (i, rigid, None, None, None)
         modal = modal_ports(linear[i])
         if not modal:
             return ef, h
@@ -1426,6 +1456,15 @@ def _fit_element(
         if not ef_m.error_after < ef.error_after:
             return ef, h
         return ef_m, (i, mp, None, None, None)
+
+    def rigid_ports(m):
+        """The RigidPorts of a square model ``m`` with rigid modes (else None)."""
+        if n_y != n_u or not any(mode.kind == "rigid" for mode in m.modes):
+            return None
+        try:
+            return RigidPorts(m)
+        except InputError:  # e.g. sensor lags: no rigid displacement output
+            return None
 
     def fit_on_ports(i):
         """The port elements' fit on linear model ``i``: (ElementFit, hypothesis)."""

@@ -41,6 +41,12 @@ companion realization (the element's own ``port_forces`` / ``port_displacements`
 :class:`PortNonlinearity`, the same substep propagation and kernel), and
 :func:`fit_port_element` fits the spring there; it needs no sensor at an input.
 
+Friction may act on a square model's rigid-body motion instead of at its inputs (a
+bearing's friction on a stage's rigid bodies, which drives no flexible mode, where a force
+at the inputs drives them through B): :class:`RigidPorts` gives those ports (the rigid
+modes' rows of B and columns of C, one port per input), and :func:`fit_port_element` fits
+friction there; the diagnosis lets the record choose between the two.
+
 A saturation of the inputs needs no port: the applied force ``clip(u_j, -l_j, l_j)`` does
 not depend on the motion, so any linear model driven by the clipped recorded input is its
 simulation model (:func:`fit_saturation`, on a model with no port to locate).
@@ -69,6 +75,7 @@ __all__ = [
     "square_ports",
     "SquarePorts",
     "ModalPort",
+    "RigidPorts",
     "fit_friction",
     "fit_port_element",
     "fit_saturation",
@@ -430,6 +437,75 @@ class ModalPort:
         return Bp, Cp
 
 
+@dataclass(frozen=True)
+class RigidPorts:
+    """Ports on the rigid-body motion of a square model: where friction at a bearing acts.
+
+    Friction where a body slides on its bearing resists the body's rigid motion: its force
+    enters the rigid-body modes' equations only, against their velocity, and drives no
+    flexible mode (a stage's guide or air-bearing friction on its six rigid degrees of
+    freedom). Friction at the inputs (:func:`fit_port_element` on the square model itself)
+    instead pushes through the actuators, into the flexible modes as well. Both are
+    hypotheses; the record decides by the error each leaves.
+
+    In a square model in DOF coordinates the rigid-body part of the output is the DOF
+    displacement of the rigid motion, ``C_r x_r``, and the force at DOF j enters the rigid
+    modes as the input does, ``B_r``: the ports are the inputs' (one level per input, ``n_p =
+    n_u``), with the flexible modes' rows of ``B`` and columns of ``C`` left out. A rigid mode
+    held as a residue block of rank > 1 (the six rigid bodies of a stage as one) is the same:
+    its states are all rigid.
+
+    Attributes
+    ----------
+    model : ModalModel
+        The square linear model, with at least one rigid mode.
+    """
+
+    model: Any
+
+    def __post_init__(self):
+        if self.model.n_y != self.model.n_u:
+            raise InputError(
+                f"RigidPorts: expected a square model, got {self.model.n_y} outputs and "
+                f"{self.model.n_u} inputs"
+            )
+        if not any(m.kind == "rigid" for m in self.model.modes):
+            raise InputError("RigidPorts: the model has no rigid mode")
+        if self.model.tau_out is not None and np.any(self.model.tau_out):
+            raise InputError(
+                "RigidPorts: a model with sensor lags has no rigid displacement output"
+            )
+
+    @functools.cached_property
+    def lti(self):
+        """The model's companion-form realization (LTIModel, with its delay)."""
+        return self.model.to_lti()
+
+    @functools.cached_property
+    def maps(self) -> tuple[np.ndarray, np.ndarray]:
+        """(Bp (n, n_u), Cp (n_u, n)) in :attr:`lti`'s states: the rigid modes' input rows
+        (where a port force enters them) and their output columns (the rigid displacement)."""
+        from workbench.modal.model import _mode_blocks
+
+        tau_in = self.model.tau_in
+        off = int(np.count_nonzero(tau_in)) if tau_in is not None else 0
+        A = np.asarray(self.lti.A, float)
+        n, n_u = A.shape[0], self.model.n_u
+        Bp, Cp = np.zeros((n, n_u)), np.zeros((n_u, n))
+        for mode in self.model.modes:
+            Ab, Bb, Cb = _mode_blocks(mode, "companion")
+            k = Ab.shape[0]
+            if not np.array_equal(A[off : off + k, off : off + k], Ab):
+                raise AssertionError(
+                    "RigidPorts: a mode's block is not where the realization has it"
+                )
+            if mode.kind == "rigid":
+                Bp[off : off + k] = Bb
+                Cp[:, off : off + k] = Cb
+            off += k
+        return Bp, Cp
+
+
 #: a spring on a mode's coordinate (:class:`ModalPort`) is scanned over levels within
 #: MODAL_SPAN either way of MODAL_CENTER times ``w^2 / q_rms^2`` (the levels that change the
 #: mode's stiffness at the rms motion by 0.1 % to 10^4 times: a strong spring holds the mode's
@@ -581,6 +657,17 @@ VELOCITY_ITERATIONS = 6
 CONVERGED = 0.25
 #: ... up to this many substeps per sample
 MAX_SUBSTEPS = 64
+#: friction on the rigid-body motion (:class:`RigidPorts`) is fitted at this many substeps and
+#: converged up to RIGID_MAX_SUBSTEPS (an indepgen stage record at its true levels, v0 1e-8
+#: m/s: 6.5 / 2.5 / 1.06x the noise at 16 / 64 / 256 substeps; 0.7 s a simulation at 256)
+RIGID_SUBSTEPS, RIGID_MAX_SUBSTEPS = 32, 256
+#: ... its v0 estimated as this share of the rms port velocity (1e-3 at the inputs' ports): a
+#: bearing's Coulomb friction is hard, and the rigid bodies' simulation resolves it
+RIGID_VELOCITY = 1e-4
+#: ... its levels regressed at this high-pass corner too (a fraction of fs; :data:`HIGH_PASS`)
+RIGID_HIGH_PASS = 1e-3
+#: ... its levels started port by port within RIGID_SPAN either way, in RIGID_SWEEPS sweeps
+RIGID_SPAN, RIGID_SWEEPS = 4.0, 1
 #: rounds of (converge the substeps, refit the levels there)
 CONVERGE_ROUNDS = 3
 #: friction's Gauss-Newton uses the exact Jacobian while a step lowers the squared error by at
@@ -837,7 +924,10 @@ def fit_port_element(
         :class:`ModalPort`: one port on a mode's coordinate, every output measured; only
         the cubic spring is tried there (a modal Duffing: ``parameters["cubic_stiffness"]``
         one k3 in modal units, ``"mode"`` the mode's index in the model, ``"mode_freq_hz"``
-        its frequency); ``ports`` of the result is empty (no input is the port).
+        its frequency); ``ports`` of the result is empty (no input is the port). A
+        :class:`RigidPorts`: friction on the rigid bodies' motion only (one level per input,
+        ``parameters["on"] == "rigid_modes"``), started from the regression at two high-pass
+        corners scaled port by port, simulated at RIGID_SUBSTEPS .. RIGID_MAX_SUBSTEPS.
     u, y : (N, n_u), (N, n_y) arrays
         Recorded input and output.
     fs : float
@@ -880,7 +970,8 @@ def fit_port_element(
 
     family = sys if isinstance(sys, SquarePorts) else None
     modal = sys if isinstance(sys, ModalPort) else None
-    if (family is not None or modal is not None) and port_outputs is not None:
+    rigid = sys if isinstance(sys, RigidPorts) else None
+    if (family is not None or modal is not None or rigid is not None) and port_outputs is not None:
         raise InputError(f"fit_port_element: a {type(sys).__name__} sets its own ports")
     if family is not None:
         port_outputs = family.port_outputs
@@ -888,23 +979,29 @@ def fit_port_element(
         lin = as_model(family.system(family.unit))
     elif modal is not None:
         lin = as_model(modal.lti)
+    elif rigid is not None:
+        lin = as_model(rigid.lti)
     else:
         lin = as_model(sys)
     u = np.asarray(u, float)
     y = np.asarray(y, float)
     n_u = u.shape[1]
-    if modal is not None:
-        meas = np.arange(lin.C.shape[0])  # every output measured, the port is the mode's
-        Bp, Cp = modal.maps
+    if modal is not None or rigid is not None:
+        meas = np.arange(lin.C.shape[0])  # every output measured, the ports the element's
+        Bp, Cp = (modal or rigid).maps
     else:
         _, _, _, _, _, meas = _ports(lin, port_outputs)
     n_p = n_u if modal is None else 1  # ports: the inputs', or the mode's coordinate
+    max_substeps = MAX_SUBSTEPS
+    if rigid is not None:  # a simulation of the rigid bodies alone: cheap, and steep in the
+        # substeps at the small v0 of hard Coulomb friction (RIGID_SUBSTEPS)
+        substeps, max_substeps = max(substeps, RIGID_SUBSTEPS), RIGID_MAX_SUBSTEPS
     y_all = sim.simulate_zoh(lin, u, fs)
     y_lin = y_all[:, meas]
     before = lti.relative_error_time(y, y_lin)
     port = lin.without_delay()  # port forces act directly, not through the input delay
-    if modal is not None:  # ... and enter the mode's velocity row, not through B
-        no_d = np.zeros((lin.C.shape[0], 1))
+    if modal is not None or rigid is not None:  # ... and enter the mode's (the rigid modes')
+        no_d = np.zeros((lin.C.shape[0], n_p))  # velocity rows, not through B
         port = replace(port, B=Bp, D=no_d, input_names=())
     # a square model's outputs are its ports' motion: exactly for the collocated modes and,
     # with non-collocated ones (SquarePorts), up to their share of the displacement (small
@@ -917,7 +1014,8 @@ def fit_port_element(
     elif motion is None:
         motion = y if measured_ports else y_all[:, np.asarray(port_outputs, int)]
     motion = np.asarray(motion, float)
-    v0 = 1e-3 * float(np.sqrt(np.mean(np.gradient(motion, 1.0 / fs, axis=0) ** 2))) or 1e-12
+    v_share = RIGID_VELOCITY if rigid is not None else 1e-3
+    v0 = v_share * float(np.sqrt(np.mean(np.gradient(motion, 1.0 / fs, axis=0) ** 2))) or 1e-12
     log_v_bounds = np.log(v0) + np.log(VELOCITY_RANGE) * np.array([-1.0, 1.0])
     log_g_bounds = None
     if family is not None:
@@ -937,7 +1035,7 @@ def fit_port_element(
             return np.tanh(np.gradient(p, 1.0 / fs, axis=0) / v0)
         return p**3
 
-    def regress(name, common, p):
+    def regress(name, common, p, high_pass=HIGH_PASS):
         """Levels (n_p,) >= 0 of element ``name`` by least squares, the motion ``p`` given;
         friction's on the residual and the regressors high-passed (:data:`HIGH_PASS`; causal,
         both start from rest): its law's errors, not its level, dominate their low frequencies."""
@@ -953,7 +1051,7 @@ def fit_port_element(
         )  # (N, n_meas, n_p)
         r = y - y_lin
         if name == "coulomb_friction":
-            sos = scipy.signal.butter(HIGH_PASS_ORDER, HIGH_PASS * fs, "high", fs=fs, output="sos")
+            sos = scipy.signal.butter(HIGH_PASS_ORDER, high_pass * fs, "high", fs=fs, output="sos")
             X = scipy.signal.sosfilt(sos, X, axis=0)
             r = scipy.signal.sosfilt(sos, r, axis=0)
         X = X.reshape(-1, n_p)
@@ -984,7 +1082,11 @@ def fit_port_element(
             }
         if name == "coulomb_friction":
             v = v0 if v is None else float(v)
-            nl = PortNonlinearity(friction_force=c, friction_velocity=v, substeps=n_sub)
+            own = {}
+            if rigid is not None:  # on the rigid-body motion, not through B
+                own = {"port_forces": Bp, "port_displacements": Cp}
+                gains = {"on": "rigid_modes"}
+            nl = PortNonlinearity(friction_force=c, friction_velocity=v, substeps=n_sub, **own)
             params = {"friction_force": [float(x) for x in c], "friction_velocity": v}
             return nl, params | {"substeps": n_sub} | gains
         if modal is not None:
@@ -1037,7 +1139,7 @@ def fit_port_element(
     def converged_substeps(name, c, n_sub, v=None, g=None):
         """Substeps, from ``n_sub`` up, at which the element's simulation is converged."""
         y_n = simulated(make_element(name, c, n_sub, v)[0], g, output=True)[0]
-        while n_sub < MAX_SUBSTEPS and np.all(np.isfinite(y_n)):
+        while n_sub < max_substeps and np.all(np.isfinite(y_n)):
             y_2n = simulated(make_element(name, c, 2 * n_sub, v)[0], g, output=True)[0]
             if not np.all(np.isfinite(y_2n)):
                 break
@@ -1234,6 +1336,31 @@ def fit_port_element(
         )
         return np.exp(sol.x if sol.fun < errs[i] else grid[i]) * c
 
+    def scale_each(name, c, n_sub, span):
+        """The levels ``c`` each scaled within ``span`` either way, port by port (a bounded
+        1-D search on its log, the others held; RIGID_SWEEPS sweeps over the ports), on the
+        record's first part (:func:`start_n`): the rigid ports' start. A rigid body's
+        regressed level may be off by several-fold (the rotations' small levels, whose
+        regressors the translations' drift swamps) and the error is sharp in each level;
+        a common scale cannot fix the ports' ratios, Gauss-Newton from there stalls."""
+        c = c.copy()
+        for _ in range(RIGID_SWEEPS):
+            for j in np.flatnonzero(c > 0):
+
+                def cost(log_s, j=j):
+                    trial = c.copy()
+                    trial[j] *= np.exp(log_s)
+                    nl = make_element(name, trial, n_sub)[0]
+                    return rms(simulated(nl, None, residual=True, n=start_n(name))[0])
+
+                sol = scipy.optimize.minimize_scalar(
+                    cost, bounds=(-np.log(span), np.log(span)), method="bounded",
+                    options={"xatol": 0.002},
+                )  # fmt: skip
+                if sol.fun < cost(0.0):
+                    c[j] *= np.exp(sol.x)
+        return c
+
     def start_with_gains(name, c, n_sub, g=None):
         """(levels, gains): the gains' grid (from ``g``'s levels if given), the levels' common
         scale at those gains (within LEVEL_SPAN at the regressed levels, LEVEL_STEP^2 after),
@@ -1267,6 +1394,25 @@ def fit_port_element(
             out.append((simulated(nl, g)[0], name, nl, params))
         return out + refine_levels(name, c, n_sub, None, g)
 
+    def rigid_start(name, c):
+        """The rigid bodies' levels from the regression ``c`` (at :data:`HIGH_PASS`) or the
+        regression at RIGID_HIGH_PASS: each scaled by its best common factor
+        (:func:`scale_levels`) and then port by port (:func:`scale_each`), the one whose
+        simulation fits the whole record better kept. The regression of a rigid body's
+        friction is exact in the dynamics (it drives no flexible mode) but its low
+        frequencies carry the drift its law's errors integrate: which corner leaves the better
+        start differs by record (the indepgen stage: 21x vs 1.3x the floor on one record; on
+        another the first part of the record preferred the corner whose whole-record start
+        was 27x where the other's was 5x, and the refinement stalled at 26x from it)."""
+        starts = []
+        for c_hp in (c, regress(name, False, motion, RIGID_HIGH_PASS)):
+            if c_hp.max() > 0:
+                c_hp = scale_levels(name, c_hp, substeps, None, None, LEVEL_SPAN)
+                c_hp = scale_each(name, c_hp, substeps, RIGID_SPAN)
+                nl = make_element(name, c_hp, substeps)[0]
+                starts.append((simulated(nl)[0], c_hp))
+        return min(starts, key=lambda t: t[0])[1] if starts else c
+
     def modal_start():
         """The spring on the mode: its level's scale scanned through the simulation
         (:func:`scale_levels`) within MODAL_SPAN either way of MODAL_CENTER times the mode's
@@ -1283,7 +1429,7 @@ def fit_port_element(
 
     # saturation: the linear response to the clipped input (it needs no port; not a mode's)
     scored = []
-    if modal is None:
+    if modal is None and rigid is None:  # (the rigid ports' saturation is the inputs')
         best_sat, best_err = _fit_saturation_levels(lin, meas, u, y, fs, refine=refine)
         scored.append(
             (
@@ -1298,11 +1444,18 @@ def fit_port_element(
     # more sensitive), so what is reported is what the simulation model reproduces
     best = None  # (error, name, common, levels, port motion, port gains)
     # on a mode's coordinate the spring only: friction acts where parts slide (the ports)
-    for name in ("coulomb_friction", "cubic_stiffness") if modal is None else ("cubic_stiffness",):
+    names = ("coulomb_friction", "cubic_stiffness")
+    names = ("cubic_stiffness",) if modal is not None else names
+    # on the rigid bodies friction only (a spring on a rigid body is a suspension's, linear)
+    names = ("coulomb_friction",) if rigid is not None else names
+    for name in names:
         per_port = None
         # one level per port, or one level for all (one port on a mode: one level)
-        for common in (False, True) if modal is None else (False,):
+        # (friction on the rigid bodies: a level per bearing, each body's own)
+        for common in (False, True) if modal is None and rigid is None else (False,):
             c = regress(name, common, motion) if modal is None else modal_start()
+            if rigid is not None:  # the rigid ports' start
+                c = rigid_start(name, c)
             if not common:
                 per_port = c
             elif family is not None and not c.max() > 0 and per_port.max() > 0:

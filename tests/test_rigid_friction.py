@@ -1,0 +1,115 @@
+"""Coulomb friction on a square model's rigid-body motion (:class:`RigidPorts`).
+
+Oracle: the event-exact Coulomb motion of each rigid body (tests/indepgen.py's
+``_coulomb_step``: stick / slip events in closed form over each held sample) plus the
+flexible mode's exact ZOH response, which the friction does not drive (it acts on the rigid
+bodies' coordinates only). Independent of the substep propagation and of the port kernel.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from indepgen import _coulomb_step
+
+from workbench import sim
+from workbench.core.errors import InputError
+from workbench.diagnosis.nonlinear import (
+    PortNonlinearity,
+    RigidPorts,
+    fit_port_element,
+    simulate_nonlinear,
+)
+from workbench.modal.model import ModalModel, Mode
+
+FS = 1000.0
+N = 600
+#: two rigid bodies in DOF coordinates (collocated: b = c), a flexible mode seen otherwise
+RB = (np.array([0.5, 0.0]), np.array([0.0, 0.8]))
+FLEX_B, FLEX_C = np.array([0.3, 0.2]), np.array([0.1, -0.4])
+FC = np.array([0.6, 0.25])  # friction per port (DOF), in the input's units
+
+
+def _model(rigid=True):
+    modes = [Mode(kind="flexible", freq_hz=40.0, damping=0.02, b=FLEX_B, c=FLEX_C)]
+    if rigid:
+        modes = [Mode(kind="rigid", freq_hz=0.0, damping=0.0, b=b, c=b) for b in RB] + modes
+    return ModalModel(modes=tuple(modes), D=np.zeros((2, 2)))
+
+
+def _input():
+    rng = np.random.default_rng(5)
+    t = np.arange(N) / FS
+    u = np.zeros((N, 2))
+    for f in (3.0, 7.0, 17.0, 41.0):
+        u += np.outer(np.sin(2 * np.pi * f * t + rng.uniform(0, 2 * np.pi)), rng.normal(size=2))
+    return u
+
+
+def _exact(u, Fc):
+    """(N, 2) outputs: each rigid body's event-exact Coulomb motion (modal deceleration
+    ``Fc_j b_j[j]``: the port force through the body's input row, against its velocity) plus
+    the flexible mode's exact ZOH response."""
+    y = sim.simulate_zoh(_model(rigid=False).to_lti(), u, FS)
+    p, v = np.zeros(2), np.zeros(2)
+    F = np.array([Fc[j] * RB[j][j] for j in range(2)])
+    for k in range(N):
+        y[k] += p[0] * RB[0] + p[1] * RB[1]
+        a = np.array([RB[j] @ u[k] for j in range(2)])
+        p, v = _coulomb_step(p, v, a, F, 1.0 / FS)
+    return y
+
+
+def test_rigid_friction_matches_the_event_exact_motion():
+    u = _input()
+    y_ref = _exact(u, FC)
+    rms = np.sqrt(np.mean(y_ref**2))
+    y_free = _exact(u, np.zeros(2))
+    # the friction is a real part of the response (sticking included), far above the error
+    assert np.sqrt(np.mean((y_ref - y_free) ** 2)) > 0.1 * rms
+    port = RigidPorts(_model())
+    Bp, Cp = port.maps
+    vel = np.sqrt(np.mean(np.gradient(y_ref, 1 / FS, axis=0) ** 2))
+    err = {}
+    for n in (16, 64):
+        nl = PortNonlinearity(
+            friction_force=FC,
+            friction_velocity=1e-6 * vel,
+            substeps=n,
+            port_forces=Bp,
+            port_displacements=Cp,
+        )
+        y = simulate_nonlinear(port.lti, u, FS, nl)
+        err[n] = np.sqrt(np.mean((y - y_ref) ** 2)) / rms
+    assert err[64] < 1e-3 and err[64] < err[16], err
+    # through B instead (the ports' friction) drives the flexible mode: a different model
+    nl_b = PortNonlinearity(friction_force=FC, friction_velocity=1e-6 * vel, substeps=64)
+    y_b = simulate_nonlinear(port.lti, u, FS, nl_b)
+    assert np.sqrt(np.mean((y_b - y_ref) ** 2)) / rms > 5 * err[64]
+
+
+def test_the_fit_finds_the_rigid_friction():
+    u = _input()
+    y_ref = _exact(u, FC)
+    rng = np.random.default_rng(0)
+    noise = 1e-3 * np.sqrt(np.mean(y_ref**2))
+    y = y_ref + noise * rng.standard_normal(y_ref.shape)
+    ef = fit_port_element(RigidPorts(_model()), u, y, FS)
+    assert ef.element == "coulomb_friction" and ef.parameters["on"] == "rigid_modes"
+    assert ef.ports == (0, 1)
+    np.testing.assert_allclose(ef.parameters["friction_force"], FC, rtol=0.01)
+    floor = np.sqrt(np.mean((y - y_ref) ** 2)) / np.sqrt(np.mean(y**2))
+    assert ef.error_after < 2 * floor and ef.error_before > 20 * ef.error_after
+
+
+def test_rigid_ports_need_a_rigid_mode_and_a_square_model():
+    with pytest.raises(InputError, match="no rigid mode"):
+        RigidPorts(_model(rigid=False))
+    m = _model()
+    tall = ModalModel(
+        modes=tuple(Mode(kind=md.kind, freq_hz=md.freq_hz, damping=md.damping, b=md.b,
+                         c=np.append(md.c, 1.0)) for md in m.modes),
+        D=np.zeros((3, 2)),
+    )  # fmt: skip
+    with pytest.raises(InputError, match="square"):
+        RigidPorts(tall)
