@@ -565,12 +565,7 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s, domain
             # lightly damped mode's transient misfit counts as noise there), and further
             # rounds would only fit what the linear finding left of the element's signature
             early_tried = True
-            ev = detect.NonlinearityEvidence(
-                level=float(min(cur_err**2, 1.0)),
-                f_stat=float(F_given) if F_given is not None else 0.0,
-                n_lines=0,
-                band_hz=problem.band_hz,
-            )
+            ev = _misfit_evidence(cur_err, F_given, problem.band_hz)
             finding, _ = _nonlinearity_finding(
                 ev, data, error_before, [current, base], cur_err, direct=False, only_given=True
             )
@@ -601,12 +596,7 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s, domain
             early_tried = True
             time_floor = detect.noise_floor(data, problem.predict(current))
             if time_floor is not None and cur_err <= FLOOR_RATIO * time_floor:
-                ev = detect.NonlinearityEvidence(
-                    level=float(min(cur_err**2, 1.0)),
-                    f_stat=float(F_given) if F_given is not None else 0.0,
-                    n_lines=0,
-                    band_hz=problem.band_hz,
-                )
+                ev = _misfit_evidence(cur_err, F_given, problem.band_hz)
                 finding, _ = _nonlinearity_finding(
                     ev,
                     data,
@@ -655,10 +645,7 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s, domain
         # the applied force). It comes first when the only linear finding absorbs a drift (a
         # spring to the world on a rigid body, which is what a force error integrated twice
         # looks like to a linear model), after the linear findings otherwise.
-        level = float(min(cur_err**2, 1.0))
-        nl_ev = detect.NonlinearityEvidence(
-            level=level, f_stat=float(F_end), n_lines=0, band_hz=problem.band_hz
-        )
+        nl_ev = _misfit_evidence(cur_err, F_end, problem.band_hz)
         nl_first_rank = [f.effect for f in found] == ["suspension_stiffness"]
     elif distorted:
         # periodic power where a linear system has none: distortion. It ranks first when it
@@ -671,12 +658,7 @@ def _diagnose(model, data, *, max_effects, n_full_fits, effects, delay_s, domain
         # linear model does not apply (a slightly clipped command: the loop holds the stage,
         # the recorded command's mean is not the applied force's), which only the element's
         # simulation model can show
-        nl_ev = detect.NonlinearityEvidence(
-            level=float(min(cur_err**2, 1.0)),
-            f_stat=float(F_end),
-            n_lines=0,
-            band_hz=problem.band_hz,
-        )
+        nl_ev = _misfit_evidence(cur_err, F_end, problem.band_hz)
         nl_first_rank = [f.effect for f in found] == ["suspension_stiffness"]
     if nl_ev is not None:
         # the element is fitted on the final linear model and on the model as given: what
@@ -1093,6 +1075,18 @@ def _above_band(params: dict, problem) -> bool:
     if f is None or z is None:
         return False
     return f * (1 - min(z, 0.5)) > problem.band_hz[1]
+
+
+def _misfit_evidence(err: float, f_stat: float | None, band_hz) -> detect.NonlinearityEvidence:
+    """Evidence for an element from a misfit no linear effect removed (no distortion lines):
+    its level the error squared (at most 1), ``f_stat`` the period-synchronous misfit (0
+    when unknown)."""
+    return detect.NonlinearityEvidence(
+        level=float(min(err**2, 1.0)),
+        f_stat=float(f_stat) if f_stat is not None else 0.0,
+        n_lines=0,
+        band_hz=band_hz,
+    )
 
 
 def _nonlinearity_finding(
