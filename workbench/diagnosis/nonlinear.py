@@ -416,20 +416,12 @@ class ModalPort:
     def maps(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(Bp (n, 1), Cp (1, n)) in :attr:`lti`'s states: the mode's velocity row, where its
         force enters, and its displacement; None when the mode has no single coordinate."""
-        from workbench.modal.model import _mode_blocks
-
         m = self._ideal
         if m is None:
             return None
-        tau_in = m.tau_in
-        # wrap_outer: the actuator lags' states first (lagged inputs only), then the modes'
-        off = int(np.count_nonzero(tau_in)) if tau_in is not None else 0
-        for mode in m.modes[: self.mode]:
-            off += _mode_blocks(mode, "companion")[0].shape[0]
         A = np.asarray(self.lti.A, float)
         # the ideal companion block [[0, 1], [-w^2, -2 z w]]: displacement off, velocity off + 1
-        if not (A[off, off + 1] == 1.0 and A[off, off] == 0.0):
-            raise AssertionError("ModalPort: the mode's block is not where the realization has it")
+        off = _mode_blocks_at(m, A)[self.mode][0]
         Bp = np.zeros((A.shape[0], 1))
         Bp[off + 1, 0] = 1.0
         Cp = np.zeros((1, A.shape[0]))
@@ -485,25 +477,34 @@ class RigidPorts:
     def maps(self) -> tuple[np.ndarray, np.ndarray]:
         """(Bp (n, n_u), Cp (n_u, n)) in :attr:`lti`'s states: the rigid modes' input rows
         (where a port force enters them) and their output columns (the rigid displacement)."""
-        from workbench.modal.model import _mode_blocks
-
-        tau_in = self.model.tau_in
-        off = int(np.count_nonzero(tau_in)) if tau_in is not None else 0
         A = np.asarray(self.lti.A, float)
         n, n_u = A.shape[0], self.model.n_u
         Bp, Cp = np.zeros((n, n_u)), np.zeros((n_u, n))
-        for mode in self.model.modes:
-            Ab, Bb, Cb = _mode_blocks(mode, "companion")
-            k = Ab.shape[0]
-            if not np.array_equal(A[off : off + k, off : off + k], Ab):
-                raise AssertionError(
-                    "RigidPorts: a mode's block is not where the realization has it"
-                )
+        for mode, (off, (Ab, Bb, Cb)) in zip(self.model.modes, _mode_blocks_at(self.model, A)):
             if mode.kind == "rigid":
+                k = Ab.shape[0]
                 Bp[off : off + k] = Bb
                 Cp[:, off : off + k] = Cb
-            off += k
         return Bp, Cp
+
+
+def _mode_blocks_at(model, A: np.ndarray) -> list[tuple[int, tuple]]:
+    """Each mode's first state in ``model.to_lti()``'s realization (state matrix ``A``) and its
+    companion blocks ``(Ab, Bb, Cb)``: after the actuator lags' states (lagged inputs only,
+    as ``wrap_outer`` puts them), the modes' blocks in order, each checked against ``A``."""
+    from workbench.modal.model import _mode_blocks
+
+    tau_in = model.tau_in
+    off = int(np.count_nonzero(tau_in)) if tau_in is not None else 0
+    out = []
+    for mode in model.modes:
+        blocks = _mode_blocks(mode, "companion")
+        k = blocks[0].shape[0]
+        if not np.array_equal(A[off : off + k, off : off + k], blocks[0]):
+            raise AssertionError("a mode's block is not where the realization has it")
+        out.append((off, blocks))
+        off += k
+    return out
 
 
 #: a spring on a mode's coordinate (:class:`ModalPort`) is scanned over levels within
