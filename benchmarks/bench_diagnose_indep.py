@@ -46,19 +46,46 @@ def _equal_lag(p) -> bool:
     return len(c) == len(p["cutoff_hz"]) and max(c) <= min(c) * (1 + 1e-9)
 
 
+def _resolved_modes(data, modes) -> bool:
+    """Whether a record shows one of the truncated ``modes`` as a resonance: one on the FRF
+    grid; on a sampled record any (below Nyquist as itself, above it as its image)."""
+    freq = getattr(data, "freq", None)
+    if freq is None:
+        return bool(modes)
+    return any(m["freq_hz"] <= float(np.max(freq)) for m in modes)
+
+
 def accepted_effects(case) -> set[str]:
-    """Effects a right top finding may name (equal lags on all channels of a square plant)."""
+    """Effects a right top finding may name.
+
+    Equal lags on all channels of a square plant: either side. The stage's residual
+    compliance drawn as real modes just above the band (1.15-3x): a mode the data resolve
+    (on the FRF grid; in a sampled record below Nyquist, or above it as its image at
+    ``fs - f``, which the diagnosis reports as ``image_freq_hz``) is a resonance of the
+    record, and naming it a missing mode is right too; param_error then checks its
+    frequency (or its image's) against them.
+    """
     ok = set()
     for e in case.answer["effects"]:
         ok.add(e["effect"])
         # one lag on every input equals the same lag on every output (scalar: l G = G l)
         if e["effect"] in LAG and _equal_lag(e["parameters"]):
             ok |= LAG
+        if e["effect"] == "residual_compliance" and _resolved_modes(
+            case.data, e["parameters"].get("modes", [])
+        ):
+            ok.add("missing_mode")
     return ok
 
 
 def param_error(effect, truth_p, found_p):
     """Relative error of the key parameter, or None when not applicable."""
+    if effect == "missing_mode" and "freq_hz" not in truth_p and truth_p.get("modes"):
+        # truncated modes named as a missing one: its frequency, or its image's above
+        # Nyquist, near one of them
+        true = np.array([m["freq_hz"] for m in truth_p["modes"]], float)
+        cands = [found_p.get("freq_hz"), found_p.get("image_freq_hz")]
+        return float(min(np.min(np.abs(f / true - 1)) for f in cands if f is not None))
     if effect not in TOL:
         return None
     key, _ = TOL[effect]

@@ -36,6 +36,7 @@ CI_STAGE = [
     "crosstalk",
 ]
 CI_BEAM = ["missing_mode", "residual_compliance", "sensor_dynamics"]
+CI_STAGE_LAST = ["residual_compliance"]
 #: damping tolerance of the task (relative)
 DAMPING_TOL = 0.30
 
@@ -78,10 +79,18 @@ def _assert_suite(results):
 
 def test_frf_stage_and_beam_clear():
     rng = np.random.default_rng(2024)
-    cases = [
-        make_case(rng, plant="stage", kind="frf", effects=(e,), size="clear") for e in CI_STAGE
-    ]
-    cases += [make_case(rng, plant="beam", kind="frf", effects=(e,), size="clear") for e in CI_BEAM]
+    cases = []
+    # the stage's residual compliance last (added after the others: their draws stay)
+    for plant, effects in (("stage", CI_STAGE), ("beam", CI_BEAM), ("stage", CI_STAGE_LAST)):
+        for e in effects:
+            try:
+                cases.append(make_case(rng, plant=plant, kind="frf", effects=(e,), size="clear"))
+            except RuntimeError:
+                # not visible in this draw (the beam's residual compliance is at most its whole
+                # static part, often within the noise); the draw consumed its random numbers
+                # all the same, so the other cases are those of every earlier run
+                continue
+    assert len(cases) >= len(CI_STAGE) + len(CI_BEAM) + len(CI_STAGE_LAST) - 1
     _assert_suite(_run(cases))
 
 
