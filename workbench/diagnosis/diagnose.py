@@ -331,9 +331,14 @@ def diagnose(
     )
     with limited_blas(blas_threads):
         result = _diagnose(model, data, **kw)
-        if result.remaining is not None and not result.remaining["within_noise"]:
+        if (
+            isinstance(data, FrfData)
+            and result.remaining is not None
+            and not result.remaining["within_noise"]
+        ):
             # the greedy search ended above the noise: a pair of effects it passed over in its
-            # first round (each alone explaining little) may reach it (PAIR_RATIO)
+            # first round (each alone explaining little) may reach it (PAIR_RATIO; FRF data
+            # with G_var: the floor the pair search needs)
             paired = _diagnose(model, data, pair_first=True, **kw)
             if paired is not None and _better(paired, result):
                 result = paired
