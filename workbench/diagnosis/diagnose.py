@@ -62,6 +62,8 @@ from workbench.core.lti import as_matrices, frf, relative_error_frf, relative_er
 from workbench.diagnosis import detect
 from workbench.diagnosis.effects import (
     AliasedMode,
+    MissingMode,
+    UpperResidual,
     _rank_one,
     backfit,
     candidate_structures,
@@ -114,8 +116,9 @@ NL_STATIONARY = (0.5, 1.2)
 #: candidates refitted jointly with the earlier findings each round
 JOINT_CANDIDATES = 3
 #: a diagnosis that ends above the noise (compare's test), whose first round's best effect
-#: left the misfit above this many noise floors (FRF with G_var), is run again with every
-#: pair of effects fitted jointly in that round: greedy selection misses a pair whose
+#: left the misfit above this many noise floors (FRF with G_var; any, on time records: no
+#: floor there), is run again with every pair of effects fitted jointly in that round
+#: (:func:`_pair_chain`): greedy selection misses a pair whose
 #: members alone each explain little of the noise-weighted misfit (an indepgen beam FRF with
 #: a one-sample delay and a missing mode at 28 Hz: alone 37x / 204x the floor, a sensor lag
 #: at 0.2-2 Hz 146x ranked first on the weighted cost; the pair jointly 1.00x)
@@ -331,14 +334,10 @@ def diagnose(
     )
     with limited_blas(blas_threads):
         result = _diagnose(model, data, **kw)
-        if (
-            isinstance(data, FrfData)
-            and result.remaining is not None
-            and not result.remaining["within_noise"]
-        ):
-            # the greedy search ended above the noise: a pair of effects it passed over in its
-            # first round (each alone explaining little) may reach it (PAIR_RATIO; FRF data
-            # with G_var: the floor the pair search needs)
+        if result.remaining is not None and not result.remaining["within_noise"]:
+            # the greedy search ended above the noise (compare's test: FRF with G_var, periodic
+            # records): a pair of effects it passed over in its first round (each alone
+            # explaining little) may reach it
             paired = _diagnose(model, data, pair_first=True, **kw)
             if paired is not None and _better(paired, result):
                 result = paired
@@ -470,7 +469,7 @@ def _diagnose(
         n_fits = (
             n_full_fits
             if n_full_fits is not None
-            else (len(screened) if problem.kind == "frf" else 5)
+            else (len(screened) if problem.kind == "frf" or pair_first else 5)
         )
         results: list[FitResult] = []
         for i, (_, s, starts) in enumerate(screened):
@@ -499,7 +498,7 @@ def _diagnose(
         best = ranked[0]
         pair = None
         if pair_first and round_ == 0:
-            if floor is not None and best.error > PAIR_RATIO * floor:
+            if floor is None or best.error > PAIR_RATIO * floor:
                 pair = _pair_chain(ranked, problem, base, n, cur_err)
             if pair is not None and (
                 best.effect in {f.effect for f in pair[0]}
@@ -681,6 +680,10 @@ def _diagnose(
                     )
                     nl_early = finding
                     break
+    if nl_early is None:
+        chain = (accepted, accepted_bases, found, current, cur_cost, cur_err)
+        chain = _simplified(chain, runners, problem, base, data, cur_err0, floor, notes)
+        accepted, accepted_bases, found, current, cur_cost, cur_err = chain
     found = _merge_compliance(found)
     if nl_early is not None:
         found, current = [nl_early], base
@@ -777,6 +780,128 @@ def _diagnose(
         model=current,
         remaining=remaining,
     )
+
+
+def _simplified(chain, runners, problem, base: ModalModel, data, err0: float, floor, notes):
+    """The search's chain (accepted fits, their bases, findings, model, cost, error) with
+    what the other findings explain dropped (:func:`_pruned`: backward elimination, an
+    early finding absorbed part of an effect found later: an indepgen stage record, a
+    749 Hz mode the truth lacks taken before the modal mismatch and the delay that explain
+    it) and a residual compliance that is the image of a resonance in the band named there
+    (:func:`_in_band_image`). ``runners`` (one per finding) is edited in place; a note per
+    change."""
+    accepted, bases, found, _, cost, err = chain
+    n = problem.n_obs
+    while len(accepted) >= 2:
+        pruned = _pruned(accepted, bases, problem, base, n, cost, err, err0)
+        if pruned is None:
+            break
+        i, fits, fb = pruned
+        notes.append(
+            f"{found[i].effect} (found in round {i + 1}) is dropped: the other findings, "
+            f"refitted without it, reach the error {fits[-1].error:.4g} (was {err:.4g})"
+        )
+        del runners[i]
+        chain = _rebuilt(fits, fb, runners, problem, base, data, err0, floor)
+        accepted, bases, found, _, cost, err = chain
+    swapped = _in_band_image(accepted, problem, base, err, err0)
+    if swapped is not None:
+        i, fits, fb = swapped
+        f_up = float(np.exp(accepted[i].theta[0]))
+        notes.append(
+            f"the residual compliance of round {i + 1} is a pseudo-mode at {f_up:.5g} Hz, above "
+            f"Nyquist: the image of a resonance in the band, named as the missing mode there "
+            f"(error {fits[-1].error:.4g}, was {err:.4g})"
+        )
+        chain = _rebuilt(fits, fb, runners, problem, base, data, err0, floor)
+    return chain
+
+
+def _rebuilt(fits, bases, runners, problem, base: ModalModel, data, err0: float, floor):
+    """A chain of findings from a joint fit's ``fits`` (one per finding) and ``bases``:
+    (accepted, bases, findings, model, cost, error), the added modes backfitted as the
+    search's rounds do."""
+    errs = [err0] + [a.error for a in fits[:-1]]
+    found = [
+        _finding(a, rn, problem, b, data, e, floor)
+        for a, rn, b, e in zip(fits, runners, bases, errs)
+    ]
+    current = fits[-1].model
+    if any(m.effect in ("missing_mode", "upper_residual") for m in current.modes):
+        polished = backfit(current, problem, d0=base.D)
+        if polished is not current:
+            current = polished
+            found = _refresh_added(found, current, base)
+    cost, err = problem.cost(current), problem.error(current)
+    found[-1] = replace(found[-1], model=current, error_after=err)
+    return list(fits), list(bases), found, current, cost, err
+
+
+def _in_band_image(accepted, problem, base: ModalModel, err: float, err0: float):
+    """(i, fits, bases): the chain with its residual compliance ``i`` (an upper residual
+    whose pseudo-mode lies between Nyquist and the sampling frequency) replaced by a
+    missing mode at the pseudo-mode's image in the excited band, refitted jointly, where
+    that reaches the chain's error ``err`` (within :data:`IMAGE_TIE`); else None.
+
+    Sampled, a mode at ``f`` and one at ``fs - f`` (damping scaled by ``f / (fs - f)``)
+    have the same discrete poles (:class:`~workbench.diagnosis.effects.AliasedMode`): the
+    record shows a resonance in the band, and the finding names it there;
+    :func:`_with_image` then reports the image above Nyquist beside it.
+    """
+    fs = getattr(problem.data, "fs", None)
+    if fs is None:
+        return None
+    for i, a in enumerate(accepted):
+        if not isinstance(a.structure, UpperResidual):
+            continue
+        f, z = (float(x) for x in np.exp(a.theta))
+        f_img = fs - f
+        if not (0.5 * fs < f < fs and problem.band_hz[0] < f_img < problem.band_hz[1]):
+            continue
+        z_img = min(z * f / f_img, 0.5)
+        parts = [MissingMode() if k == i else b.structure for k, b in enumerate(accepted)]
+        thetas = [np.log([f_img, z_img]) if k == i else b.theta for k, b in enumerate(accepted)]
+        try:
+            fits, fb = fit_joint(parts, thetas, problem, base)
+        except NUMERICAL_FAILURES:
+            continue
+        errs = [err0] + [x.error for x in fits]
+        if fits[-1].error <= IMAGE_TIE * err and all(b < a for a, b in zip(errs, errs[1:])):
+            return i, fits, fb
+    return None
+
+
+def _pruned(accepted, bases, problem, base: ModalModel, n: int, cost: float, err: float, err0):
+    """(i, fits, bases): the chain without its finding i, refitted jointly, where that
+    earns it: the lower BIC than the whole chain (``cost``, each finding's own parameters),
+    or an error (the spec's measure) no higher than the chain's ``err``; the lowest BIC of
+    such. None when every finding earns its parameters. A chain whose error does not fall
+    at each step (from ``err0``) is not a candidate.
+
+    The error test stands beside BIC for closed-loop records: fitting the measured input's
+    response (output error) there, a flexible term can lower the cost below the true
+    model's by following the noise the controller feeds into the input (an indepgen stage
+    record: a 749 Hz mode the truth lacks halves the lines' cost of the true model, and
+    raises the record's error from 1.0007x to 1.027x the noise floor).
+    """
+    k = sum(a.theta.size + a.structure.n_linear(b) for a, b in zip(accepted, bases))
+    bic_all = _bic(cost, n, k)
+    out, out_bic = None, np.inf
+    for i in range(len(accepted)):
+        rest = accepted[:i] + accepted[i + 1 :]
+        try:
+            fits, fb = fit_joint(
+                [a.structure for a in rest], [a.theta for a in rest], problem, base
+            )
+        except NUMERICAL_FAILURES:
+            continue
+        errs = [err0] + [f.error for f in fits]
+        if not all(b < a for a, b in zip(errs, errs[1:])):
+            continue
+        bic = _bic(fits[-1].cost, n, fits[-1].n_params)
+        if (bic < bic_all or fits[-1].error <= err) and bic < out_bic:
+            out, out_bic = (i, fits, fb), bic
+    return out
 
 
 def _pair_chain(ranked, problem, base: ModalModel, n: int, err0: float):
