@@ -58,6 +58,7 @@ import functools
 from dataclasses import dataclass, field
 from typing import Any
 
+import numba
 import numpy as np
 import scipy.linalg
 import scipy.optimize
@@ -539,6 +540,108 @@ def simulate_nonlinear(
     return _simulate(sys, u, fs, nl, delay_s, port_outputs)[0]
 
 
+#: a port map is a free double integrator's (:func:`_coulomb_ports`) within this share of its size
+COULOMB_TOL = 1e-9
+
+
+def _coulomb_ports(A, B, Bp, Cp):
+    """The element's own ports as free, decoupled double integrators, for the event-exact hard
+    Coulomb law (``friction_velocity`` 0): ``(acc (n_p, n_u), w (n_p,), out (n_r, 2 n_p), r
+    (n,) bool)`` or None when they are not.
+
+    The ports' states ``r`` (those ``Bp`` drives or ``Cp`` reads) must be closed under ``A``
+    (nothing else drives them, they drive nothing else: the friction moves no other state) and
+    nilpotent (``A_rr^2 = 0``: free rigid bodies, no spring, no damping), with ``x_r`` one to
+    one with the ports' displacements and velocities ``(p, v) = (Cp x, Cp A x)`` (``out`` maps
+    them back, ``x_r = out (p, v)``). Then ``p' = v`` and ``v' = acc u + w f``: each port's
+    acceleration is its input's ``acc u`` plus its own force's ``w_j f_j`` only (``Cp A Bp``
+    diagonal, > 0; ``Cp B`` and ``Cp Bp`` zero, the forces act on the accelerations). A
+    stage's rigid bodies in DOF coordinates (:class:`RigidPorts`) are; lagged inputs or a
+    suspension are not."""
+    A, B, Bp, Cp = (np.asarray(M, float) for M in (A, B, Bp, Cp))
+    r = np.any(Bp != 0, axis=1) | np.any(Cp != 0, axis=0)
+    n_p = Cp.shape[0]
+    if int(r.sum()) != 2 * n_p:
+        return None
+    size = max(np.abs(A).max(), 1e-300)
+    Arr = A[np.ix_(r, r)]
+    if np.abs(A[np.ix_(r, ~r)]).max(initial=0.0) > COULOMB_TOL * size:
+        return None
+    if np.abs(A[np.ix_(~r, r)]).max(initial=0.0) > COULOMB_TOL * size:
+        return None
+    if np.abs(Arr @ Arr).max() > COULOMB_TOL * size**2:
+        return None
+    CpA = Cp @ A
+    T = np.vstack([Cp[:, r], CpA[:, r]])
+    if np.linalg.cond(T) > 1e10:
+        return None
+    W = CpA @ Bp
+    w = np.diag(W).copy()
+    scale = max(np.abs(W).max(), 1e-300)
+    if np.any(w <= 0) or np.abs(W - np.diag(w)).max() > COULOMB_TOL * scale:
+        return None
+    lead = max(np.abs(Cp).max() * max(np.abs(B).max(), np.abs(Bp).max()), 1e-300)
+    if max(np.abs(Cp @ B).max(), np.abs(Cp @ Bp).max()) > COULOMB_TOL * lead:
+        return None
+    return CpA @ B, w, np.linalg.inv(T), r
+
+
+@numba.njit(cache=True)
+def _coulomb_record(acc, wF, dt, P, V):  # pragma: no cover - compiled
+    """Event-exact hard Coulomb motion of free unit-mass ports from rest: ``p' = v``, ``v' =
+    acc[k] - wF sign(v)`` over sample k (acc held), sticking at ``v = 0`` while ``|acc| <= wF``
+    (static = sliding level). Writes each sample's start state into ``P``, ``V`` (N, n_p)."""
+    N, n_p = acc.shape
+    for j in range(n_p):
+        p, v, f = 0.0, 0.0, wF[j]
+        for k in range(N):
+            P[k, j] = p
+            V[k, j] = v
+            a = acc[k, j]
+            t = dt
+            while t > 0.0:  # at most two phases: slide to a stop, then stick or slide on
+                if v == 0.0:
+                    if abs(a) <= f:
+                        break  # stuck for the rest of the sample
+                    g = a - f if a > 0 else a + f
+                    p += 0.5 * g * t * t
+                    v = g * t
+                    break
+                g = a - f if v > 0 else a + f
+                if g * v >= 0.0 or -v / g >= t:  # no stop within the sample
+                    p += v * t + 0.5 * g * t * t
+                    v += g * t
+                    break
+                ts = -v / g
+                p += 0.5 * v * ts  # (v ts + g ts^2 / 2, g ts = -v)
+                v = 0.0
+                t -= ts
+
+
+def _simulate_coulomb(A, B, C, D, Bp, Cp, ud, fs, friction_force):
+    """(y, p) of the hard Coulomb law on ports :func:`_coulomb_ports` accepts, from rest: the
+    ports' event-exact motion (:func:`_coulomb_record`) plus the other states' linear ZOH
+    response, which the friction does not move. ``ud`` (N, n_u): the delayed, held input."""
+    ports = _coulomb_ports(A, B, Bp, Cp)
+    if ports is None:
+        raise InputError(
+            "nonlinear simulation: a hard Coulomb law (friction_velocity 0) needs ports that "
+            "are free, decoupled double integrators (RigidPorts of free rigid bodies)"
+        )
+    acc_map, w, out, r = ports
+    N, n_p = ud.shape[0], Cp.shape[0]
+    acc = np.ascontiguousarray(ud @ acc_map.T)
+    wF = np.ascontiguousarray(w * np.broadcast_to(np.asarray(friction_force, float), (n_p,)))
+    P, V = np.empty((N, n_p)), np.empty((N, n_p))
+    _coulomb_record(acc, wF, 1.0 / fs, P, V)
+    C_rest = np.array(C, float)
+    C_rest[:, r] = 0.0  # the ports' states: their exact motion below
+    Ad, B0, _, _ = sim.c2d_zoh(A, B, 1.0 / fs)
+    y = sim.dlsim(Ad, B0, C_rest, D, ud)
+    y += np.hstack([P, V]) @ (np.asarray(C, float)[:, r] @ out).T
+    return y, P
+
+
 def _simulate(sys, u, fs, nl, delay_s=0.0, port_outputs=None, sens=None):
     """(y, p): :func:`simulate_nonlinear`'s measured outputs and the port displacements; with
     ``sens`` (:class:`workbench.sim.PortSensitivity`, its port velocity map's derivative
@@ -562,8 +665,6 @@ def _simulate(sys, u, fs, nl, delay_s=0.0, port_outputs=None, sens=None):
                 f"port_displacements (n_p, {A.shape[0]}), got {Bp.shape} and {Cp.shape}"
             )
     delay_s = float(delay_s) + float(getattr(sys, "delay_s", 0.0))  # the model's delay travels
-    # the held input with a whole-sample delay, the port forces directly
-    prop = sim.substep_zoh(A, B, Bp, 1.0 / fs, nl.substeps)
     m = int(round(delay_s * fs))
     u = np.asarray(u, float)
     n_u = u.shape[1]
@@ -571,6 +672,15 @@ def _simulate(sys, u, fs, nl, delay_s=0.0, port_outputs=None, sens=None):
     if nl.saturation is not None:
         sat = np.broadcast_to(np.asarray(nl.saturation, float), (n_u,))
         ud = np.clip(ud, -sat, sat)
+    if nl.friction_velocity == 0:  # hard Coulomb: event-exact, no substeps
+        if nl.port_forces is None or sens is not None or np.any(nl.cubic_stiffness or 0.0):
+            raise InputError(
+                "nonlinear simulation: a hard Coulomb law (friction_velocity 0) acts on its "
+                "own ports (port_forces), alone, without sensitivities"
+            )
+        return _simulate_coulomb(A, B, C, D, Bp, Cp, ud, fs, nl.friction_force)
+    # the held input with a whole-sample delay, the port forces directly
+    prop = sim.substep_zoh(A, B, Bp, 1.0 / fs, nl.substeps)
     law = sim.PortLaw(
         Cv=Cp @ A,  # the port velocity (a displacement output has no feedthrough of force)
         Cp=Cp,
@@ -994,7 +1104,13 @@ def fit_port_element(
         _, _, _, _, _, meas = _ports(lin, port_outputs)
     n_p = n_u if modal is None else 1  # ports: the inputs', or the mode's coordinate
     max_substeps = MAX_SUBSTEPS
-    if rigid is not None:  # a simulation of the rigid bodies alone: cheap, and steep in the
+    # friction on free rigid bodies: the hard Coulomb law, its stick-slip events exact (no
+    # substeps, :func:`_coulomb_record`); the smooth law needed 256 substeps at its v0 to come
+    # within 1.06x the noise of an indepgen stage record (the generator's law is the hard one)
+    hard = rigid is not None and _coulomb_ports(*lti.as_matrices(lin)[:2], Bp, Cp) is not None
+    if hard:
+        substeps = max_substeps = 1
+    elif rigid is not None:  # a simulation of the rigid bodies alone: cheap, and steep in the
         # substeps at the small v0 of hard Coulomb friction (RIGID_SUBSTEPS)
         substeps, max_substeps = max(substeps, RIGID_SUBSTEPS), RIGID_MAX_SUBSTEPS
     y_all = sim.simulate_zoh(lin, u, fs)
@@ -1082,7 +1198,7 @@ def fit_port_element(
                 "port_gain_freq_hz": family.freq_hz(),
             }
         if name == "coulomb_friction":
-            v = v0 if v is None else float(v)
+            v = (0.0 if hard else v0) if v is None else float(v)
             own = {}
             if rigid is not None:  # on the rigid-body motion, not through B
                 own = {"port_forces": Bp, "port_displacements": Cp}
@@ -1139,6 +1255,8 @@ def fit_port_element(
 
     def converged_substeps(name, c, n_sub, v=None, g=None):
         """Substeps, from ``n_sub`` up, at which the element's simulation is converged."""
+        if hard and name == "coulomb_friction":
+            return n_sub  # event-exact: no substeps to converge
         y_n = simulated(make_element(name, c, n_sub, v)[0], g, output=True)[0]
         while n_sub < max_substeps and np.all(np.isfinite(y_n)):
             y_2n = simulated(make_element(name, c, 2 * n_sub, v)[0], g, output=True)[0]
@@ -1166,14 +1284,15 @@ def fit_port_element(
         active = np.flatnonzero(c > 0)
         friction = name == "coulomb_friction"
         n_lvl = active.size
-        n_v = int(friction)
+        smooth = friction and not hard  # the hard law has no v0 and no sensitivities
+        n_v = int(smooth)
         fit_g = g is not None and free_gains
         out = []
 
         def unpack(theta):
             levels = np.zeros(n_p)
             levels[active] = np.exp(theta[:n_lvl])
-            vel = float(np.exp(theta[n_lvl])) if friction else None
+            vel = float(np.exp(theta[n_lvl])) if smooth else None
             gains = np.exp(theta[n_lvl + n_v :]) if fit_g else g
             return levels, vel, gains
 
@@ -1187,7 +1306,7 @@ def fit_port_element(
             the simulation computes alongside (the derivative of the simulation as computed),
             at about 2-3 simulations' cost for the stage's 9 parameters where finite
             differences take 10; the spring's None (finite differences below)."""
-            if not friction:
+            if not smooth:
                 return resid(theta, n), None
             levels, vel, gains = unpack(theta)
             n_th = theta.size
@@ -1224,7 +1343,7 @@ def fit_port_element(
 
         theta = np.log(c[active])
         lo, hi = np.full(n_lvl, -np.inf), np.full(n_lvl, np.inf)
-        if friction:
+        if smooth:
             theta = np.append(theta, np.log(v0 if v is None else v))
             lo, hi = np.append(lo, log_v_bounds[0]), np.append(hi, log_v_bounds[1])
         if fit_g:
@@ -1245,7 +1364,7 @@ def fit_port_element(
         # is cut back to nothing (on an indepgen stage record with hard Coulomb friction it
         # asked for 100x in a port gain and stalled at 32x the floor, where differences over
         # h reach 4x)
-        exact = friction
+        exact = smooth
         for frac in horizons:
             n = max(int(frac * u.shape[0]), 2)
             r0, J = resid_jac(theta, n) if exact else (resid(theta, n), None)
@@ -1278,7 +1397,7 @@ def fit_port_element(
                         if J is None:
                             return out
                         step, whole = gauss_newton_step(J, r0)
-                if friction and not exact and whole:
+                if smooth and not exact and whole:
                     exact = True  # near the optimum (a whole step): the exact slope next
                 if not accepted:
                     for shrink in (1.0, 0.5):
