@@ -1413,6 +1413,8 @@ def _fit_element(
         if saturation_only or data.period is None:
             return False
         _, sys, port_outputs, _, _ = h
+        if isinstance(sys, RigidPorts):  # its own ports (the element carries them)
+            sys = sys.lti
         if isinstance(sys, SquarePorts):  # the model with the fitted port gains
             g = ef.parameters.get("port_gains")
             port_outputs = sys.port_outputs
@@ -1425,20 +1427,25 @@ def _fit_element(
         """The element's fit on linear model ``i``: (ElementFit, hypothesis); the port
         elements' best, or the modal spring's (the rigid-body friction's) when it leaves the
         lower error."""
+        rigid = rigid_ports(linear[i]) if RIGID_FRICTION else None
+        ef_r = None
+        if rigid is not None:
+            # friction on the rigid bodies' motion (at their bearings, driving no flexible
+            # mode) beside the ports' (through the actuators); fitted first, whole: on free
+            # rigid bodies its simulation is event-exact and cheap (a few seconds; the ports'
+            # fit, through the flexible modes at up to MAX_SUBSTEPS, 10-30 s), and when it
+            # leaves only the noise the ports' elements could only fit the noise
+            h_r = (i, rigid, None, None, None)
+            ef_r = fit_port_element(rigid, data.u, data.y, data.fs)
+            if at_floor(ef_r, h_r):
+                floor_reached.add(i)
+                return ef_r, h_r
         ef, h = fit_on_ports(i)
+        if ef_r is not None and ef_r.error_after < ef.error_after:
+            return ef_r, h_r
         if at_floor(ef, h):
             floor_reached.add(i)
             return ef, h
-        rigid = rigid_ports(linear[i])
-        if rigid is not None and RIGID_FRICTION:
-            # friction on the rigid bodies' motion (at their bearings, driving no flexible
-            # mode) beside the ports' (through the actuators): its start cheaply, refined
-            # only when that start already leaves the lower error
-            ef_r = fit_port_element(rigid, data.u, data.y, data.fs, refine=False)
-            if ef_r.error_after < ef.error_after:
-                ef_r = fit_port_element(rigid, data.u, data.y, data.fs)
-                if ef_r.error_after < ef.error_after:
-                    return ef_r, (i, rigid, None, None, None)
         modal = modal_ports(linear[i])
         if not modal:
             return ef, h
