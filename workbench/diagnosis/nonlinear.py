@@ -779,6 +779,16 @@ RIGID_VELOCITY = 1e-4
 RIGID_HIGH_PASS = 1e-3
 #: ... its levels started port by port within RIGID_SPAN either way, in RIGID_SWEEPS sweeps
 RIGID_SPAN, RIGID_SWEEPS = 4.0, 1
+#: ... and a rigid port the regression left without friction (its level < 0, or adding less
+#: than 5 % of the largest port's share) started at the best level, if it fits better than
+#: none, of a grid of ratio MODAL_STEP within RIGID_REVIVE_SPAN either way of the other ports'
+#: level per unit of drive (the rms force the input applies at the port; their median): the
+#: regression of a small level is unreliable in sign as well as size (an indepgen stage
+#: record, friction subtle: a rotation's level regressed at -2.4x its truth at one high-pass
+#: corner, another rotation's at -1.1x at the other), and a port dropped there was dropped for
+#: good (the level fit 3.7x the floor without it, 1.00x from any level of it within 40x of the
+#: truth)
+RIGID_REVIVE_SPAN = 100.0
 #: rounds of (converge the substeps, refit the levels there)
 CONVERGE_ROUNDS = 3
 #: friction's Gauss-Newton uses the exact Jacobian while a step lowers the squared error by at
@@ -1134,6 +1144,14 @@ def fit_port_element(
     v_share = RIGID_VELOCITY if rigid is not None else 1e-3
     v0 = v_share * float(np.sqrt(np.mean(np.gradient(motion, 1.0 / fs, axis=0) ** 2))) or 1e-12
     log_v_bounds = np.log(v0) + np.log(VELOCITY_RANGE) * np.array([-1.0, 1.0])
+    drive = None
+    if rigid is not None:  # the rms force the input applies at each rigid port (its units):
+        # the port's acceleration from the input over its acceleration per unit port force
+        A_l, B_l = lti.as_matrices(lin)[:2]
+        mobility = np.diag(Cp @ A_l @ Bp)
+        acc = u @ (Cp @ A_l @ B_l).T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            drive = np.where(mobility > 0, np.sqrt(np.mean(acc**2, axis=0)) / mobility, 0.0)
     log_g_bounds = None
     if family is not None:
         log_g_bounds = np.log(family.unit)[None, :] + np.log(GAIN_RANGE)[:, None]  # (2, n_g)
@@ -1514,6 +1532,39 @@ def fit_port_element(
             out.append((simulated(nl, g)[0], name, nl, params))
         return out + refine_levels(name, c, n_sub, None, g)
 
+    def revive(name, c):
+        """The levels ``c`` with each rigid port that has none (and a drive) started at the
+        level (RIGID_REVIVE_SPAN, a grid, then a bounded 1-D search between its neighbours)
+        whose simulation fits the whole record best, the others held, if that fits better than
+        none (on the whole record: a port's friction may show only in the drift it leaves
+        later, and the simulation of free rigid bodies is cheap)."""
+        c = c.copy()
+        on = (c > 0) & (drive > 0)
+        if not on.any():
+            return c
+        ratio = float(np.median(c[on] / drive[on]))
+        for j in np.flatnonzero((c <= 0) & (drive > 0)):
+
+            def cost(log_level, j=j):
+                trial = c.copy()
+                trial[j] = np.exp(log_level)
+                return simulated(make_element(name, trial, substeps)[0])[0]
+
+            none = simulated(make_element(name, c, substeps)[0])[0]
+            step = np.log(MODAL_STEP)
+            span = np.log(RIGID_REVIVE_SPAN)
+            grid = np.log(ratio * drive[j]) + np.arange(-span, span + 0.5 * step, step)
+            errs = [cost(x) for x in grid]
+            i = int(np.argmin(errs))
+            if not errs[i] < none:
+                continue
+            lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
+            sol = scipy.optimize.minimize_scalar(
+                cost, bounds=(lo, hi), method="bounded", options={"xatol": 0.005}
+            )
+            c[j] = np.exp(sol.x if sol.fun < errs[i] else grid[i])
+        return c
+
     def rigid_start(name, c):
         """The rigid bodies' levels from the regression ``c`` (at :data:`HIGH_PASS`) or the
         regression at RIGID_HIGH_PASS: each scaled by its best common factor
@@ -1528,6 +1579,7 @@ def fit_port_element(
         for c_hp in (c, regress(name, False, motion, RIGID_HIGH_PASS)):
             if c_hp.max() > 0:
                 c_hp = scale_levels(name, c_hp, substeps, None, None, LEVEL_SPAN)
+                c_hp = revive(name, c_hp)
                 c_hp = scale_each(name, c_hp, substeps, RIGID_SPAN)
                 nl = make_element(name, c_hp, substeps)[0]
                 starts.append((simulated(nl)[0], c_hp))
@@ -1615,6 +1667,10 @@ def fit_port_element(
         # its fixed point is close to, not at, the simulation model's best levels
         if refine:
             scored += refine_levels(name, c)
+    if best is not None and hard and refine:
+        # the rigid bodies' levels through their event-exact simulation (no substeps to
+        # converge below, where the smooth law's levels were refitted at each finer count)
+        scored += refine_levels(best[1], best[3])
     if best is not None and family is not None and refine:
         # the port gains are fitted with the levels (the regression has no gains: its motion
         # is the measured one), on the converged simulation
