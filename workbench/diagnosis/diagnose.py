@@ -1311,12 +1311,12 @@ def _fit_element(
 
     On a square model with rigid modes, friction on the rigid bodies' motion
     (:class:`~workbench.diagnosis.nonlinear.RigidPorts`: at their bearings, driving no
-    flexible mode) is a hypothesis beside the ports' elements (:data:`RIGID_FRICTION`): its
-    start fitted cheaply, refined when that start already leaves a lower error than the
-    ports' best, and it is the element when it leaves the lower error. Its pair is None.
-    Not tried when the ports' element already leaves at most FLOOR_RATIO times the noise
-    floor (a periodic record's, white: :func:`~workbench.diagnosis.detect.noise_floor`, the
-    lower estimate): nothing is left for it to explain.
+    flexible mode) is a hypothesis beside the ports' elements (:data:`RIGID_FRICTION`),
+    fitted first (on free rigid bodies its simulation is event-exact and takes milliseconds),
+    and it is the element when it leaves the lower error. Its pair is None. When it leaves at
+    most FLOOR_RATIO times the noise floor (a periodic record's, white:
+    :func:`~workbench.diagnosis.detect.noise_floor`, the lower estimate), the ports' elements
+    are not fitted: nothing is left for them to explain.
 
     ``mode_hz``: only the spring on the flexible mode of this frequency (Hz, within 1e-6
     relative) of each linear model, refined; None when no model has it.
@@ -1406,9 +1406,10 @@ def _fit_element(
     def at_floor(ef, h) -> bool:
         """Whether the port element ``ef`` leaves only the record's noise (periodic records:
         within FLOOR_RATIO of the floor from the periods, taken as white noise too): a spring
-        on a mode or the rigid-body friction could then only fit the noise, and their scans
-        (about 1 s a mode, 15-40 s the rigid bodies) are not run; nor, on the model as given,
-        the element on the other linear models.
+        on a mode could then only fit the noise, and its scans (about 1 s a mode) are not
+        run; nor, on the model as given, the element on the other linear models. The
+        rigid-body friction's (:class:`RigidPorts`, fitted first) likewise: the ports'
+        elements (10-30 s on a stage) are then not fitted.
         """
         if saturation_only or data.period is None:
             return False

@@ -45,7 +45,11 @@ Friction may act on a square model's rigid-body motion instead of at its inputs 
 bearing's friction on a stage's rigid bodies, which drives no flexible mode, where a force
 at the inputs drives them through B): :class:`RigidPorts` gives those ports (the rigid
 modes' rows of B and columns of C, one port per input), and :func:`fit_port_element` fits
-friction there; the diagnosis lets the record choose between the two.
+friction there; the diagnosis lets the record choose between the two. On free rigid bodies
+(decoupled double integrators, :func:`_coulomb_ports`) that friction is the hard Coulomb law
+(``friction_velocity`` 0), simulated event by event: each port's stops, holds and reversals
+in closed form over each held sample (:func:`_coulomb_record`), the other states' linear ZOH
+response beside it; no substeps, exact.
 
 A saturation of the inputs needs no port: the applied force ``clip(u_j, -l_j, l_j)`` does
 not depend on the motion, so any linear model driven by the clipped recorded input is its
@@ -94,7 +98,11 @@ class PortNonlinearity:
     friction_force : (n_u,) array
         Coulomb friction level per port, N (N m for torques); 0 = none.
     friction_velocity : float
-        Velocity scale v0 of the smooth Coulomb law, m/s.
+        Velocity scale v0 of the smooth Coulomb law, m/s. 0: the hard law, ``-F_c sign(v)``
+        sticking while the other forces stay within ``F_c``, simulated event-exact (no
+        substeps); only on the element's own ports, when they are free, decoupled double
+        integrators (:func:`_coulomb_ports`: :class:`RigidPorts` of free rigid bodies), and
+        alone (no cubic spring).
     cubic_stiffness : (n_u,) array
         Hardening spring k3 per port, N/m^3; 0 = none.
     saturation : (n_u,) array
@@ -768,12 +776,15 @@ VELOCITY_ITERATIONS = 6
 CONVERGED = 0.25
 #: ... up to this many substeps per sample
 MAX_SUBSTEPS = 64
-#: friction on the rigid-body motion (:class:`RigidPorts`) is fitted at this many substeps and
-#: converged up to RIGID_MAX_SUBSTEPS (an indepgen stage record at its true levels, v0 1e-8
-#: m/s: 6.5 / 2.5 / 1.06x the noise at 16 / 64 / 256 substeps; 0.7 s a simulation at 256)
+#: friction on the rigid-body motion (:class:`RigidPorts`) of bodies that are not free (the hard
+#: law's event-exact simulation needs free ones, :func:`_coulomb_ports`) is the smooth law,
+#: fitted at this many substeps and converged up to RIGID_MAX_SUBSTEPS (an indepgen stage
+#: record at its true levels, v0 1e-8 m/s: 6.5 / 2.5 / 1.06x the noise at 16 / 64 / 256
+#: substeps; 0.7 s a simulation at 256, where the event-exact one takes 3 ms)
 RIGID_SUBSTEPS, RIGID_MAX_SUBSTEPS = 32, 256
 #: ... its v0 estimated as this share of the rms port velocity (1e-3 at the inputs' ports): a
-#: bearing's Coulomb friction is hard, and the rigid bodies' simulation resolves it
+#: bearing's Coulomb friction is hard, and the rigid bodies' simulation resolves it (the
+#: regression's law, free bodies' too)
 RIGID_VELOCITY = 1e-4
 #: ... its levels regressed at this high-pass corner too (a fraction of fs; :data:`HIGH_PASS`)
 RIGID_HIGH_PASS = 1e-3
@@ -1048,7 +1059,11 @@ def fit_port_element(
         its frequency); ``ports`` of the result is empty (no input is the port). A
         :class:`RigidPorts`: friction on the rigid bodies' motion only (one level per input,
         ``parameters["on"] == "rigid_modes"``), started from the regression at two high-pass
-        corners scaled port by port, simulated at RIGID_SUBSTEPS .. RIGID_MAX_SUBSTEPS.
+        corners scaled port by port (a port the regression left without friction started
+        from the others' level per unit of drive, RIGID_REVIVE_SPAN); on free rigid bodies
+        the hard law, simulated event-exact (``friction_velocity`` 0, ``substeps`` 1) and
+        refined by Gauss-Newton through that simulation, else the smooth law at
+        RIGID_SUBSTEPS .. RIGID_MAX_SUBSTEPS.
     u, y : (N, n_u), (N, n_y) arrays
         Recorded input and output.
     fs : float
@@ -1298,7 +1313,8 @@ def fit_port_element(
         biased; ``free_gains=False`` holds them). Steps leaving the bounds are cut back to
         them (projected). Friction's on the record's growing first parts
         (:data:`FRICTION_HORIZONS`), each from the shorter one's; the candidates are those
-        of the whole record."""
+        of the whole record. The hard law (free rigid bodies) has no v0 and no sensitivities:
+        its levels only, by forward differences."""
         active = np.flatnonzero(c > 0)
         friction = name == "coulomb_friction"
         n_lvl = active.size
