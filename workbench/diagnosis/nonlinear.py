@@ -1059,9 +1059,9 @@ def fit_port_element(
         its frequency); ``ports`` of the result is empty (no input is the port). A
         :class:`RigidPorts`: friction on the rigid bodies' motion only (one level per input,
         ``parameters["on"] == "rigid_modes"``), started from the regression at two high-pass
-        corners scaled port by port (a port the regression left without friction started
-        from the others' level per unit of drive, RIGID_REVIVE_SPAN); on free rigid bodies
-        the hard law, simulated event-exact (``friction_velocity`` 0, ``substeps`` 1) and
+        corners scaled port by port; on free rigid bodies (a port the regression left without
+        friction started from the others' level per unit of drive, RIGID_REVIVE_SPAN) the hard
+        law, simulated event-exact (``friction_velocity`` 0, ``substeps`` 1) and
         refined by Gauss-Newton through that simulation, else the smooth law at
         RIGID_SUBSTEPS .. RIGID_MAX_SUBSTEPS.
     u, y : (N, n_u), (N, n_y) arrays
@@ -1595,7 +1595,8 @@ def fit_port_element(
         for c_hp in (c, regress(name, False, motion, RIGID_HIGH_PASS)):
             if c_hp.max() > 0:
                 c_hp = scale_levels(name, c_hp, substeps, None, None, LEVEL_SPAN)
-                c_hp = revive(name, c_hp)
+                if hard:  # (whole-record simulations: cheap event-exact ones only)
+                    c_hp = revive(name, c_hp)
                 c_hp = scale_each(name, c_hp, substeps, RIGID_SPAN)
                 nl = make_element(name, c_hp, substeps)[0]
                 starts.append((simulated(nl)[0], c_hp))
