@@ -60,6 +60,16 @@ Since (session 29, branch s29-modal-friction) the diagnosis also tries friction 
 bodies' motion (nonlinear.RigidPorts: the rigid modes' rows of B, columns of C), fitted at
 32 .. 256 substeps from a per-port level start: seeds 1 / 2 / 3 clear 1.03 / 1.04 / 1.01x the
 floor (levels within 0.1-0.5 %), the record choosing it over the ports' friction by error.
+
+Session 30: on free rigid bodies that friction is the hard law, simulated event-exact
+(nonlinear._coulomb_record, the generator's model: 1e-15 from its _coulomb_step), 3 ms a
+10k-sample record where the smooth law needed 256 substeps (0.7 s) to come within 1.06x;
+fitted first, and the ports' elements are skipped when it reaches the floor. Seeds 1-3
+(``--effects nonlinearity``) clear and subtle: 1.00x the floor each, 0.8-1.6 s of CPU for the
+whole diagnosis (were 19-154 s). Seed 2 with ``--plants stage``, subtle: 1.00x (was
+cubic_stiffness 3.02x: the regression left two rotations' levels below zero and a port
+dropped there stayed dropped; it is now started from the other ports' level per unit of
+drive).
 """
 
 from __future__ import annotations

@@ -219,6 +219,32 @@ def test_time_draws_reach_the_floor(name):
     assert ratio <= 1.1, ratio
 
 
+def test_subtle_stage_friction_on_every_rigid_body():
+    # indepgen seed 2 with ``--kinds time --plants stage``: Coulomb friction on the six rigid
+    # bodies, subtle (visibility 7.9). The regression of the levels put two rotations' below
+    # zero (one at each high-pass corner) and the level fit kept a dropped port at none, so
+    # friction could not reach the floor and a cubic spring at the ports was named at 3.02x.
+    # The generator's friction acts on every body: all six ports carry it, at the floor
+    rng = np.random.default_rng()
+    rng.bit_generator.state = {
+        "bit_generator": "PCG64",
+        "state": {"state": 206115282099456626102579666522903090780, "inc": _INC2},
+        "has_uint32": 1,
+        "uinteger": 936373982,
+    }
+    case = make_case(rng, plant="stage", kind="time", effects=("nonlinearity",), size="subtle")
+    floor = case.answer["noise_floor_error"]
+    assert floor == pytest.approx(0.008297236237371155, rel=1e-9)
+    assert case.answer["effects"][0]["parameters"]["type"] == "friction"
+    res = diagnose(case.nominal, case.data)
+    f = res.findings[0]
+    assert f.effect == "nonlinearity", [g.effect for g in res.findings]
+    assert f.parameters["element"] == "coulomb_friction", f.parameters.get("element_errors")
+    assert f.parameters["on"] == "rigid_modes"
+    assert f.parameters["ports"] == [0, 1, 2, 3, 4, 5]
+    assert f.error_after <= 1.1 * floor, f.error_after / floor
+
+
 #: indepgen beam records with a cubic spring on a mode's coordinate (a modal Duffing: the
 #: generator's spring on its first flexible mode of 30 Hz or more) that were named
 #: modal_mismatch: the generator's PCG64 state before each case as in _DRAWS (seed 0 with

@@ -88,6 +88,48 @@ def test_rigid_friction_matches_the_event_exact_motion():
     assert np.sqrt(np.mean((y_b - y_ref) ** 2)) / rms > 5 * err[64]
 
 
+def test_the_hard_law_is_the_event_exact_motion():
+    # friction_velocity 0: the hard Coulomb law, simulated event by event (no substeps); the
+    # same motion as the oracle's to rounding, sticking included
+    u = _input()
+    port = RigidPorts(_model())
+    Bp, Cp = port.maps
+    for Fc in (np.zeros(2), FC, 4 * FC):
+        y_ref = _exact(u, Fc)
+        nl = PortNonlinearity(
+            friction_force=Fc, friction_velocity=0.0, substeps=1, port_forces=Bp,
+            port_displacements=Cp,
+        )  # fmt: skip
+        y = simulate_nonlinear(port.lti, u, FS, nl)
+        assert np.max(np.abs(y - y_ref)) < 1e-12 * np.max(np.abs(y_ref))
+    # a whole-sample delay of the input delays the forces the input applies, not the friction
+    m = 3
+    y_d = simulate_nonlinear(port.lti, u, FS, nl, delay_s=m / FS)
+    u_d = np.vstack([np.zeros((m, 2)), u[:-m]])
+    y_ref = _exact(u_d, 4 * FC)
+    assert np.max(np.abs(y_d - y_ref)) < 1e-12 * np.max(np.abs(y_ref))
+
+
+def test_the_hard_law_needs_free_rigid_bodies():
+    # a rigid body on a spring (a suspension) is no free double integrator: refused
+    m = _model()
+    sprung = ModalModel(
+        modes=(Mode(kind="flexible", freq_hz=2.0, damping=0.0, b=RB[0], c=RB[0]),) + m.modes[1:],
+        D=np.zeros((2, 2)),
+    )
+    lti = sprung.to_lti()
+    A = np.asarray(lti.A)
+    Bp = np.zeros((A.shape[0], 2))
+    Bp[:2] = np.asarray(lti.B)[:2]
+    Cp = np.zeros((2, A.shape[0]))
+    Cp[:, :2] = np.asarray(lti.C)[:, :2]
+    nl = PortNonlinearity(
+        friction_force=FC, friction_velocity=0.0, port_forces=Bp, port_displacements=Cp
+    )
+    with pytest.raises(InputError, match="double integrators"):
+        simulate_nonlinear(lti, _input(), FS, nl)
+
+
 def test_the_fit_finds_the_rigid_friction():
     u = _input()
     y_ref = _exact(u, FC)

@@ -1535,12 +1535,12 @@ def _fit_element(
 
     On a square model with rigid modes, friction on the rigid bodies' motion
     (:class:`~workbench.diagnosis.nonlinear.RigidPorts`: at their bearings, driving no
-    flexible mode) is a hypothesis beside the ports' elements (:data:`RIGID_FRICTION`): its
-    start fitted cheaply, refined when that start already leaves a lower error than the
-    ports' best, and it is the element when it leaves the lower error. Its pair is None.
-    Not tried when the ports' element already leaves at most FLOOR_RATIO times the noise
-    floor (a periodic record's, white: :func:`~workbench.diagnosis.detect.noise_floor`, the
-    lower estimate): nothing is left for it to explain.
+    flexible mode) is a hypothesis beside the ports' elements (:data:`RIGID_FRICTION`),
+    fitted first (on free rigid bodies its simulation is event-exact and takes milliseconds),
+    and it is the element when it leaves the lower error. Its pair is None. When it leaves at
+    most FLOOR_RATIO times the noise floor (a periodic record's, white:
+    :func:`~workbench.diagnosis.detect.noise_floor`, the lower estimate), the ports' elements
+    are not fitted: nothing is left for them to explain.
 
     ``mode_hz``: only the spring on the flexible mode of this frequency (Hz, within 1e-6
     relative) of each linear model, refined; None when no model has it.
@@ -1630,13 +1630,16 @@ def _fit_element(
     def at_floor(ef, h) -> bool:
         """Whether the port element ``ef`` leaves only the record's noise (periodic records:
         within FLOOR_RATIO of the floor from the periods, taken as white noise too): a spring
-        on a mode or the rigid-body friction could then only fit the noise, and their scans
-        (about 1 s a mode, 15-40 s the rigid bodies) are not run; nor, on the model as given,
-        the element on the other linear models.
+        on a mode could then only fit the noise, and its scans (about 1 s a mode) are not
+        run; nor, on the model as given, the element on the other linear models. The
+        rigid-body friction's (:class:`RigidPorts`, fitted first) likewise: the ports'
+        elements (10-30 s on a stage) are then not fitted.
         """
         if saturation_only or data.period is None:
             return False
         _, sys, port_outputs, _, _ = h
+        if isinstance(sys, RigidPorts):  # its own ports (the element carries them)
+            sys = sys.lti
         if isinstance(sys, SquarePorts):  # the model with the fitted port gains
             g = ef.parameters.get("port_gains")
             port_outputs = sys.port_outputs
@@ -1649,20 +1652,25 @@ def _fit_element(
         """The element's fit on linear model ``i``: (ElementFit, hypothesis); the port
         elements' best, or the modal spring's (the rigid-body friction's) when it leaves the
         lower error."""
+        rigid = rigid_ports(linear[i]) if RIGID_FRICTION else None
+        ef_r = None
+        if rigid is not None:
+            # friction on the rigid bodies' motion (at their bearings, driving no flexible
+            # mode) beside the ports' (through the actuators); fitted first, whole: on free
+            # rigid bodies its simulation is event-exact and cheap (a few seconds; the ports'
+            # fit, through the flexible modes at up to MAX_SUBSTEPS, 10-30 s), and when it
+            # leaves only the noise the ports' elements could only fit the noise
+            h_r = (i, rigid, None, None, None)
+            ef_r = fit_port_element(rigid, data.u, data.y, data.fs)
+            if at_floor(ef_r, h_r):
+                floor_reached.add(i)
+                return ef_r, h_r
         ef, h = fit_on_ports(i)
+        if ef_r is not None and ef_r.error_after < ef.error_after:
+            return ef_r, h_r
         if at_floor(ef, h):
             floor_reached.add(i)
             return ef, h
-        rigid = rigid_ports(linear[i])
-        if rigid is not None and RIGID_FRICTION:
-            # friction on the rigid bodies' motion (at their bearings, driving no flexible
-            # mode) beside the ports' (through the actuators): its start cheaply, refined
-            # only when that start already leaves the lower error
-            ef_r = fit_port_element(rigid, data.u, data.y, data.fs, refine=False)
-            if ef_r.error_after < ef.error_after:
-                ef_r = fit_port_element(rigid, data.u, data.y, data.fs)
-                if ef_r.error_after < ef.error_after:
-                    return ef_r, (i, rigid, None, None, None)
         modal = modal_ports(linear[i])
         if not modal:
             return ef, h

@@ -45,7 +45,11 @@ Friction may act on a square model's rigid-body motion instead of at its inputs 
 bearing's friction on a stage's rigid bodies, which drives no flexible mode, where a force
 at the inputs drives them through B): :class:`RigidPorts` gives those ports (the rigid
 modes' rows of B and columns of C, one port per input), and :func:`fit_port_element` fits
-friction there; the diagnosis lets the record choose between the two.
+friction there; the diagnosis lets the record choose between the two. On free rigid bodies
+(decoupled double integrators, :func:`_coulomb_ports`) that friction is the hard Coulomb law
+(``friction_velocity`` 0), simulated event by event: each port's stops, holds and reversals
+in closed form over each held sample (:func:`_coulomb_record`), the other states' linear ZOH
+response beside it; no substeps, exact.
 
 A saturation of the inputs needs no port: the applied force ``clip(u_j, -l_j, l_j)`` does
 not depend on the motion, so any linear model driven by the clipped recorded input is its
@@ -58,6 +62,7 @@ import functools
 from dataclasses import dataclass, field
 from typing import Any
 
+import numba
 import numpy as np
 import scipy.linalg
 import scipy.optimize
@@ -93,7 +98,11 @@ class PortNonlinearity:
     friction_force : (n_u,) array
         Coulomb friction level per port, N (N m for torques); 0 = none.
     friction_velocity : float
-        Velocity scale v0 of the smooth Coulomb law, m/s.
+        Velocity scale v0 of the smooth Coulomb law, m/s. 0: the hard law, ``-F_c sign(v)``
+        sticking while the other forces stay within ``F_c``, simulated event-exact (no
+        substeps); only on the element's own ports, when they are free, decoupled double
+        integrators (:func:`_coulomb_ports`: :class:`RigidPorts` of free rigid bodies), and
+        alone (no cubic spring).
     cubic_stiffness : (n_u,) array
         Hardening spring k3 per port, N/m^3; 0 = none.
     saturation : (n_u,) array
@@ -539,6 +548,108 @@ def simulate_nonlinear(
     return _simulate(sys, u, fs, nl, delay_s, port_outputs)[0]
 
 
+#: a port map is a free double integrator's (:func:`_coulomb_ports`) within this share of its size
+COULOMB_TOL = 1e-9
+
+
+def _coulomb_ports(A, B, Bp, Cp):
+    """The element's own ports as free, decoupled double integrators, for the event-exact hard
+    Coulomb law (``friction_velocity`` 0): ``(acc (n_p, n_u), w (n_p,), out (n_r, 2 n_p), r
+    (n,) bool)`` or None when they are not.
+
+    The ports' states ``r`` (those ``Bp`` drives or ``Cp`` reads) must be closed under ``A``
+    (nothing else drives them, they drive nothing else: the friction moves no other state) and
+    nilpotent (``A_rr^2 = 0``: free rigid bodies, no spring, no damping), with ``x_r`` one to
+    one with the ports' displacements and velocities ``(p, v) = (Cp x, Cp A x)`` (``out`` maps
+    them back, ``x_r = out (p, v)``). Then ``p' = v`` and ``v' = acc u + w f``: each port's
+    acceleration is its input's ``acc u`` plus its own force's ``w_j f_j`` only (``Cp A Bp``
+    diagonal, > 0; ``Cp B`` and ``Cp Bp`` zero, the forces act on the accelerations). A
+    stage's rigid bodies in DOF coordinates (:class:`RigidPorts`) are; lagged inputs or a
+    suspension are not."""
+    A, B, Bp, Cp = (np.asarray(M, float) for M in (A, B, Bp, Cp))
+    r = np.any(Bp != 0, axis=1) | np.any(Cp != 0, axis=0)
+    n_p = Cp.shape[0]
+    if int(r.sum()) != 2 * n_p:
+        return None
+    size = max(np.abs(A).max(), 1e-300)
+    Arr = A[np.ix_(r, r)]
+    if np.abs(A[np.ix_(r, ~r)]).max(initial=0.0) > COULOMB_TOL * size:
+        return None
+    if np.abs(A[np.ix_(~r, r)]).max(initial=0.0) > COULOMB_TOL * size:
+        return None
+    if np.abs(Arr @ Arr).max() > COULOMB_TOL * size**2:
+        return None
+    CpA = Cp @ A
+    T = np.vstack([Cp[:, r], CpA[:, r]])
+    if np.linalg.cond(T) > 1e10:
+        return None
+    W = CpA @ Bp
+    w = np.diag(W).copy()
+    scale = max(np.abs(W).max(), 1e-300)
+    if np.any(w <= 0) or np.abs(W - np.diag(w)).max() > COULOMB_TOL * scale:
+        return None
+    lead = max(np.abs(Cp).max() * max(np.abs(B).max(), np.abs(Bp).max()), 1e-300)
+    if max(np.abs(Cp @ B).max(), np.abs(Cp @ Bp).max()) > COULOMB_TOL * lead:
+        return None
+    return CpA @ B, w, np.linalg.inv(T), r
+
+
+@numba.njit(cache=True)
+def _coulomb_record(acc, wF, dt, P, V):  # pragma: no cover - compiled
+    """Event-exact hard Coulomb motion of free unit-mass ports from rest: ``p' = v``, ``v' =
+    acc[k] - wF sign(v)`` over sample k (acc held), sticking at ``v = 0`` while ``|acc| <= wF``
+    (static = sliding level). Writes each sample's start state into ``P``, ``V`` (N, n_p)."""
+    N, n_p = acc.shape
+    for j in range(n_p):
+        p, v, f = 0.0, 0.0, wF[j]
+        for k in range(N):
+            P[k, j] = p
+            V[k, j] = v
+            a = acc[k, j]
+            t = dt
+            while t > 0.0:  # at most two phases: slide to a stop, then stick or slide on
+                if v == 0.0:
+                    if abs(a) <= f:
+                        break  # stuck for the rest of the sample
+                    g = a - f if a > 0 else a + f
+                    p += 0.5 * g * t * t
+                    v = g * t
+                    break
+                g = a - f if v > 0 else a + f
+                if g * v >= 0.0 or -v / g >= t:  # no stop within the sample
+                    p += v * t + 0.5 * g * t * t
+                    v += g * t
+                    break
+                ts = -v / g
+                p += 0.5 * v * ts  # (v ts + g ts^2 / 2, g ts = -v)
+                v = 0.0
+                t -= ts
+
+
+def _simulate_coulomb(A, B, C, D, Bp, Cp, ud, fs, friction_force):
+    """(y, p) of the hard Coulomb law on ports :func:`_coulomb_ports` accepts, from rest: the
+    ports' event-exact motion (:func:`_coulomb_record`) plus the other states' linear ZOH
+    response, which the friction does not move. ``ud`` (N, n_u): the delayed, held input."""
+    ports = _coulomb_ports(A, B, Bp, Cp)
+    if ports is None:
+        raise InputError(
+            "nonlinear simulation: a hard Coulomb law (friction_velocity 0) needs ports that "
+            "are free, decoupled double integrators (RigidPorts of free rigid bodies)"
+        )
+    acc_map, w, out, r = ports
+    N, n_p = ud.shape[0], Cp.shape[0]
+    acc = np.ascontiguousarray(ud @ acc_map.T)
+    wF = np.ascontiguousarray(w * np.broadcast_to(np.asarray(friction_force, float), (n_p,)))
+    P, V = np.empty((N, n_p)), np.empty((N, n_p))
+    _coulomb_record(acc, wF, 1.0 / fs, P, V)
+    C_rest = np.array(C, float)
+    C_rest[:, r] = 0.0  # the ports' states: their exact motion below
+    Ad, B0, _, _ = sim.c2d_zoh(A, B, 1.0 / fs)
+    y = sim.dlsim(Ad, B0, C_rest, D, ud)
+    y += np.hstack([P, V]) @ (np.asarray(C, float)[:, r] @ out).T
+    return y, P
+
+
 def _simulate(sys, u, fs, nl, delay_s=0.0, port_outputs=None, sens=None):
     """(y, p): :func:`simulate_nonlinear`'s measured outputs and the port displacements; with
     ``sens`` (:class:`workbench.sim.PortSensitivity`, its port velocity map's derivative
@@ -562,8 +673,6 @@ def _simulate(sys, u, fs, nl, delay_s=0.0, port_outputs=None, sens=None):
                 f"port_displacements (n_p, {A.shape[0]}), got {Bp.shape} and {Cp.shape}"
             )
     delay_s = float(delay_s) + float(getattr(sys, "delay_s", 0.0))  # the model's delay travels
-    # the held input with a whole-sample delay, the port forces directly
-    prop = sim.substep_zoh(A, B, Bp, 1.0 / fs, nl.substeps)
     m = int(round(delay_s * fs))
     u = np.asarray(u, float)
     n_u = u.shape[1]
@@ -571,6 +680,15 @@ def _simulate(sys, u, fs, nl, delay_s=0.0, port_outputs=None, sens=None):
     if nl.saturation is not None:
         sat = np.broadcast_to(np.asarray(nl.saturation, float), (n_u,))
         ud = np.clip(ud, -sat, sat)
+    if nl.friction_velocity == 0:  # hard Coulomb: event-exact, no substeps
+        if nl.port_forces is None or sens is not None or np.any(nl.cubic_stiffness or 0.0):
+            raise InputError(
+                "nonlinear simulation: a hard Coulomb law (friction_velocity 0) acts on its "
+                "own ports (port_forces), alone, without sensitivities"
+            )
+        return _simulate_coulomb(A, B, C, D, Bp, Cp, ud, fs, nl.friction_force)
+    # the held input with a whole-sample delay, the port forces directly
+    prop = sim.substep_zoh(A, B, Bp, 1.0 / fs, nl.substeps)
     law = sim.PortLaw(
         Cv=Cp @ A,  # the port velocity (a displacement output has no feedthrough of force)
         Cp=Cp,
@@ -658,17 +776,30 @@ VELOCITY_ITERATIONS = 6
 CONVERGED = 0.25
 #: ... up to this many substeps per sample
 MAX_SUBSTEPS = 64
-#: friction on the rigid-body motion (:class:`RigidPorts`) is fitted at this many substeps and
-#: converged up to RIGID_MAX_SUBSTEPS (an indepgen stage record at its true levels, v0 1e-8
-#: m/s: 6.5 / 2.5 / 1.06x the noise at 16 / 64 / 256 substeps; 0.7 s a simulation at 256)
+#: friction on the rigid-body motion (:class:`RigidPorts`) of bodies that are not free (the hard
+#: law's event-exact simulation needs free ones, :func:`_coulomb_ports`) is the smooth law,
+#: fitted at this many substeps and converged up to RIGID_MAX_SUBSTEPS (an indepgen stage
+#: record at its true levels, v0 1e-8 m/s: 6.5 / 2.5 / 1.06x the noise at 16 / 64 / 256
+#: substeps; 0.7 s a simulation at 256, where the event-exact one takes 3 ms)
 RIGID_SUBSTEPS, RIGID_MAX_SUBSTEPS = 32, 256
 #: ... its v0 estimated as this share of the rms port velocity (1e-3 at the inputs' ports): a
-#: bearing's Coulomb friction is hard, and the rigid bodies' simulation resolves it
+#: bearing's Coulomb friction is hard, and the rigid bodies' simulation resolves it (the
+#: regression's law, free bodies' too)
 RIGID_VELOCITY = 1e-4
 #: ... its levels regressed at this high-pass corner too (a fraction of fs; :data:`HIGH_PASS`)
 RIGID_HIGH_PASS = 1e-3
 #: ... its levels started port by port within RIGID_SPAN either way, in RIGID_SWEEPS sweeps
 RIGID_SPAN, RIGID_SWEEPS = 4.0, 1
+#: ... and a rigid port the regression left without friction (its level < 0, or adding less
+#: than 5 % of the largest port's share) started at the best level, if it fits better than
+#: none, of a grid of ratio MODAL_STEP within RIGID_REVIVE_SPAN either way of the other ports'
+#: level per unit of drive (the rms force the input applies at the port; their median): the
+#: regression of a small level is unreliable in sign as well as size (an indepgen stage
+#: record, friction subtle: a rotation's level regressed at -2.4x its truth at one high-pass
+#: corner, another rotation's at -1.1x at the other), and a port dropped there was dropped for
+#: good (the level fit 3.7x the floor without it, 1.00x from any level of it within 40x of the
+#: truth)
+RIGID_REVIVE_SPAN = 100.0
 #: rounds of (converge the substeps, refit the levels there)
 CONVERGE_ROUNDS = 3
 #: friction's Gauss-Newton uses the exact Jacobian while a step lowers the squared error by at
@@ -928,7 +1059,11 @@ def fit_port_element(
         its frequency); ``ports`` of the result is empty (no input is the port). A
         :class:`RigidPorts`: friction on the rigid bodies' motion only (one level per input,
         ``parameters["on"] == "rigid_modes"``), started from the regression at two high-pass
-        corners scaled port by port, simulated at RIGID_SUBSTEPS .. RIGID_MAX_SUBSTEPS.
+        corners scaled port by port; on free rigid bodies (a port the regression left without
+        friction started from the others' level per unit of drive, RIGID_REVIVE_SPAN) the hard
+        law, simulated event-exact (``friction_velocity`` 0, ``substeps`` 1) and
+        refined by Gauss-Newton through that simulation, else the smooth law at
+        RIGID_SUBSTEPS .. RIGID_MAX_SUBSTEPS.
     u, y : (N, n_u), (N, n_y) arrays
         Recorded input and output.
     fs : float
@@ -994,7 +1129,13 @@ def fit_port_element(
         _, _, _, _, _, meas = _ports(lin, port_outputs)
     n_p = n_u if modal is None else 1  # ports: the inputs', or the mode's coordinate
     max_substeps = MAX_SUBSTEPS
-    if rigid is not None:  # a simulation of the rigid bodies alone: cheap, and steep in the
+    # friction on free rigid bodies: the hard Coulomb law, its stick-slip events exact (no
+    # substeps, :func:`_coulomb_record`); the smooth law needed 256 substeps at its v0 to come
+    # within 1.06x the noise of an indepgen stage record (the generator's law is the hard one)
+    hard = rigid is not None and _coulomb_ports(*lti.as_matrices(lin)[:2], Bp, Cp) is not None
+    if hard:
+        substeps = max_substeps = 1
+    elif rigid is not None:  # a simulation of the rigid bodies alone: cheap, and steep in the
         # substeps at the small v0 of hard Coulomb friction (RIGID_SUBSTEPS)
         substeps, max_substeps = max(substeps, RIGID_SUBSTEPS), RIGID_MAX_SUBSTEPS
     y_all = sim.simulate_zoh(lin, u, fs)
@@ -1018,6 +1159,14 @@ def fit_port_element(
     v_share = RIGID_VELOCITY if rigid is not None else 1e-3
     v0 = v_share * float(np.sqrt(np.mean(np.gradient(motion, 1.0 / fs, axis=0) ** 2))) or 1e-12
     log_v_bounds = np.log(v0) + np.log(VELOCITY_RANGE) * np.array([-1.0, 1.0])
+    drive = None
+    if rigid is not None:  # the rms force the input applies at each rigid port (its units):
+        # the port's acceleration from the input over its acceleration per unit port force
+        A_l, B_l = lti.as_matrices(lin)[:2]
+        mobility = np.diag(Cp @ A_l @ Bp)
+        acc = u @ (Cp @ A_l @ B_l).T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            drive = np.where(mobility > 0, np.sqrt(np.mean(acc**2, axis=0)) / mobility, 0.0)
     log_g_bounds = None
     if family is not None:
         log_g_bounds = np.log(family.unit)[None, :] + np.log(GAIN_RANGE)[:, None]  # (2, n_g)
@@ -1082,7 +1231,7 @@ def fit_port_element(
                 "port_gain_freq_hz": family.freq_hz(),
             }
         if name == "coulomb_friction":
-            v = v0 if v is None else float(v)
+            v = (0.0 if hard else v0) if v is None else float(v)
             own = {}
             if rigid is not None:  # on the rigid-body motion, not through B
                 own = {"port_forces": Bp, "port_displacements": Cp}
@@ -1139,6 +1288,8 @@ def fit_port_element(
 
     def converged_substeps(name, c, n_sub, v=None, g=None):
         """Substeps, from ``n_sub`` up, at which the element's simulation is converged."""
+        if hard and name == "coulomb_friction":
+            return n_sub  # event-exact: no substeps to converge
         y_n = simulated(make_element(name, c, n_sub, v)[0], g, output=True)[0]
         while n_sub < max_substeps and np.all(np.isfinite(y_n)):
             y_2n = simulated(make_element(name, c, 2 * n_sub, v)[0], g, output=True)[0]
@@ -1162,18 +1313,20 @@ def fit_port_element(
         biased; ``free_gains=False`` holds them). Steps leaving the bounds are cut back to
         them (projected). Friction's on the record's growing first parts
         (:data:`FRICTION_HORIZONS`), each from the shorter one's; the candidates are those
-        of the whole record."""
+        of the whole record. The hard law (free rigid bodies) has no v0 and no sensitivities:
+        its levels only, by forward differences."""
         active = np.flatnonzero(c > 0)
         friction = name == "coulomb_friction"
         n_lvl = active.size
-        n_v = int(friction)
+        smooth = friction and not hard  # the hard law has no v0 and no sensitivities
+        n_v = int(smooth)
         fit_g = g is not None and free_gains
         out = []
 
         def unpack(theta):
             levels = np.zeros(n_p)
             levels[active] = np.exp(theta[:n_lvl])
-            vel = float(np.exp(theta[n_lvl])) if friction else None
+            vel = float(np.exp(theta[n_lvl])) if smooth else None
             gains = np.exp(theta[n_lvl + n_v :]) if fit_g else g
             return levels, vel, gains
 
@@ -1187,7 +1340,7 @@ def fit_port_element(
             the simulation computes alongside (the derivative of the simulation as computed),
             at about 2-3 simulations' cost for the stage's 9 parameters where finite
             differences take 10; the spring's None (finite differences below)."""
-            if not friction:
+            if not smooth:
                 return resid(theta, n), None
             levels, vel, gains = unpack(theta)
             n_th = theta.size
@@ -1224,7 +1377,7 @@ def fit_port_element(
 
         theta = np.log(c[active])
         lo, hi = np.full(n_lvl, -np.inf), np.full(n_lvl, np.inf)
-        if friction:
+        if smooth:
             theta = np.append(theta, np.log(v0 if v is None else v))
             lo, hi = np.append(lo, log_v_bounds[0]), np.append(hi, log_v_bounds[1])
         if fit_g:
@@ -1245,7 +1398,7 @@ def fit_port_element(
         # is cut back to nothing (on an indepgen stage record with hard Coulomb friction it
         # asked for 100x in a port gain and stalled at 32x the floor, where differences over
         # h reach 4x)
-        exact = friction
+        exact = smooth
         for frac in horizons:
             n = max(int(frac * u.shape[0]), 2)
             r0, J = resid_jac(theta, n) if exact else (resid(theta, n), None)
@@ -1278,7 +1431,7 @@ def fit_port_element(
                         if J is None:
                             return out
                         step, whole = gauss_newton_step(J, r0)
-                if friction and not exact and whole:
+                if smooth and not exact and whole:
                     exact = True  # near the optimum (a whole step): the exact slope next
                 if not accepted:
                     for shrink in (1.0, 0.5):
@@ -1395,6 +1548,39 @@ def fit_port_element(
             out.append((simulated(nl, g)[0], name, nl, params))
         return out + refine_levels(name, c, n_sub, None, g)
 
+    def revive(name, c):
+        """The levels ``c`` with each rigid port that has none (and a drive) started at the
+        level (RIGID_REVIVE_SPAN, a grid, then a bounded 1-D search between its neighbours)
+        whose simulation fits the whole record best, the others held, if that fits better than
+        none (on the whole record: a port's friction may show only in the drift it leaves
+        later, and the simulation of free rigid bodies is cheap)."""
+        c = c.copy()
+        on = (c > 0) & (drive > 0)
+        if not on.any():
+            return c
+        ratio = float(np.median(c[on] / drive[on]))
+        for j in np.flatnonzero((c <= 0) & (drive > 0)):
+
+            def cost(log_level, j=j):
+                trial = c.copy()
+                trial[j] = np.exp(log_level)
+                return simulated(make_element(name, trial, substeps)[0])[0]
+
+            none = simulated(make_element(name, c, substeps)[0])[0]
+            step = np.log(MODAL_STEP)
+            span = np.log(RIGID_REVIVE_SPAN)
+            grid = np.log(ratio * drive[j]) + np.arange(-span, span + 0.5 * step, step)
+            errs = [cost(x) for x in grid]
+            i = int(np.argmin(errs))
+            if not errs[i] < none:
+                continue
+            lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
+            sol = scipy.optimize.minimize_scalar(
+                cost, bounds=(lo, hi), method="bounded", options={"xatol": 0.005}
+            )
+            c[j] = np.exp(sol.x if sol.fun < errs[i] else grid[i])
+        return c
+
     def rigid_start(name, c):
         """The rigid bodies' levels from the regression ``c`` (at :data:`HIGH_PASS`) or the
         regression at RIGID_HIGH_PASS: each scaled by its best common factor
@@ -1409,6 +1595,8 @@ def fit_port_element(
         for c_hp in (c, regress(name, False, motion, RIGID_HIGH_PASS)):
             if c_hp.max() > 0:
                 c_hp = scale_levels(name, c_hp, substeps, None, None, LEVEL_SPAN)
+                if hard:  # (whole-record simulations: cheap event-exact ones only)
+                    c_hp = revive(name, c_hp)
                 c_hp = scale_each(name, c_hp, substeps, RIGID_SPAN)
                 nl = make_element(name, c_hp, substeps)[0]
                 starts.append((simulated(nl)[0], c_hp))
@@ -1496,6 +1684,10 @@ def fit_port_element(
         # its fixed point is close to, not at, the simulation model's best levels
         if refine:
             scored += refine_levels(name, c)
+    if best is not None and hard and refine:
+        # the rigid bodies' levels through their event-exact simulation (no substeps to
+        # converge below, where the smooth law's levels were refitted at each finer count)
+        scored += refine_levels(best[1], best[3])
     if best is not None and family is not None and refine:
         # the port gains are fitted with the levels (the regression has no gains: its motion
         # is the measured one), on the converged simulation
