@@ -1294,7 +1294,8 @@ def _with_image(finding: Finding, model: ModalModel, problem) -> Finding:
     note = (
         f" Sampled at {fs:g} Hz, this resonance cannot be told from its image: a mode at "
         f"{f_fit:.5g} Hz above Nyquist (damping {z_fit:.3g}) fits the record as well (error "
-        f"{fr.error:.4g}). If the structure has no mode near {mode.freq_hz:.4g} Hz, it is a "
+        f"{fr.error:.4g}), as would one near any k fs +- {mode.freq_hz:.4g} Hz (the same "
+        f"sampled poles). If the structure has no mode near {mode.freq_hz:.4g} Hz, it is a "
         "truncated mode above Nyquist (residual compliance with its dynamics); a record "
         "sampled faster tells them apart."
     )
