@@ -19,7 +19,7 @@ structure works on both kinds of data.
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -34,14 +34,17 @@ from workbench.modal.simulate import (
     mixed_lines,
     mode_line_responses,
 )
+from workbench.sim import split_delay
 
 __all__ = [
     "FrfProblem",
     "LineTerms",
     "PeriodicProblem",
+    "RecordBlock",
     "TimeProblem",
     "make_problem",
     "moving_start",
+    "record_block",
 ]
 
 
@@ -995,7 +998,7 @@ class PeriodicProblem(_FilteredProblem):
     #: the record's data, its costs on the lines (FrfProblem's domain; ``kind`` stays "time")
     domain = "frequency"
 
-    def __init__(self, data: TimeData, rec):
+    def __init__(self, data: TimeData, rec=None):
         self.data = data
         self.fs = data.fs
         self.time = TimeProblem(data)
@@ -1003,6 +1006,11 @@ class PeriodicProblem(_FilteredProblem):
         self.transient = self.time.transient
         self.has_var = False
         self.noise_floor = None
+        #: the whole record is the one block (``rec`` None): nothing settles, every pole and
+        #: the delay line leak (:meth:`_start_basis`), and residual_peaks is the time domain's
+        self.whole = rec is None
+        if rec is None:
+            rec = record_block(data)
         # samples every kept period lies after its block's start: a free response that falls
         # below SETTLED of its start value within them leaks nothing the noise would not hide
         self.settle = int(rec.period * rec.n_dropped.min())
@@ -1025,7 +1033,7 @@ class PeriodicProblem(_FilteredProblem):
         self._basis_cache: dict = {}
         self._anchors: list = []  # (channels, items, parts, sum), see _parts_sum
         self._residual_last = None  # (model, its weighted residual), see _regress
-        self._basis_key: dict = {}
+        self._basis_key: dict = {}  # the model's poles and channels -> (delay terms, poles)
         self._last_new: tuple | None = None  # the last key whose basis was not kept
         self._responses: dict = {}  # filter -> its responses at z (filtered_lines' cache)
         self._products: dict = {}  # T_in -> numerator -> inputs mixed by it (mixed_lines')
@@ -1051,21 +1059,17 @@ class PeriodicProblem(_FilteredProblem):
         return np.concatenate([Y.real, Y.imag])
 
     def _start_basis(self, model: ModalModel) -> np.ndarray:
-        """Orthonormal basis (2 n_l, r) of the transient terms of the model's poles, per block."""
-        modes = tuple((m.kind, m.freq_hz, m.damping) for m in model.modes)
-        key = self._basis_key.get(modes)
-        if key is None:
-            poles = [
-                p
-                for m in model.modes
-                for p in _sampled_poles(m, self.fs)
-                if abs(p) ** self.settle > SETTLED
-            ]
-            # keyed by the unsettled poles only: a fit moving a fast mode reuses the basis
-            key = tuple(np.round(poles, 15))
-            if len(self._basis_key) > 2000:
-                self._basis_key.clear()
-            self._basis_key[modes] = key
+        """Orthonormal basis (2 n_l, r) of the transient terms of the model's poles, per block.
+
+        The poles are the modes' and the channels' lags' (first-order, real: the filters'
+        denominators are a mode's times its channel's lags) where they have not settled
+        (:data:`SETTLED` over :attr:`settle` samples), and, on the whole record
+        (:attr:`settle` 0), the delay line's: its ``ceil(delay fs)`` held inputs from
+        before the record and at its end leak the polynomial ``1, z^-1, .., z^-(m-1)``
+        (a pole of order m at z = 0). A kept period of a periodic record starts with the
+        delay line holding the previous period's inputs, the same as at its end: nothing.
+        """
+        key = self._transient_key(model)
         Q = self._basis_cache.get(key)
         if Q is None:
             Q = self._basis_near(key)
@@ -1074,16 +1078,44 @@ class PeriodicProblem(_FilteredProblem):
             self._keep_basis(key, Q)
         return Q
 
+    def _transient_key(self, model: ModalModel) -> tuple:
+        """What :meth:`_start_basis` spans for ``model``: (the delay line's number of
+        terms, the unsettled sampled poles rounded to 1e-15), kept per model's poles and
+        channels."""
+        channels = (
+            tuple((m.kind, m.freq_hz, m.damping) for m in model.modes),
+            model.delay_s,
+            _key(model.lags("in"), model.lags("out")),
+        )
+        key = self._basis_key.get(channels)
+        if key is None:
+            poles = [p for m in model.modes for p in _sampled_poles(m, self.fs)]
+            taus = np.unique(np.concatenate([model.lags("in"), model.lags("out")]))
+            poles += [complex(np.exp(-1.0 / (tau * self.fs))) for tau in taus if tau > 0]
+            # keyed by the unsettled poles only: a fit moving a fast mode reuses the basis
+            poles = [p for p in poles if abs(p) ** self.settle > SETTLED]
+            n_delay = 0
+            if self.settle == 0:
+                m_int, frac = split_delay(model.delay_s, 1.0 / self.fs)
+                n_delay = m_int + (1 if frac > 0 else 0)
+            key = (n_delay, tuple(np.round(poles, 15)))
+            if len(self._basis_key) > 2000:
+                self._basis_key.clear()
+            self._basis_key[channels] = key
+        return key
+
     def _keep_basis(self, key: tuple, Q: np.ndarray) -> None:
         if len(self._basis_cache) > 50:
             self._basis_cache.clear()
         self._basis_cache[key] = Q
 
-    def _columns(self, poles, drift: bool) -> np.ndarray:
-        """Transient columns (n_l, k) complex: the rigid body's drift (``drift``) and the
-        sampled ``poles``' free responses, one set per block."""
+    def _columns(self, poles, drift: bool, n_delay: int = 0) -> np.ndarray:
+        """Transient columns (n_l, k) complex: the rigid body's drift (``drift``), the delay
+        line's ``z^-j``, j < ``n_delay``, and the sampled ``poles``' free responses, one set
+        per block."""
         zi = self._zi
         cols = [1.0 / (1.0 - zi), 1.0 / (1.0 - zi) ** 2] if drift else []
+        cols += [zi**j for j in range(n_delay)]
         for pk in poles:
             b = 1.0 / (1.0 - pk * zi)
             if pk.imag > 0:  # a pair: c b + conj(c) b(conj(p)) with c complex
@@ -1098,8 +1130,9 @@ class PeriodicProblem(_FilteredProblem):
         return np.column_stack([C * blk[:, None] for blk in self._blocks])
 
     def _basis_of(self, key: tuple) -> np.ndarray:
-        """Orthonormal basis (2 n_l, r) of the rigid drift and the poles of ``key``, afresh."""
-        C = self._columns(key, drift=True)
+        """Orthonormal basis (2 n_l, r) of the rigid drift, the delay line and the poles of
+        ``key`` = (delay terms, poles) (:meth:`_start_basis`), afresh."""
+        C = self._columns(key[1], drift=True, n_delay=key[0])
         return _orthonormal_columns(np.concatenate([C.real, C.imag]))
 
     def _basis_near(self, key: tuple) -> np.ndarray | None:
@@ -1114,23 +1147,28 @@ class PeriodicProblem(_FilteredProblem):
         (there :func:`_orthonormal_columns`'s rank decision on all columns applies).
         """
         last, self._last_new = self._last_new, key
+        n_delay, poles = key
+
+        def without(i):  # the key of the poles but the i-th
+            return (n_delay, poles[:i] + poles[i + 1 :])
+
         rest = None
-        for i in range(len(key)):
-            Q_rest = self._basis_cache.get(key[:i] + key[i + 1 :])
+        for i in range(len(poles)):
+            Q_rest = self._basis_cache.get(without(i))
             if Q_rest is not None:
                 rest = (i, Q_rest)
                 break
-        if rest is None and last is not None and len(last) == len(key):
-            differ = [i for i in range(len(key)) if last[i] != key[i]]
+        if rest is None and last is not None and last[0] == n_delay and len(last[1]) == len(poles):
+            differ = [i for i in range(len(poles)) if last[1][i] != poles[i]]
             if len(differ) == 1:
                 i = differ[0]
-                Q_rest = self._basis_of(key[:i] + key[i + 1 :])
-                self._keep_basis(key[:i] + key[i + 1 :], Q_rest)
+                Q_rest = self._basis_of(without(i))
+                self._keep_basis(without(i), Q_rest)
                 rest = (i, Q_rest)
         if rest is None:
             return None
         i, Q_rest = rest
-        C = self._columns([key[i]], drift=False)
+        C = self._columns([poles[i]], drift=False)
         W = np.concatenate([C.real, C.imag])
         W = W / np.linalg.norm(W, axis=0)
         for _ in range(2):
@@ -1338,7 +1376,10 @@ class PeriodicProblem(_FilteredProblem):
         return self.time.cost(model)
 
     def residual_peaks(self, model: ModalModel, n: int = 6) -> list[float]:
-        """Peaks (Hz) of the misfit per line over the input power per line."""
+        """Peaks (Hz) of the misfit per line over the input power per line (the whole
+        record: :meth:`TimeProblem.residual_peaks`, as before, its lines being the record's)."""
+        if self.whole:
+            return self.time.residual_peaks(model, n)
         E = (self.target - self.fitted(model)) ** 2
         n_l = self.z.size
         e = np.sum(E[:n_l] + E[n_l:], axis=1)
@@ -1389,17 +1430,68 @@ def _time_band(data: TimeData) -> tuple[float, float]:
 #: transient terms would take most of the lines' degrees of freedom
 MIN_PERIODIC_LINES = 20
 
+#: the whole record's lines :class:`PeriodicProblem` fits: "band", those within the
+#: record's excited band (:func:`_time_band`), or "all", 1 .. N/2 - 1
+RECORD_LINES = "band"
+
+
+@dataclass(frozen=True)
+class RecordBlock:
+    """The whole record as :class:`PeriodicProblem`'s one block: the fields it reads of a
+    :class:`~workbench.signals.periodic.PeriodicRecord`, with the record's length as the
+    period and nothing dropped (:func:`record_block`)."""
+
+    period: int  # N, samples
+    n_dropped: np.ndarray  # (1,) int: 0
+    excited: np.ndarray  # (1, N // 2 + 1) bool: the lines fitted
+    U: np.ndarray  # (1, N // 2 + 1, n_u) complex: np.fft.rfft of u, unnormalized
+    Y: np.ndarray  # (1, N // 2 + 1, n_y) complex: of y
+
+    @property
+    def n_blocks(self) -> int:
+        return 1
+
+
+def record_block(data: TimeData, lines: str | None = None) -> RecordBlock:
+    """The DFT of the whole record (N samples) as one block (:class:`RecordBlock`).
+
+    For a sampled LTI system it obeys exactly ``Y(k) = G(z_k) U(k) + T(z_k)`` at every
+    line, ``z_k = exp(2j pi k / N)``, with ``T`` the transient (leakage) term: for a
+    state space (A, B, C, D) ``T(z) = C (zI - A)^-1 z (x_0 - x_N)``, rational with the
+    system's own poles (Pintelon & Schoukens, *System Identification*, 2nd ed., 2012,
+    section 6.3), whatever the record's input and start. ``lines`` ("band" or "all",
+    default :data:`RECORD_LINES`): the lines marked excited; never the DC line (the rigid
+    body's drift terms are infinite there) nor the Nyquist line.
+    """
+    lines = RECORD_LINES if lines is None else lines
+    N = data.n_samples
+    k = np.arange(N // 2 + 1)
+    excited = (k > 0) & (2 * k < N)
+    if lines == "band":
+        f = k * data.fs / N
+        lo, hi = _time_band(data)
+        excited &= (f >= lo * (1 - 1e-9)) & (f <= hi * (1 + 1e-9))
+    elif lines != "all":
+        raise InputError(f"lines: expected 'band' or 'all', got {lines!r}")
+    U = np.fft.rfft(np.asarray(data.u, float), axis=0)
+    Y = np.fft.rfft(np.asarray(data.y, float), axis=0)
+    return RecordBlock(N, np.zeros(1, int), excited[None], U[None], Y[None])
+
+
 DOMAINS = ("auto", "time", "frequency")
 
 
 def make_problem(data, *, domain: str = "auto"):
     """The problem for a measurement: FrfProblem, PeriodicProblem or TimeProblem.
 
-    ``domain`` (time records): "time" fits the simulated record; "frequency" the
-    steady-state periods' excited lines (:class:`PeriodicProblem`; refused for a record
-    that is not periodic); "auto" the latter when every experiment block of the record
+    ``domain`` (time records): "time" fits the simulated record (:class:`TimeProblem`, the
+    reference); "frequency" and "auto" fit DFT lines (:class:`PeriodicProblem`): the
+    steady-state periods' excited lines when every experiment block of the record
     repeats its excitation at least twice and there are :data:`MIN_PERIODIC_LINES`
-    excited lines.
+    excited lines, else the whole record's DFT as one block (:func:`record_block`: a
+    record that is not periodic, has fewer periods or starts in motion). "auto" takes
+    the simulation where the record has fewer than :data:`MIN_PERIODIC_LINES` lines in
+    its band; "frequency" refuses it.
     """
     if domain not in DOMAINS:
         raise InputError(f"domain: expected one of {DOMAINS}, got {domain!r}")
@@ -1417,11 +1509,12 @@ def make_problem(data, *, domain: str = "auto"):
             and rec.excited.sum() >= MIN_PERIODIC_LINES
         ):
             return PeriodicProblem(data, rec)
+        if record_block(data).excited.sum() >= MIN_PERIODIC_LINES:
+            return PeriodicProblem(data)
         if domain == "frequency":
             raise InputError(
-                "domain 'frequency': expected a periodic record (period set, every block "
-                f">= 2 periods, >= {MIN_PERIODIC_LINES} excited lines), got "
-                f"period {data.period} and {data.n_samples} samples"
+                f"domain 'frequency': expected >= {MIN_PERIODIC_LINES} lines in the record's "
+                f"band, got a record of {data.n_samples} samples"
             )
         return TimeProblem(data)
     raise TypeError(f"data: expected FrfData or TimeData, got {type(data).__name__}")
