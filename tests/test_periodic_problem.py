@@ -220,13 +220,14 @@ def test_domain_choice_and_refusals():
     assert isinstance(make_problem(data, domain="time"), TimeProblem)
     assert isinstance(make_problem(data, domain="frequency"), PeriodicProblem)
     # one period, or a period set but an excitation that never repeats: no steady state to
-    # fit on, the whole record's lines (tests/test_record_problem.py)
+    # fit on, the simulation; "frequency" the whole record's lines (test_record_problem.py)
     one_period = TimeData(FS, data.u[:PERIOD], data.y[:PERIOD], period=PERIOD)
-    assert make_problem(one_period).whole
     noise = np.random.default_rng(2).standard_normal(data.u.shape)
     not_periodic = TimeData(FS, noise, data.y, period=PERIOD)
-    assert make_problem(not_periodic).whole
-    assert not make_problem(data).whole
+    for record in (one_period, not_periodic):
+        assert isinstance(make_problem(record), TimeProblem)
+        assert make_problem(record, domain="frequency").whole
+    assert not make_problem(data, domain="frequency").whole
     # too few lines for the transient terms: the simulation; "frequency" refuses it
     short = TimeData(FS, data.u[:20], data.y[:20])
     assert isinstance(make_problem(short), TimeProblem)

@@ -73,7 +73,7 @@ def test_the_models_own_record_from_a_moving_start_fits_to_rounding(lines, rigid
     model = _model(rigid=rigid)
     data = _record(model)
     assert moving_start(data)
-    problem = make_problem(data)
+    problem = make_problem(data, domain="frequency")
     assert isinstance(problem, PeriodicProblem) and problem.whole
     total = float(np.sum((problem.target / problem.scale) ** 2))
     assert problem.cost(model) <= 1e-18 * total
@@ -105,7 +105,7 @@ def test_a_record_from_rest_and_a_delay_of_whole_samples_fit_to_rounding():
     for delay_s in (0.0, 3e-3):
         model = _model(delay_s=delay_s)
         data = _record(model, n_skip=0, closed=True)
-        problem = make_problem(data)
+        problem = make_problem(data, domain="frequency")
         assert isinstance(problem, PeriodicProblem) and problem.whole
         assert problem._transient_key(model)[0] == round(delay_s * FS)
         total = float(np.sum((problem.target / problem.scale) ** 2))
@@ -116,7 +116,7 @@ def test_a_linear_fit_recovers_a_missing_modes_numerator_exactly():
     """The regressors of an added mode are projected with its own leakage terms too."""
     model = _model()
     data = _record(model)
-    problem = make_problem(data)
+    problem = make_problem(data, domain="frequency")
     missing = replace(model, modes=model.modes[:1])
     N0, N1, _, _ = problem.fit_new_term(missing, model.modes[1].denominator())
     N0_true, N1_true = model.modes[1].numerator()
@@ -143,6 +143,8 @@ def test_record_block_lines():
 
 
 def test_make_problem_picks_the_record_for_what_is_not_steady_state_periodic():
+    """ "frequency": the steady-state lines of a periodic record, else the whole record's;
+    "auto": the steady-state lines, else the simulation; "time": the simulation."""
     model = _model()
     rng = np.random.default_rng(4)
     P = 500
@@ -152,22 +154,21 @@ def test_make_problem_picks_the_record_for_what_is_not_steady_state_periodic():
     u = np.tile(period, (4, 1))
     y = simulate(model, u, FS)
     periodic = TimeData(FS, u, y, period=P)
-    p = make_problem(periodic)
-    assert isinstance(p, PeriodicProblem) and not p.whole
+    for domain in ("auto", "frequency"):
+        p = make_problem(periodic, domain=domain)
+        assert isinstance(p, PeriodicProblem) and not p.whole
     assert isinstance(make_problem(periodic, domain="time"), TimeProblem)
-    # one period, cut in motion: the whole record
+    # one period, cut in motion; not periodic (filtered noise), from rest and in motion;
+    # closed loop (r recorded)
     one = TimeData(FS, u[P + 100 : 2 * P + 100], y[P + 100 : 2 * P + 100], period=P)
-    p = make_problem(one)
-    assert isinstance(p, PeriodicProblem) and p.whole
-    assert isinstance(make_problem(one, domain="frequency"), PeriodicProblem)
-    # not periodic (filtered noise), from rest and in motion; closed loop (r recorded)
-    for data in (_record(model, n_skip=0), _record(model)):
-        p = make_problem(data)
+    records = [one, _record(model, n_skip=0), _record(model)]
+    records.append(TimeData(FS, records[-1].u, records[-1].y, r=records[-1].u + 0.1))
+    for data in records:
+        p = make_problem(data, domain="frequency")
         assert isinstance(p, PeriodicProblem) and p.whole
+        assert isinstance(make_problem(data), TimeProblem)
         assert isinstance(make_problem(data, domain="time"), TimeProblem)
-        closed = TimeData(FS, data.u, data.y, r=data.u + 0.1)
-        assert make_problem(closed).whole
-    # too short for the transient terms: the simulation; "frequency" refuses it
+    # too short for the transient terms: "frequency" refuses it
     short = TimeData(FS, u[:30], y[:30])
     assert isinstance(make_problem(short), TimeProblem)
     with pytest.raises(InputError, match="domain 'frequency'"):
