@@ -1002,6 +1002,13 @@ class PeriodicProblem(_FilteredProblem):
     linear fit needs them as regressors. The fit engine refines on these rows as on
     FRF data (Levenberg-Marquardt on normal equations,
     :func:`workbench.diagnosis.fit.levenberg_marquardt`).
+
+    Without ``rec`` the whole record is the one block (:func:`record_block`, period = N,
+    nothing dropped: ``domain="frequency"`` for a record that is not steady-state
+    periodic): its DFT obeys ``Y = H U + T`` exactly at every line, ``T`` over every pole of
+    the model (modes, lags) and the delay line's ``1, z^-1, ..`` (:meth:`_start_basis`).
+    Its lines are about as many as the samples: it keeps the time domain's solver and
+    structures (``domain`` "time") and its residual peaks (:meth:`residual_peaks`).
     """
 
     #: the record's data, its costs on the lines (FrfProblem's domain; ``kind`` stays "time")
