@@ -219,8 +219,8 @@ def test_domain_choice_and_refusals():
     data = _open_loop_record(sys)
     assert isinstance(make_problem(data, domain="time"), TimeProblem)
     assert isinstance(make_problem(data, domain="frequency"), PeriodicProblem)
-    # one period, or a period set but an excitation that never repeats: no steady state to
-    # fit on, the simulation; "frequency" the whole record's lines (test_record_problem.py)
+    # one period, or a period set but an excitation that never repeats, from rest: no steady
+    # state to fit on, the simulation; "frequency" the whole record's (test_record_problem.py)
     one_period = TimeData(FS, data.u[:PERIOD], data.y[:PERIOD], period=PERIOD)
     noise = np.random.default_rng(2).standard_normal(data.u.shape)
     not_periodic = TimeData(FS, noise, data.y, period=PERIOD)

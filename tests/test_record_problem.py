@@ -144,7 +144,8 @@ def test_record_block_lines():
 
 def test_make_problem_picks_the_record_for_what_is_not_steady_state_periodic():
     """ "frequency": the steady-state lines of a periodic record, else the whole record's;
-    "auto": the steady-state lines, else the simulation; "time": the simulation."""
+    "auto": the steady-state lines, else the whole record's from a moving start and the
+    simulation from rest; "time": the simulation."""
     model = _model()
     rng = np.random.default_rng(4)
     P = 500
@@ -166,8 +167,13 @@ def test_make_problem_picks_the_record_for_what_is_not_steady_state_periodic():
     for data in records:
         p = make_problem(data, domain="frequency")
         assert isinstance(p, PeriodicProblem) and p.whole
-        assert isinstance(make_problem(data), TimeProblem)
+        auto = make_problem(data)
+        if moving_start(data):
+            assert isinstance(auto, PeriodicProblem) and auto.whole
+        else:
+            assert isinstance(auto, TimeProblem)
         assert isinstance(make_problem(data, domain="time"), TimeProblem)
+    assert [moving_start(d) for d in records] == [True, False, True, True]
     # too short for the transient terms: "frequency" refuses it
     short = TimeData(FS, u[:30], y[:30])
     assert isinstance(make_problem(short), TimeProblem)
