@@ -219,14 +219,20 @@ def test_domain_choice_and_refusals():
     data = _open_loop_record(sys)
     assert isinstance(make_problem(data, domain="time"), TimeProblem)
     assert isinstance(make_problem(data, domain="frequency"), PeriodicProblem)
+    # one period, or a period set but an excitation that never repeats, from rest: no steady
+    # state to fit on, the simulation; "frequency" the whole record's (test_record_problem.py)
     one_period = TimeData(FS, data.u[:PERIOD], data.y[:PERIOD], period=PERIOD)
-    assert isinstance(make_problem(one_period), TimeProblem)
-    with pytest.raises(InputError, match="domain 'frequency': expected a periodic record"):
-        make_problem(one_period, domain="frequency")
-    # a period set but an excitation that never repeats: no steady state to fit on
     noise = np.random.default_rng(2).standard_normal(data.u.shape)
     not_periodic = TimeData(FS, noise, data.y, period=PERIOD)
-    assert isinstance(make_problem(not_periodic), TimeProblem)
+    for record in (one_period, not_periodic):
+        assert isinstance(make_problem(record), TimeProblem)
+        assert make_problem(record, domain="frequency").whole
+    assert not make_problem(data, domain="frequency").whole
+    # too few lines for the transient terms: the simulation; "frequency" refuses it
+    short = TimeData(FS, data.u[:20], data.y[:20])
+    assert isinstance(make_problem(short), TimeProblem)
+    with pytest.raises(InputError, match="domain 'frequency': expected >= 20 lines"):
+        make_problem(short, domain="frequency")
     with pytest.raises(InputError, match="domain: expected one of"):
         make_problem(data, domain="fourier")
 
@@ -384,8 +390,8 @@ def test_transient_basis_extended_by_a_moved_or_added_pole_spans_the_basis_afres
     models.append(replace(base, modes=base.modes + (extra,)))
     for model in models:
         Q = problem._start_basis(model)
-        key = problem._basis_key[tuple((m.kind, m.freq_hz, m.damping) for m in model.modes)]
-        C = problem._columns(key, drift=True)
+        key = problem._transient_key(model)
+        C = problem._columns(key[1], drift=True, n_delay=key[0])
         Q_ref = np.linalg.qr(np.concatenate([C.real, C.imag]))[0]
         assert Q.shape == Q_ref.shape
         assert np.max(np.abs(Q @ Q.T - Q_ref @ Q_ref.T)) <= 1e-9

@@ -1,0 +1,181 @@
+"""The whole record's DFT as the frequency-domain problem (PeriodicProblem on one block).
+
+For a sampled LTI system the N-point DFT of a record obeys exactly ``Y(k) = G(z_k) U(k) +
+T(z_k)`` (Pintelon & Schoukens 2012, section 6.3), ``T`` rational with the system's own
+poles: the modes', the channels' lags' and, for a delay, the delay line's (poles at
+z = 0). A noise-free record of the model's own ZOH simulation (:func:`simulate`, the time
+problem's reference), cut from a longer run so that every state (modes, lags, the delay
+line's held inputs) starts away from rest, must fit to rounding; and without the lag or
+delay terms it must not.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import scipy.signal
+
+from workbench.core.errors import InputError
+from workbench.diagnosis.problem import (
+    PeriodicProblem,
+    TimeProblem,
+    make_problem,
+    moving_start,
+    record_block,
+)
+from workbench.io.formats import TimeData
+from workbench.modal.model import ModalModel, Mode
+from workbench.modal.simulate import simulate
+
+FS = 1000.0
+
+
+def _model(delay_s=2.37e-3, tau_in=(2e-3, 0.0), tau_out=(0.0, 4e-3), rigid=False):
+    """2 x 2: modes at 40 Hz (1 %) and 170 Hz (3 %), a feedthrough, a delay of 2.37
+    samples, a lag on input 1 and on output 2 (and a rigid body when ``rigid``)."""
+    rng = np.random.default_rng(11)
+    modes = [
+        Mode("flexible", 40.0, 0.01, rng.normal(size=2), rng.normal(size=2)),
+        Mode("flexible", 170.0, 0.03, rng.normal(size=2), rng.normal(size=2)),
+    ]
+    if rigid:
+        modes.append(Mode("rigid", 0.0, 0.0, rng.normal(size=2), rng.normal(size=2)))
+    D = 1e-4 * rng.normal(size=(2, 2))
+    return ModalModel(
+        modes=tuple(modes),
+        D=D,
+        delay_s=delay_s,
+        tau_in=np.array(tau_in),
+        tau_out=np.array(tau_out),
+    )
+
+
+def _record(model, n=4096, n_skip=3000, seed=0, band=0.3, closed=False):
+    """The model's own simulation of filtered noise (band ``band`` fs), the first ``n_skip``
+    samples cut: a record starting in motion. ``closed``: white noise instead (every line)."""
+    rng = np.random.default_rng(seed)
+    u = rng.standard_normal((n + n_skip, model.n_u))
+    if not closed:
+        b, a = scipy.signal.butter(4, band * 2)
+        u = scipy.signal.lfilter(b, a, u, axis=0)
+    y = simulate(model, u, FS)
+    return TimeData(FS, u[n_skip:], y[n_skip:])
+
+
+@pytest.mark.parametrize("lines", ["band", "all"])
+@pytest.mark.parametrize("rigid", [False, True])
+def test_the_models_own_record_from_a_moving_start_fits_to_rounding(lines, rigid, monkeypatch):
+    import workbench.diagnosis.problem as problem_module
+
+    monkeypatch.setattr(problem_module, "RECORD_LINES", lines)
+    model = _model(rigid=rigid)
+    data = _record(model)
+    assert moving_start(data)
+    problem = make_problem(data, domain="frequency")
+    assert isinstance(problem, PeriodicProblem) and problem.whole
+    total = float(np.sum((problem.target / problem.scale) ** 2))
+    assert problem.cost(model) <= 1e-18 * total
+    # every term is needed: without the lag poles or the delay line's terms the leakage of
+    # their start stays a misfit far above rounding
+    key = problem._transient_key(model)
+    for reduced in (
+        (0, key[1]),  # no delay-line terms
+        (key[0], tuple(p for p in key[1] if abs(p.imag) > 0 or p.real < 0.5)),  # no lag poles
+    ):
+        C = problem._columns(reduced[1], drift=True, n_delay=reduced[0])
+        Q = np.linalg.qr(np.concatenate([C.real, C.imag]))[0]
+        e = problem.target - problem._parts_sum(
+            model, problem._u_in(model), problem._channels_key(model)
+        )
+        e -= Q @ (Q.T @ e)
+        assert np.sum((e / problem.scale) ** 2) >= 1e-10 * total
+    # a slightly wrong model does not fit
+    wrong = replace(model, delay_s=model.delay_s * 1.01)
+    assert problem.cost(wrong) >= 1e6 * max(problem.cost(model), 1e-30 * total)
+    # the reported numbers are the time domain's
+    time = TimeProblem(data)
+    assert problem.error(model) == time.error(model)
+    assert problem.record_cost(model) == time.cost(model)
+    assert problem.residual_peaks(model) == time.residual_peaks(model)
+
+
+def test_a_record_from_rest_and_a_delay_of_whole_samples_fit_to_rounding():
+    for delay_s in (0.0, 3e-3):
+        model = _model(delay_s=delay_s)
+        data = _record(model, n_skip=0, closed=True)
+        problem = make_problem(data, domain="frequency")
+        assert isinstance(problem, PeriodicProblem) and problem.whole
+        assert problem._transient_key(model)[0] == round(delay_s * FS)
+        total = float(np.sum((problem.target / problem.scale) ** 2))
+        assert problem.cost(model) <= 1e-18 * total
+
+
+def test_a_linear_fit_recovers_a_missing_modes_numerator_exactly():
+    """The regressors of an added mode are projected with its own leakage terms too."""
+    model = _model()
+    data = _record(model)
+    problem = make_problem(data, domain="frequency")
+    missing = replace(model, modes=model.modes[:1])
+    N0, N1, _, _ = problem.fit_new_term(missing, model.modes[1].denominator())
+    N0_true, N1_true = model.modes[1].numerator()
+    scale = np.max(np.abs(N0_true))
+    assert np.max(np.abs(N0 - N0_true)) <= 1e-7 * scale
+    assert np.max(np.abs(N1 - N1_true)) <= 1e-7 * scale
+
+
+def test_record_block_lines():
+    rng = np.random.default_rng(1)
+    N = 1000
+    U = np.zeros((N // 2 + 1, 2), complex)
+    U[1:101] = rng.normal(size=(100, 2)) + 1j * rng.normal(size=(100, 2))
+    u = np.fft.irfft(U, n=N, axis=0)  # lines 1 .. 100, no period given
+    data = TimeData(FS, u, simulate(_model(), u, FS))
+    every = record_block(data, "all")
+    assert every.period == N and every.n_blocks == 1 and np.all(every.n_dropped == 0)
+    assert np.array_equal(np.flatnonzero(every.excited[0]), np.arange(1, N // 2))
+    assert np.allclose(every.U[0], np.fft.rfft(data.u, axis=0))
+    band = record_block(data, "band")
+    assert np.array_equal(np.flatnonzero(band.excited[0]), np.arange(1, 101))
+    with pytest.raises(InputError, match="lines"):
+        record_block(data, "some")
+
+
+def test_make_problem_picks_the_record_for_what_is_not_steady_state_periodic():
+    """ "frequency": the steady-state lines of a periodic record, else the whole record's;
+    "auto": the steady-state lines, else the whole record's from a moving start and the
+    simulation from rest; "time": the simulation."""
+    model = _model()
+    rng = np.random.default_rng(4)
+    P = 500
+    U = np.zeros((P // 2 + 1, 2), complex)
+    U[1:101] = np.exp(2j * np.pi * rng.random((100, 2)))
+    period = np.fft.irfft(U, n=P, axis=0)
+    u = np.tile(period, (4, 1))
+    y = simulate(model, u, FS)
+    periodic = TimeData(FS, u, y, period=P)
+    for domain in ("auto", "frequency"):
+        p = make_problem(periodic, domain=domain)
+        assert isinstance(p, PeriodicProblem) and not p.whole
+    assert isinstance(make_problem(periodic, domain="time"), TimeProblem)
+    # one period, cut in motion; not periodic (filtered noise), from rest and in motion;
+    # closed loop (r recorded)
+    one = TimeData(FS, u[P + 100 : 2 * P + 100], y[P + 100 : 2 * P + 100], period=P)
+    records = [one, _record(model, n_skip=0), _record(model)]
+    records.append(TimeData(FS, records[-1].u, records[-1].y, r=records[-1].u + 0.1))
+    for data in records:
+        p = make_problem(data, domain="frequency")
+        assert isinstance(p, PeriodicProblem) and p.whole
+        auto = make_problem(data)
+        if moving_start(data):
+            assert isinstance(auto, PeriodicProblem) and auto.whole
+        else:
+            assert isinstance(auto, TimeProblem)
+        assert isinstance(make_problem(data, domain="time"), TimeProblem)
+    assert [moving_start(d) for d in records] == [True, False, True, True]
+    # too short for the transient terms: "frequency" refuses it
+    short = TimeData(FS, u[:30], y[:30])
+    assert isinstance(make_problem(short), TimeProblem)
+    with pytest.raises(InputError, match="domain 'frequency'"):
+        make_problem(short, domain="frequency")
