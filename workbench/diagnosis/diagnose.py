@@ -351,13 +351,14 @@ def _periodic_record(data) -> bool:
 
 def _better(a: Diagnosis, b: Diagnosis) -> bool:
     """Whether diagnosis ``a`` leaves less unexplained than ``b``: within noise by compare's
-    test where ``b`` is not, else a final error lower by as much as a finding must lower it
-    (:data:`ERROR_RATIO`: a pair of many parameters that shaves a few % off a one-parameter
-    finding near the floor is no better explanation)."""
+    test where ``b`` is not, else the lower final error. (A greedy result the rerun replaces
+    is above the noise by compare's test: incomplete, so a pair that explains more is the
+    better account; a complete greedy result, compare's verdict taken per round, is not
+    rerun.)"""
     wa, wb = (d.remaining is not None and d.remaining["within_noise"] for d in (a, b))
     if wa != wb:
         return wa
-    return a.findings[-1].error_after <= ERROR_RATIO * b.findings[-1].error_after
+    return a.findings[-1].error_after < b.findings[-1].error_after
 
 
 def base_model(model, data, delay_s: float = 0.0) -> ModalModel:
