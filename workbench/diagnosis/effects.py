@@ -1422,6 +1422,11 @@ def _model_flexible(m: Mode) -> bool:
     return m.kind == "flexible" and not m.effect
 
 
+#: most coupling parameters (2 R n_f + n_f^2) a CoupledSuspension refinement may add on a
+#: whole record's lines (PeriodicProblem.whole: about as many rows as samples)
+WHOLE_RECORD_COUPLING = 16
+
+
 def refinements(fr: FitResult, base: ModalModel, problem) -> list[tuple]:
     """Structures to fit from a fitted one's optimum: (structure, start theta) pairs.
 
@@ -1454,8 +1459,14 @@ def refinements(fr: FitResult, base: ModalModel, problem) -> list[tuple]:
         if moved is not None:
             out.append((s, moved))
             theta = moved
-    if rigid_fit and 1 <= R <= 3 and problem.domain == "frequency":
-        cs = CoupledSuspension()
+    cs = CoupledSuspension()
+    n_extra = 2 * R * len(cs.flexible(base)) + len(cs.flexible(base)) ** 2
+    # on lines it costs about as much as on an FRF; on a whole record's lines (rows ~ its
+    # samples) only a small coupling is affordable (an indepgen3 shaft, R = 1, n_f = 1: 3)
+    affordable = problem.domain == "frequency" or (
+        getattr(problem, "whole", False) and n_extra <= WHOLE_RECORD_COUPLING
+    )
+    if rigid_fit and 1 <= R <= 3 and affordable:
         start = cs.start(theta, base, problem) if cs.flexible(base) else None
         if start is not None:
             out.append((cs, start))
