@@ -358,7 +358,8 @@ def _better(a: Diagnosis, b: Diagnosis) -> bool:
     wa, wb = (d.remaining is not None and d.remaining["within_noise"] for d in (a, b))
     if wa != wb:
         return wa
-    return a.findings[-1].error_after < b.findings[-1].error_after
+    ea, eb = (d.findings[-1].error_after if d.findings else d.error_before for d in (a, b))
+    return ea < eb
 
 
 def base_model(model, data, delay_s: float = 0.0) -> ModalModel:
