@@ -398,9 +398,9 @@ def model_notes(model) -> tuple[str, ...]:
 def _diagnose(
     model, data, *, max_effects, n_full_fits, effects, delay_s, domain, pair_first=False
 ) -> Diagnosis | None:
-    """The diagnosis loop. ``pair_first``: the first round also fits every pair of effects
-    jointly (:func:`_pair_chain`) and takes the best pair where the greedy step could not
-    reach it; None when it finds no such pair (the result would be the greedy one)."""
+    """The diagnosis loop. ``pair_first``: the first round fits every structure and every
+    pair of effects jointly (:func:`_pair_chain`) and takes the best pair when its BIC beats
+    the best single effect's; None when there is no such pair."""
     check_model_matches(model, data)
     base = base_model(model, data, delay_s)
     problem = make_problem(data, domain=domain)
@@ -607,11 +607,7 @@ def _diagnose(
         for a in new:
             runners.append(next((r for r in ranked if r.effect != a.effect), None))
         accepted, accepted_bases = list(best_chain), list(best_bases)
-        errs = [cur_err0] + [a.error for a in accepted[:-1]]
-        found = [
-            _finding(a, rn, problem, b, data, e, floor)
-            for a, rn, b, e in zip(accepted, runners, accepted_bases, errs)
-        ]
+        found = _findings(accepted, runners, accepted_bases, problem, data, cur_err0, floor)
         current = last.model
         cur_cost, cur_err = last.cost, last.error
         if any(m.effect in ("missing_mode", "upper_residual") for m in current.modes):
@@ -832,11 +828,7 @@ def _rebuilt(fits, bases, runners, problem, base: ModalModel, data, err0: float,
     """A chain of findings from a joint fit's ``fits`` (one per finding) and ``bases``:
     (accepted, bases, findings, model, cost, error), the added modes backfitted as the
     search's rounds do."""
-    errs = [err0] + [a.error for a in fits[:-1]]
-    found = [
-        _finding(a, rn, problem, b, data, e, floor)
-        for a, rn, b, e in zip(fits, runners, bases, errs)
-    ]
+    found = _findings(fits, runners, bases, problem, data, err0, floor)
     current = fits[-1].model
     if any(m.effect in ("missing_mode", "upper_residual") for m in current.modes):
         polished = backfit(current, problem, d0=base.D)
@@ -846,6 +838,16 @@ def _rebuilt(fits, bases, runners, problem, base: ModalModel, data, err0: float,
     cost, err = problem.cost(current), problem.error(current)
     found[-1] = replace(found[-1], model=current, error_after=err)
     return list(fits), list(bases), found, current, cost, err
+
+
+def _findings(fits, runners, bases, problem, data, err0: float, floor) -> list[Finding]:
+    """One finding per fit of a chain, each with its runner-up, its base and the error it
+    starts from (``err0``, then the previous fit's)."""
+    errs = [err0] + [a.error for a in fits[:-1]]
+    return [
+        _finding(a, rn, problem, b, data, e, floor)
+        for a, rn, b, e in zip(fits, runners, bases, errs)
+    ]
 
 
 def _in_band_image(accepted, problem, base: ModalModel, err: float, err0: float):

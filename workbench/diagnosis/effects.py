@@ -1459,15 +1459,15 @@ def refinements(fr: FitResult, base: ModalModel, problem) -> list[tuple]:
         if moved is not None:
             out.append((s, moved))
             theta = moved
-    cs = CoupledSuspension()
-    n_extra = 2 * R * len(cs.flexible(base)) + len(cs.flexible(base)) ** 2
-    # on lines it costs about as much as on an FRF; on a whole record's lines (rows ~ its
-    # samples) only a small coupling is affordable (an indepgen3 shaft, R = 1, n_f = 1: 3)
-    affordable = problem.domain == "frequency" or (
-        getattr(problem, "whole", False) and n_extra <= WHOLE_RECORD_COUPLING
-    )
-    if rigid_fit and 1 <= R <= 3 and affordable:
-        start = cs.start(theta, base, problem) if cs.flexible(base) else None
+    if rigid_fit and 1 <= R <= 3:
+        cs = CoupledSuspension()
+        n_f = len(cs.flexible(base))
+        # on lines it costs about as much as on an FRF; on a whole record's lines (rows ~ its
+        # samples) only a small coupling is affordable (an indepgen3 shaft, R = 1, n_f = 3: 15)
+        affordable = problem.domain == "frequency" or (
+            getattr(problem, "whole", False) and 2 * R * n_f + n_f**2 <= WHOLE_RECORD_COUPLING
+        )
+        start = cs.start(theta, base, problem) if n_f and affordable else None
         if start is not None:
             out.append((cs, start))
     return out
