@@ -71,6 +71,7 @@ def test_right_model_is_within_noise(rng):
     data = noisy_frf(rng, lti.frf(true, FREQ))
     res = compare(true, data)
     assert res.z_mean == pytest.approx(1.0, abs=0.06)  # mean of 5994 Exp(1): sd 0.013
+    assert res.z_expected == 1.0
     assert res.failing_bands == ()
     assert res.within_noise
     assert res.error == pytest.approx(
@@ -164,6 +165,7 @@ def test_time_nominal_fails_true_is_within_noise(delay_case):
     assert good.failing_bands == ()
     # 4 periods after the first: z ~ F(2, 6), mean 6 / 4 = 1.5
     assert good.z_mean == pytest.approx(1.5, abs=0.15)
+    assert good.z_expected == pytest.approx(1.5) and bad.z_expected == pytest.approx(1.5)
     assert bad.z_mean > 100
     # one-step prediction corrects part of the delay error but not all of it
     assert np.all(bad.time.pred_error > 5 * good.time.pred_error)
@@ -257,3 +259,15 @@ def test_cli_compare_refuses_json_over_input(tmp_path, rng, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "refusing to write the output over an input file" in err[0]
     assert (tmp_path / "data.npz").read_bytes() == before
+
+
+def test_diagnose_states_the_right_models_z_of_a_periodic_record(delay_case):
+    """What is left after a diagnosis quotes F(2, d)'s mean d / (d - 2), not 1."""
+    from workbench.diagnosis.diagnose import _remaining
+    from workbench.modal.model import ModalModel
+
+    data, nominal, _, _, _ = delay_case
+    rem = _remaining(ModalModel.from_statespace(nominal), data)
+    assert rem is not None and not rem["within_noise"]
+    assert rem["z_expected"] == pytest.approx(1.5)
+    assert "about 1.5 when the model is right" in rem["explanation"]

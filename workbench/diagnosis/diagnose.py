@@ -1090,6 +1090,7 @@ def _remaining(model: ModalModel, data) -> dict | None:
     out: dict[str, Any] = {
         "within_noise": bool(cmp.within_noise),
         "z_mean": float(cmp.z_mean),
+        "z_expected": cmp.z_expected,
         "n_failing_bands": len(bands),
         "failing_bands": [b.as_dict() for b in bands[:N_REMAINING_BANDS]],
         "criterion": cmp.criterion,
@@ -1108,9 +1109,15 @@ def _remaining(model: ModalModel, data) -> dict | None:
             where.append(f"{ch} {b.f_lo_hz:.4g}-{b.f_hi_hz:.4g} Hz (median z {b.median:.3g})")
         out["explanation"] = (
             f"not explained by any effect found: compare still fails in {len(bands)} band(s) "
-            f"(z_mean {cmp.z_mean:.3g}, about 1 when the model is right), worst " + "; ".join(where)
+            f"(z_mean {cmp.z_mean:.3g}, {_z_right(cmp)} when the model is right), worst "
+            + "; ".join(where)
         )
     return out
+
+
+def _z_right(cmp) -> str:
+    """What z_mean is for a right model, in words (F(2, d) has mean d / (d - 2), not 1)."""
+    return "about 1" if cmp.z_expected is None else f"about {cmp.z_expected:.3g}"
 
 
 def _sigma(problem, model_after, fr: FitResult | None, freq, G_after) -> np.ndarray:

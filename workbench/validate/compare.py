@@ -200,10 +200,13 @@ class Comparison:
     failing_bands : tuple of Band
     z_mean : float or None
         Mean of the noise-normalized error z over all lines and channels
-        (about 1 for a model that is right within noise), None when the data
-        carry no noise information.
+        (about ``z_expected`` for a model that is right within noise), None when
+        the data carry no noise information.
     z_mean_per_channel : array or None
         FRF (n_y, n_u), time (n_y,).
+    z_expected : float or None
+        The mean of z for a right model: 1 for an FRF with G_var (Exp(1)),
+        d / (d - 2) for a periodic record's F(2, d) (2 for three kept periods).
     notes : tuple of str
         What was assumed or could not be done.
     """
@@ -224,6 +227,7 @@ class Comparison:
     output_names: tuple[str, ...]
     notes: tuple[str, ...] = ()
     error_estimated_start: float | None = None
+    z_expected: float | None = None
     frf: FrfDetail | None = field(default=None, repr=False)
     time: TimeDetail | None = field(default=None, repr=False)
 
@@ -255,6 +259,7 @@ class Comparison:
             "z_mean_per_channel": None
             if self.z_mean_per_channel is None
             else self.z_mean_per_channel.tolist(),
+            "z_expected": self.z_expected,
             "criterion": self.criterion,
             "threshold": self.threshold,
             "within_noise": self.within_noise,
@@ -421,6 +426,7 @@ def _compare_frf(model, data: FrfData, *, delay_s, window, false_alarm, gap, rel
         input_names=data.input_names,
         output_names=data.output_names,
         notes=tuple(notes),
+        z_expected=None if z is None else 1.0,
         frf=FrfDetail(freq_hz=data.freq, G_meas=data.G, G_model=Gm, G_var=data.G_var, z=z),
     )
 
@@ -662,11 +668,12 @@ def _compare_time(model, data: TimeData, *, delay_s, window, false_alarm, gap, m
         )
         z_mean = float(z.mean())
         z_pc = z.mean(axis=0)
+        z_expected = dof2 / (dof2 - 2) if dof2 > 2 else None
         bands = _bands(stat, z, freq, thr, gap)
         label = f"running median of z over {w} lines"
         # F(2, d) has mean d / (d - 2), not 1
-        if dof2 > 2:
-            notes.append(f"z ~ F({dof1}, {dof2}): mean {dof2 / (dof2 - 2):.3g} for a right model")
+        if z_expected is not None:
+            notes.append(f"z ~ F({dof1}, {dof2}): mean {z_expected:.3g} for a right model")
     else:
         freq = f_w[1:]
         stat = p_e[1:] / np.where(p_y[1:] > 0, p_y[1:], np.inf)
@@ -676,7 +683,7 @@ def _compare_time(model, data: TimeData, *, delay_s, window, false_alarm, gap, m
             "shows the residual-to-output PSD ratio"
         )
         notes.append("non-periodic record: noise cannot be separated from model error per band")
-        z_mean, z_pc, bands = None, None, []
+        z_mean, z_pc, z_expected, bands = None, None, None, []
         label = "Welch PSD of the residual / PSD of y"
     return Comparison(
         kind="time",
@@ -695,6 +702,7 @@ def _compare_time(model, data: TimeData, *, delay_s, window, false_alarm, gap, m
         output_names=data.output_names,
         notes=tuple(notes),
         error_estimated_start=err_x0,
+        z_expected=z_expected,
         time=TimeDetail(
             fs=data.fs,
             y=y,
