@@ -585,7 +585,17 @@ def _apply_effect(effect, plant: Mechanics, rng, f_hi):
         truth = Truth(tm)
         w2 = (2 * np.pi * tm.freq_hz[high]) ** 2
         R = np.einsum("ym,m,mu->yu", tm.c[:, high], 1 / w2, tm.b[high])
-        params = {"matrix": R.tolist()}
+        # each truncated mode too (its static part): on a sampled record a mode above
+        # Nyquist rings in the band at its folded frequency, and may be named there
+        modes = [
+            {
+                "freq_hz": float(tm.freq_hz[h]),
+                "damping": float(tm.zeta[h]),
+                "matrix": (np.outer(tm.c[:, h], tm.b[h]) / w).tolist(),
+            }
+            for h, w in zip(high, w2)
+        ]
+        params = {"matrix": R.tolist(), "modes": modes}
     elif effect == "actuator_dynamics":
         cut = rng.uniform(1.0, 3.0, n_u) * f_hi / 4
         truth = Truth(base, act_cut_hz=cut)

@@ -54,3 +54,30 @@ def test_generator_answer_is_consistent():
     assert err == pytest.approx(case.answer["noise_floor_error"], rel=1e-12)
     # and the effect is visible: the nominal misses it by >= 4x the floor (the generator's rule)
     assert case.answer["visibility"] >= 4.0
+
+
+def test_residual_compliance_split_with_a_mode_that_rings_in_the_record():
+    """Truncated modes at 5975 and 9497 Hz sampled at 7900 Hz: the second rings at
+    9497 - 7900 = 1597 Hz (damping 0.02 x 9497 / 1597 = 0.119), so a missing mode named
+    there is that mode, and the residual compliance is scored against the first's static
+    part alone; a mode elsewhere leaves the whole matrix to the residual compliance."""
+    from bench_diagnose_indep3 import param_error
+
+    R1, R2 = np.array([[1.0, 2.0], [3.0, 4.0]]), np.array([[-4.0, 1.0], [2.0, -3.0]])
+    modes = [
+        {"freq_hz": 5975.0, "damping": 0.02, "matrix": R1.tolist()},
+        {"freq_hz": 9497.0, "damping": 0.02, "matrix": R2.tolist()},
+    ]
+    truth = {"matrix": (R1 + R2).tolist(), "modes": modes}
+    found = {"matrix": R1.tolist()}
+    # same decay rate and damped frequency less fs: the same sampled poles
+    sigma, f_d = 0.02 * 9497.0, 9497.0 * np.sqrt(1 - 0.02**2) - 7900.0
+    ringing = {"freq_hz": np.hypot(f_d, sigma), "damping": sigma / np.hypot(f_d, sigma)}
+    assert param_error("residual_compliance", truth, found, [ringing], 7900.0) == pytest.approx(0)
+    elsewhere = {"freq_hz": 1500.0, "damping": 0.119}
+    whole = np.linalg.norm(R2) / np.linalg.norm(R1 + R2)
+    got = param_error("residual_compliance", truth, found, [elsewhere], 7900.0)
+    assert got == pytest.approx(whole)
+    # an FRF shows no aliases: the same mode is named only at its own frequency
+    assert param_error("missing_mode", truth, ringing, fs=None) > 0.5
+    assert param_error("missing_mode", truth, ringing, fs=7900.0) < 1e-12
