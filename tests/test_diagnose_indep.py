@@ -300,6 +300,12 @@ def test_beam_modal_duffing_draws_are_named(name):
     assert top.parameters["cubic_stiffness"][0] > 0
     assert top.parameters["level"] == pytest.approx(truth["level"], rel=0.1)
     assert res.findings[-1].error_after / floor <= 1.1
+    if size == "clear":
+        # the mismatch that moved the mode out of the band reached the floor too: listed
+        # beside the spring, which says the record cannot choose
+        (alt,) = [a for a in res.alternatives if "ambiguous" in a]
+        assert alt["effect"] == "modal_mismatch" and alt["error_after"] / floor <= 1.1
+        assert "cannot choose" in top.explanation
 
 
 @pytest.mark.slow

@@ -685,7 +685,10 @@ def _diagnose(
                         f"{finding.error_after:.4g}, at the noise floor as well "
                         f"({time_floor:.4g}): the nonlinearity, with one parameter, is taken"
                     )
-                    nl_early = finding
+                    nl_early, ambiguous = _ambiguous_spring(
+                        finding, found[-1], cur_err, error_before, time_floor
+                    )
+                    alternatives.append(ambiguous)
                     break
     if nl_early is None:
         chain = (accepted, accepted_bases, found, current, cur_cost, cur_err)
@@ -787,6 +790,37 @@ def _diagnose(
         model=current,
         remaining=remaining,
     )
+
+
+def _ambiguous_spring(spring: Finding, mismatch: Finding, err, err_before, floor):
+    """(finding, alternative): a cubic spring on a mode's coordinate taken over a modal
+    mismatch that moved the same mode out of the excited band, both at the noise floor
+    ``floor``: the record cannot choose, so the spring's explanation says so and the
+    mismatch (error ``err``) is listed beside it with its numbers. The spring is ranked
+    first on its one parameter, a prior, not evidence; a record at another excitation
+    amplitude tells them apart (the spring's stiffening grows with the motion, a wrong
+    frequency does not)."""
+    p = mismatch.parameters
+    why = (
+        f" The record cannot choose between this and a modal mismatch moving the mode from "
+        f"{p['model_freq_hz']:.4g} to {p['freq_hz']:.4g} Hz (error {err:.4g}): both reach the "
+        f"noise floor ({floor:.4g}), and the spring is preferred for its single parameter, "
+        "not by the data. Repeat the experiment at another excitation amplitude: a spring's "
+        "stiffening changes with the motion, a wrong frequency does not."
+    )
+    alt = {
+        "effect": mismatch.effect,
+        "error_before": float(err_before),
+        "error_after": float(err),
+        "parameters": jsonable(
+            {k: v for k, v in p.items() if k not in ("residue_matrix", "modes")}
+        ),
+        "ambiguous": (
+            f"at the noise floor as the {spring.parameters.get('element', 'element')} "
+            "finding is: the record cannot choose between them"
+        ),
+    }
+    return replace(spring, explanation=spring.explanation + why), alt
 
 
 def _simplified(chain, runners, problem, base: ModalModel, data, err0: float, floor, notes):
