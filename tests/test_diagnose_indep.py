@@ -163,9 +163,22 @@ def test_all_effects(plant, kind, size):
 #: record hardly excites, whose model frequency the generator's strength search drove to -0.63x
 #: the truth (an unstable nominal, named nonlinearity at 4e5x: the shift is bounded now,
 #: indepgen.MAX_MISMATCH)
+def _rng_at(state: int, inc: int, has_uint32: int, uinteger: int) -> np.random.Generator:
+    """A generator at a recorded PCG64 state (a benchmark draw replayed)."""
+    rng = np.random.default_rng()
+    rng.bit_generator.state = {
+        "bit_generator": "PCG64",
+        "state": {"state": state, "inc": inc},
+        "has_uint32": has_uint32,
+        "uinteger": uinteger,
+    }
+    return rng
+
+
 _INC0 = 87136372517582989555478159403783844777
 _INC2 = 121863417007658695389390353187995180015
 _INC3 = 222003063171874261427395693950637096479
+_INC4 = 278272906083703887290699702293328866393
 _DRAWS = {
     "stage_saturation_clear": (
         ("stage", "nonlinearity", "clear"),
@@ -203,13 +216,7 @@ _DRAWS = {
 @pytest.mark.parametrize("name", list(_DRAWS))
 def test_time_draws_reach_the_floor(name):
     (plant, effect, size), (state, inc, has_uint32, uinteger), floor = _DRAWS[name]
-    rng = np.random.default_rng()
-    rng.bit_generator.state = {
-        "bit_generator": "PCG64",
-        "state": {"state": state, "inc": inc},
-        "has_uint32": has_uint32,
-        "uinteger": uinteger,
-    }
+    rng = _rng_at(state, inc, has_uint32, uinteger)
     case = make_case(rng, plant=plant, kind="time", effects=(effect,), size=size, case_id=name)
     assert case.answer["noise_floor_error"] == pytest.approx(floor, rel=1e-9)
     res = diagnose(case.nominal, case.data)
@@ -225,13 +232,7 @@ def test_subtle_stage_friction_on_every_rigid_body():
     # zero (one at each high-pass corner) and the level fit kept a dropped port at none, so
     # friction could not reach the floor and a cubic spring at the ports was named at 3.02x.
     # The generator's friction acts on every body: all six ports carry it, at the floor
-    rng = np.random.default_rng()
-    rng.bit_generator.state = {
-        "bit_generator": "PCG64",
-        "state": {"state": 206115282099456626102579666522903090780, "inc": _INC2},
-        "has_uint32": 1,
-        "uinteger": 936373982,
-    }
+    rng = _rng_at(206115282099456626102579666522903090780, _INC2, 1, 936373982)
     case = make_case(rng, plant="stage", kind="time", effects=("nonlinearity",), size="subtle")
     floor = case.answer["noise_floor_error"]
     assert floor == pytest.approx(0.008297236237371155, rel=1e-9)
@@ -279,13 +280,7 @@ _CUBIC_DRAWS = {
 @pytest.mark.parametrize("name", list(_CUBIC_DRAWS))
 def test_beam_modal_duffing_draws_are_named(name):
     size, (state, inc, has_uint32, uinteger), floor = _CUBIC_DRAWS[name]
-    rng = np.random.default_rng()
-    rng.bit_generator.state = {
-        "bit_generator": "PCG64",
-        "state": {"state": state, "inc": inc},
-        "has_uint32": has_uint32,
-        "uinteger": uinteger,
-    }
+    rng = _rng_at(state, inc, has_uint32, uinteger)
     case = make_case(
         rng, plant="beam", kind="time", effects=("nonlinearity",), size=size, case_id=name
     )
@@ -314,16 +309,7 @@ def test_frf_pair_the_greedy_search_passes_over():
     # Alone each leaves 37x / 204x the floor on the spec error; on the noise-weighted cost a
     # sensor lag at 0.2-2 Hz is best (146x) and the greedy search ended at 104x the floor
     # with sensor_dynamics, a mode at 726 Hz and the delay. The pair fitted jointly: 1.00x
-    rng = np.random.default_rng()
-    rng.bit_generator.state = {
-        "bit_generator": "PCG64",
-        "state": {
-            "state": 190094049456367401899040280867471653645,
-            "inc": 278272906083703887290699702293328866393,
-        },
-        "has_uint32": 0,
-        "uinteger": 1364922832,
-    }
+    rng = _rng_at(190094049456367401899040280867471653645, _INC4, 0, 1364922832)
     case = make_case(
         rng, plant="beam", kind="frf", effects=("time_delay", "missing_mode"), size="clear"
     )
@@ -351,13 +337,7 @@ def test_frf_pair_with_crosstalk_on_the_outputs():
     # residual compliance
     from workbench.diagnosis.diagnose import _diagnose
 
-    rng = np.random.default_rng()
-    rng.bit_generator.state = {
-        "bit_generator": "PCG64",
-        "state": {"state": 149869713043763407963025794549016310842, "inc": _INC4},
-        "has_uint32": 0,
-        "uinteger": 2030649798,
-    }
+    rng = _rng_at(149869713043763407963025794549016310842, _INC4, 0, 2030649798)
     case = make_case(
         rng, plant="stage", kind="frf", effects=("crosstalk", "time_delay"), size="clear"
     )
@@ -375,7 +355,6 @@ def test_frf_pair_with_crosstalk_on_the_outputs():
     assert paired.findings[-1].error_after <= 1.1 * floor
 
 
-_INC4 = 278272906083703887290699702293328866393
 #: two-effect time records (``--kinds time --effects none --pairs``, seeds 4 and 5) that the
 #: greedy search got wrong: a spurious mode kept beside the mismatch that explains it
 #: (pruned), a missing mode found as its image above Nyquist (a residual compliance), a
@@ -421,13 +400,7 @@ _PAIR_TIME_DRAWS = {
 @pytest.mark.parametrize("name", list(_PAIR_TIME_DRAWS))
 def test_time_pairs_name_both_effects(name):
     (plant, effects), (state, inc, has_uint32, uinteger), floor = _PAIR_TIME_DRAWS[name]
-    rng = np.random.default_rng()
-    rng.bit_generator.state = {
-        "bit_generator": "PCG64",
-        "state": {"state": state, "inc": inc},
-        "has_uint32": has_uint32,
-        "uinteger": uinteger,
-    }
+    rng = _rng_at(state, inc, has_uint32, uinteger)
     case = make_case(rng, plant=plant, kind="time", effects=effects, size="clear")
     assert case.answer["noise_floor_error"] == pytest.approx(floor, rel=1e-9)
     res = diagnose(case.nominal, case.data)
