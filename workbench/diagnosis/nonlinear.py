@@ -1031,6 +1031,60 @@ def _fit_saturation_levels(lin, meas, u, y, fs, *, refine=True):
     return level, err
 
 
+#: runs of a simulation model that :func:`fit_port_element` keeps for reuse (the latest; a
+#: stage record's run is about 0.6 MB)
+SIMULATION_CACHE = 8
+
+
+def _run_key(nl: PortNonlinearity, g) -> tuple:
+    """What a simulation run of :func:`fit_port_element` depends on besides the record: the
+    element's every field and the port gains ``g`` (None or (n_g,) m/N), as bytes."""
+
+    def raw(a):
+        return None if a is None else (np.shape(a), np.asarray(a, float).tobytes())
+
+    return (
+        raw(nl.friction_force),
+        float(nl.friction_velocity),
+        raw(nl.cubic_stiffness),
+        raw(nl.saturation),
+        int(nl.substeps),
+        raw(nl.port_forces),
+        raw(nl.port_displacements),
+        raw(g),
+    )
+
+
+class _RunCache:
+    """The latest ``size`` simulation runs (outputs y (N, n_y), ports p (N, n_p), read-only),
+    each under its :func:`_run_key`; a run serves any request over as many samples or fewer
+    (its first rows: a run from rest is causal)."""
+
+    def __init__(self, size: int):
+        self.size = size
+        self.runs: dict = {}
+
+    def get(self, key, n: int):
+        """(y[:n], p[:n]) of a kept run of ``key`` over at least ``n`` samples, or None."""
+        hit = self.runs.get(key)
+        if hit is None or hit[0].shape[0] < n:
+            return None
+        self.runs[key] = self.runs.pop(key)  # the latest used last
+        return hit[0][:n], hit[1][:n]
+
+    def put(self, key, y: np.ndarray, p: np.ndarray) -> None:
+        """Keep (y, p) under ``key`` unless a run as long is kept; the oldest dropped."""
+        old = self.runs.pop(key, None)
+        if old is not None and old[0].shape[0] >= y.shape[0]:
+            y, p = old
+        y, p = np.asarray(y), np.asarray(p)
+        y.flags.writeable = False  # shared with the callers: none may write into it
+        p.flags.writeable = False
+        self.runs[key] = (y, p)
+        while len(self.runs) > self.size:
+            self.runs.pop(next(iter(self.runs)))
+
+
 def fit_port_element(
     sys,
     u: np.ndarray,
@@ -1173,7 +1227,13 @@ def fit_port_element(
 
     def system(g):
         """The linear model the simulation runs: with its port gains ``g`` (SquarePorts)."""
-        return lin if g is None else as_model(family.system(g))
+        return lin if g is None else system_with(np.asarray(g, float).tobytes())
+
+    @functools.lru_cache(maxsize=SIMULATION_CACHE)
+    def system_with(g_bytes):
+        """:func:`system` of the gains given as bytes (a scan asks for the same gains again;
+        building the model takes about 2 ms)."""
+        return as_model(family.system(np.frombuffer(g_bytes)))
 
     @functools.cache
     def port_map_derivative():
@@ -1256,14 +1316,32 @@ def fit_port_element(
         g = params.get("port_gains")
         return None if g is None else np.asarray(g, float)
 
+    runs = _RunCache(SIMULATION_CACHE)
+
+    def run(nl, g, n, sens):
+        """``_simulate``'s (y, p[, dy]) of the record's first ``n`` samples (None: all), the
+        (y, p) of a run of the same model over at least as many samples reused: the fit
+        simulates a model again (a scan's best point, a converged count's own output, a
+        trial the Jacobian's run repeats), and a run from rest over a record's first part
+        is the first part of the run over a longer one (the same arithmetic, sample by sample)."""
+        n_run = u.shape[0] if n is None else min(n, u.shape[0])
+        key = _run_key(nl, g)
+        if sens is None:
+            hit = runs.get(key, n_run)
+            if hit is not None:
+                return hit
+        with np.errstate(over="ignore", invalid="ignore"):  # a diverging trial scores inf
+            out = _simulate(system(g), u[:n_run], fs, nl, 0.0, port_outputs, sens=sens)
+        runs.put(key, out[0], out[1])
+        return out
+
     def simulated(nl, g=None, *, residual=False, output=False, n=None, sens=None):
         """(error, simulated port motion) of the nonlinear simulation model with port gains
         ``g`` (SquarePorts; None otherwise), or its residual, or its output; the residual
         over the record's first ``n`` samples if given (relative to their norm). With ``sens``
         (:class:`workbench.sim.PortSensitivity`; the residual only) the residual's exact
         Jacobian (N n_y, n_th) in place of the port motion."""
-        with np.errstate(over="ignore", invalid="ignore"):  # a diverging trial scores inf
-            out = _simulate(system(g), u[:n], fs, nl, 0.0, port_outputs, sens=sens)
+        out = run(nl, g, n, sens)
         y_nl, p_nl = out[:2]
         if not np.all(np.isfinite(y_nl)):
             return np.inf, None
