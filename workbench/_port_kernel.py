@@ -148,6 +148,8 @@ def _gauss_solve(J, R, n_p):
                 R[q, piv] = tmp
         for i in range(c + 1, n_p):
             fct = J[i, c] / J[c, c]
+            if fct == 0.0:  # nothing to eliminate (a sliding port's row: e_i, s_i = 0)
+                continue
             for k in range(c, n_p):
                 J[i, k] -= fct * J[c, k]
             for q in range(n_rhs):
@@ -181,6 +183,9 @@ def _sens_end(x, CvT, G1T, Fc, iv0, Mv, dFc, dlv, dCvT, has_dcv, S, Sp, dr, w, d
             J[i, k] = si * Mv[i, k]
         J[i, i] += 1.0
         for q in range(n_th):  # the right-hand sides, in dr
+            if si == 0.0:  # a port sliding at +-F_c (tanh 1 to the bit): its force moves
+                dr[q, i] = -dFc[q, i] * ti - 0.0  # with its level only (the same number)
+                continue
             Sp_w = 0.0
             for m in range(n):
                 Sp_w += CvT[m, i] * Sp[q, m]
