@@ -687,17 +687,56 @@ def _simulate(sys, u, fs, nl, delay_s=0.0, port_outputs=None, sens=None):
                 "own ports (port_forces), alone, without sensitivities"
             )
         return _simulate_coulomb(A, B, C, D, Bp, Cp, ud, fs, nl.friction_force)
-    # the held input with a whole-sample delay, the port forces directly
-    prop = sim.substep_zoh(A, B, Bp, 1.0 / fs, nl.substeps)
-    law = sim.PortLaw(
-        Cv=Cp @ A,  # the port velocity (a displacement output has no feedthrough of force)
-        Cp=Cp,
+    law = dict(
         friction_force=nl.friction_force,
         friction_velocity=nl.friction_velocity,
         cubic_stiffness=0.0 if nl.cubic_stiffness is None else nl.cubic_stiffness,
     )
-    # the compiled substep loop of the plants (trapezoidal port force, implicit friction)
-    return prop.simulate(law, ud, ud, C, D, sens=sens)
+    on = _port_states(A, Bp, Cp) if nl.port_forces is not None else None
+    if on is None or on.all():
+        # the held input with a whole-sample delay, the port forces directly
+        prop = sim.substep_zoh(A, B, Bp, 1.0 / fs, nl.substeps)
+        # the port velocity Cp A x (a displacement output has no feedthrough of force); the
+        # compiled substep loop of the plants (trapezoidal port force, implicit friction)
+        return prop.simulate(sim.PortLaw(Cv=Cp @ A, Cp=Cp, **law), ud, ud, C, D, sens=sens)
+    # the element's own ports move only the states ``on`` (the others neither drive them nor
+    # are driven by them): those substepped with the element, the others' linear response
+    # (one ZOH step a sample) added, as :func:`_simulate_coulomb` adds it
+    A_on = A[np.ix_(on, on)]
+    prop = sim.substep_zoh(A_on, B[on], Bp[on], 1.0 / fs, nl.substeps)
+    Cp_on = Cp[:, on]
+    no_d = np.zeros_like(D)
+    out = prop.simulate(
+        sim.PortLaw(Cv=Cp_on @ A_on, Cp=Cp_on, **law), ud, ud, C[:, on], no_d, sens=sens
+    )
+    C_rest = np.array(C, float)
+    C_rest[:, on] = 0.0
+    Ad, B0, _, _ = sim.c2d_zoh(A, B, 1.0 / fs)
+    y = sim.dlsim(Ad, B0, C_rest, D, ud) + out[0]
+    return (y,) + tuple(out[1:])
+
+
+def _port_states(A: np.ndarray, Bp: np.ndarray, Cp: np.ndarray) -> np.ndarray:
+    """(n,) bool: the states an element on its own ports (force map ``Bp`` (n, n_p), port
+    displacement ``Cp`` (n_p, n)) moves or reads, and every state that drives them: those the
+    port forces enter and those they reach through ``A``, the ports' own states, then all that
+    feed any of these through ``A`` (exact zeros of the realization: a mode's companion block,
+    the actuator lags that drive it). The other states' response is the linear model's."""
+    A = np.asarray(A, float)
+    link = A != 0
+    on = np.any(np.asarray(Bp) != 0, axis=1)
+    while True:  # downstream: driven by a state on
+        grown = on | np.any(link[:, on], axis=1)
+        if (grown == on).all():
+            break
+        on = grown
+    on = on | np.any(np.asarray(Cp) != 0, axis=0)
+    while True:  # upstream: driving a state on
+        grown = on | np.any(link[on, :], axis=0)
+        if (grown == on).all():
+            break
+        on = grown
+    return on
 
 
 def fit_friction(
