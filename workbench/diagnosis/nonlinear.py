@@ -49,7 +49,10 @@ friction there; the diagnosis lets the record choose between the two. On free ri
 (decoupled double integrators, :func:`_coulomb_ports`) that friction is the hard Coulomb law
 (``friction_velocity`` 0), simulated event by event: each port's stops, holds and reversals
 in closed form over each held sample (:func:`_coulomb_record`), the other states' linear ZOH
-response beside it; no substeps, exact.
+response beside it; no substeps, exact. The smooth law there, and a mode's spring, are
+substepped likewise on the states the element moves and those that drive them only
+(:func:`_port_states`: a mode's two states and the actuator lags, of a beam's 44), the
+others' linear response added.
 
 A saturation of the inputs needs no port: the applied force ``clip(u_j, -l_j, l_j)`` does
 not depend on the motion, so any linear model driven by the clipped recorded input is its
