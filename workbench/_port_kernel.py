@@ -52,6 +52,21 @@ _LINE_TOL = 0.01
 _LINE_ITER = 60
 
 
+#: tanh(x) is 1 to the last bit for x beyond this (1 - 2 e^-40 rounds to 1)
+_TANH_ONE = 20.0
+
+
+@numba.njit(cache=True, inline="always")
+def _tanh(x):
+    """tanh(x), the same number, without the library call where it is +-1 (a sliding port's
+    friction, |v| >> v0: most of a record's calls, at ~15 ns each)."""
+    if x > _TANH_ONE:
+        return 1.0
+    if x < -_TANH_ONE:
+        return -1.0
+    return np.tanh(x)
+
+
 @numba.njit(cache=True, inline="always")
 def _trial(a, Mv, Fc, iv0, r, dlt, s, rt, gt, tt):
     """rt = r + s dlt, gt = g(rt), tt = tanh(w / v0) at rt (in place); returns max |gt|."""
@@ -63,7 +78,7 @@ def _trial(a, Mv, Fc, iv0, r, dlt, s, rt, gt, tt):
         w = a[i]
         for k in range(n):
             w += Mv[i, k] * rt[k]
-        tt[i] = np.tanh(w * iv0)
+        tt[i] = _tanh(w * iv0)
         gt[i] = rt[i] + Fc[i] * tt[i]
         gmax = max(gmax, abs(gt[i]))
     return gmax
@@ -106,7 +121,7 @@ def _sens_start(x, a, CvT, Fc, iv0, dFc, dlv, dCvT, has_dcv, S, dr, dw):
                 for i in range(n_p):
                     dw[i] += dCvT[q, m, i] * xm
         for i in range(n_p):
-            ti = np.tanh(a[i] * iv0)
+            ti = _tanh(a[i] * iv0)
             dr[q, i] = -dFc[q, i] * ti - Fc[i] * (1.0 - ti * ti) * iv0 * (dw[i] - a[i] * dlv[q])
 
 
@@ -133,6 +148,8 @@ def _gauss_solve(J, R, n_p):
                 R[q, piv] = tmp
         for i in range(c + 1, n_p):
             fct = J[i, c] / J[c, c]
+            if fct == 0.0:  # nothing to eliminate (a sliding port's row: e_i, s_i = 0)
+                continue
             for k in range(c, n_p):
                 J[i, k] -= fct * J[c, k]
             for q in range(n_rhs):
@@ -160,12 +177,15 @@ def _sens_end(x, CvT, G1T, Fc, iv0, Mv, dFc, dlv, dCvT, has_dcv, S, Sp, dr, w, d
     _port_map(CvT, x, w)
     # LU of I + diag(s) Mv (partial pivoting) in J, the permutation in the rows of dr below
     for i in range(n_p):
-        ti = np.tanh(w[i] * iv0)
+        ti = _tanh(w[i] * iv0)
         si = Fc[i] * (1.0 - ti * ti) * iv0
         for k in range(n_p):
             J[i, k] = si * Mv[i, k]
         J[i, i] += 1.0
         for q in range(n_th):  # the right-hand sides, in dr
+            if si == 0.0:  # a port sliding at +-F_c (tanh 1 to the bit): its force moves
+                dr[q, i] = -dFc[q, i] * ti - 0.0  # with its level only (the same number)
+                continue
             Sp_w = 0.0
             for m in range(n):
                 Sp_w += CvT[m, i] * Sp[q, m]
@@ -192,11 +212,11 @@ def _advance(
     """x (in place) after the ``G_newT.shape[0]`` substeps of one sample (the matrices
     transposed: PhiT = Phi', GaT = Ga', G1T = G1', G_oldT[j] = G_old[j]', CvT = Cv', CpT = Cp').
 
-    With ``n_th = dFc.shape[0] > 0`` parameters (friction only, no cubic spring) also the
-    state's sensitivities ``S[q] = dx / dtheta_q`` (n_th, n), in place: see :func:`_sens_start`
-    and :func:`_sens_end`; ``Phi S`` summed over Phi's nonzero entries ``PhiT[phi_m, phi_i]``
-    (in the order of the dense sum: the same result; a modal model's Phi is 2x2 blocks, 26 of
-    the stage's 256 entries).
+    ``Phi x`` is summed over Phi's nonzero entries ``PhiT[phi_m, phi_i]`` (:func:`_nonzeros`:
+    in the order of the dense sum, the same result; a modal model's Phi is 2x2 blocks, 26 of
+    the stage's 256 entries), and so is ``Phi S``: with ``n_th = dFc.shape[0] > 0`` parameters
+    (friction only, no cubic spring) also the state's sensitivities ``S[q] = dx / dtheta_q``
+    (n_th, n), in place: see :func:`_sens_start` and :func:`_sens_end`.
 
     Written out in one function: a call with array arguments costs reference counting
     (atomic operations), more than the arithmetic at these sizes. Products M x are summed
@@ -218,7 +238,7 @@ def _advance(
         if has_fr and j == 0:
             _port_map(CvT, x, a)
             for i in range(n_p):
-                r[i] = -Fc[i] * np.tanh(a[i] * iv0)
+                r[i] = -Fc[i] * _tanh(a[i] * iv0)
             if n_th > 0:
                 _sens_start(x, a, CvT, Fc, iv0, dFc, dlv, dCvT, has_dcv, S, dr, dw)
         for i in range(n_p):
@@ -231,13 +251,12 @@ def _advance(
                     q += CpT[m, i] * x[m]
                 c0[i] = -k3[i] * q * q * q
                 f0[i] += c0[i]
-        # the state without the friction's end value (the spring's end value held)
+        # the state without the friction's end value (the spring's end value held); Phi x
+        # over Phi's nonzero entries only, in the dense sum's order (the same result)
         for i in range(n):
             xp[i] = 0.0
-        for m in range(n):
-            xm = x[m]
-            for i in range(n):
-                xp[i] += PhiT[m, i] * xm
+        for e in range(phi_m.shape[0]):
+            xp[phi_i[e]] += PhiT[phi_m[e], phi_i[e]] * x[phi_m[e]]
         for m in range(n_u):
             um = u_new[m]
             for i in range(n):
@@ -249,9 +268,13 @@ def _advance(
                     xp[i] += G_oldT[j, m, i] * um
         for m in range(n_p):
             fm = f0[m]
-            cm = c0[m]
-            for i in range(n):
-                xp[i] += GaT[m, i] * fm + G1T[m, i] * cm
+            if has_k3:
+                cm = c0[m]
+                for i in range(n):
+                    xp[i] += GaT[m, i] * fm + G1T[m, i] * cm
+            else:  # (no spring: c0 = 0, its term skipped)
+                for i in range(n):
+                    xp[i] += GaT[m, i] * fm
         if n_th > 0:  # Sp = Phi S + Ga df0 (df0 = dr: the end value before, or _sens_start's)
             for q in range(n_th):
                 for i in range(n):
@@ -365,6 +388,27 @@ def _advance(
 
 
 @numba.njit(cache=True)
+def _nonzeros(PhiT):
+    """(rows, cols) int arrays of PhiT's nonzero entries, row by row (the order of the dense
+    product's sums): a modal model's Phi is 2x2 blocks, 26 of the stage's 256 entries."""
+    n = PhiT.shape[0]
+    nnz = 0
+    for m in range(n):
+        for i in range(n):
+            nnz += PhiT[m, i] != 0.0
+    phi_m = np.empty(nnz, np.int64)
+    phi_i = np.empty(nnz, np.int64)
+    e = 0
+    for m in range(n):
+        for i in range(n):
+            if PhiT[m, i] != 0.0:
+                phi_m[e] = m
+                phi_i[e] = i
+                e += 1
+    return phi_m, phi_i
+
+
+@numba.njit(cache=True)
 def port_sample(x, PhiT, GaT, G1T, G_oldT, G_newT, has_old, u_new, u_old, CvT, CpT, Fc, v0, k3, Mv):
     """The state after one sample from ``x`` (a new array); ``u_new`` = u[k-m], ``u_old`` =
     u[k-m-1] (n_u,). Transposed shapes: PhiT (n, n), GaT / G1T (n_p, n), G_oldT / G_newT
@@ -374,6 +418,7 @@ def port_sample(x, PhiT, GaT, G1T, G_oldT, G_newT, has_old, u_new, u_old, CvT, C
     n_p = Fc.shape[0]
     out = x.copy()
     fc_max, has_k3 = _levels(Fc, k3)
+    phi_m, phi_i = _nonzeros(PhiT)
     _advance(
         out, PhiT, GaT, G1T, G_oldT, G_newT, has_old, u_new, u_old, CvT, CpT, Fc, v0, k3, Mv,
         fc_max > 0.0, has_k3, fc_max, np.empty(n), np.empty(n_p), np.empty(n_p),
@@ -381,8 +426,7 @@ def port_sample(x, PhiT, GaT, G1T, G_oldT, G_newT, has_old, u_new, u_old, CvT, C
         np.empty(n_p), np.empty(n_p), np.empty(n_p), np.empty(n_p),
         np.empty((0, n_p)), np.empty(0), np.empty((0, n, n_p)), np.empty(0, np.bool_),
         np.empty((0, n)),
-        np.empty((0, n)), np.empty((0, n_p)), np.empty(n_p), np.empty(n_p),
-        np.empty(0, np.int64), np.empty(0, np.int64),
+        np.empty((0, n)), np.empty((0, n_p)), np.empty(n_p), np.empty(n_p), phi_m, phi_i,
     )  # fmt: skip
     return out
 
@@ -428,21 +472,7 @@ def port_record(
     dr = np.zeros((n_th, n_p))
     w = np.empty(n_p)
     dw = np.empty(n_p)
-    nnz = 0
-    if n_th > 0:
-        for m in range(n):
-            for i in range(n):
-                nnz += PhiT[m, i] != 0.0
-    phi_m = np.empty(nnz, np.int64)
-    phi_i = np.empty(nnz, np.int64)
-    e = 0
-    if n_th > 0:
-        for m in range(n):
-            for i in range(n):
-                if PhiT[m, i] != 0.0:
-                    phi_m[e] = m
-                    phi_i[e] = i
-                    e += 1
+    phi_m, phi_i = _nonzeros(PhiT)
     for k in range(um.shape[0]):
         for i in range(n_y):
             acc = 0.0

@@ -49,7 +49,10 @@ friction there; the diagnosis lets the record choose between the two. On free ri
 (decoupled double integrators, :func:`_coulomb_ports`) that friction is the hard Coulomb law
 (``friction_velocity`` 0), simulated event by event: each port's stops, holds and reversals
 in closed form over each held sample (:func:`_coulomb_record`), the other states' linear ZOH
-response beside it; no substeps, exact.
+response beside it; no substeps, exact. The smooth law there, and a mode's spring, are
+substepped likewise on the states the element moves and those that drive them only
+(:func:`_port_states`: a mode's two states and the actuator lags, of a beam's 44), the
+others' linear response added.
 
 A saturation of the inputs needs no port: the applied force ``clip(u_j, -l_j, l_j)`` does
 not depend on the motion, so any linear model driven by the clipped recorded input is its
@@ -687,17 +690,85 @@ def _simulate(sys, u, fs, nl, delay_s=0.0, port_outputs=None, sens=None):
                 "own ports (port_forces), alone, without sensitivities"
             )
         return _simulate_coulomb(A, B, C, D, Bp, Cp, ud, fs, nl.friction_force)
-    # the held input with a whole-sample delay, the port forces directly
-    prop = sim.substep_zoh(A, B, Bp, 1.0 / fs, nl.substeps)
-    law = sim.PortLaw(
-        Cv=Cp @ A,  # the port velocity (a displacement output has no feedthrough of force)
-        Cp=Cp,
+    law = dict(
         friction_force=nl.friction_force,
         friction_velocity=nl.friction_velocity,
         cubic_stiffness=0.0 if nl.cubic_stiffness is None else nl.cubic_stiffness,
     )
-    # the compiled substep loop of the plants (trapezoidal port force, implicit friction)
-    return prop.simulate(law, ud, ud, C, D, sens=sens)
+    on = _port_states(A, Bp, Cp) if nl.port_forces is not None else None
+    if on is None or on.all():
+        # the held input with a whole-sample delay, the port forces directly
+        prop = sim.substep_zoh(A, B, Bp, 1.0 / fs, nl.substeps)
+        # the port velocity Cp A x (a displacement output has no feedthrough of force); the
+        # compiled substep loop of the plants (trapezoidal port force, implicit friction)
+        return prop.simulate(sim.PortLaw(Cv=Cp @ A, Cp=Cp, **law), ud, ud, C, D, sens=sens)
+    # the element's own ports move only the states ``on`` (the others neither drive them nor
+    # are driven by them): those substepped with the element, the others' linear response
+    # (one ZOH step a sample) added, as :func:`_simulate_coulomb` adds it
+    A_on = A[np.ix_(on, on)]
+    prop = sim.substep_zoh(A_on, B[on], Bp[on], 1.0 / fs, nl.substeps)
+    Cp_on = Cp[:, on]
+    no_d = np.zeros_like(D)
+    out = prop.simulate(
+        sim.PortLaw(Cv=Cp_on @ A_on, Cp=Cp_on, **law), ud, ud, C[:, on], no_d, sens=sens
+    )
+    C_rest = np.array(C, float)
+    C_rest[:, on] = 0.0
+    return (_linear_rest(A, B, C_rest, D, ud, fs) + out[0],) + tuple(out[1:])
+
+
+#: linear responses :func:`_linear_rest` keeps (a scan of an element's level simulates the
+#: same model and input each time; the response is the same)
+_REST_CACHE: dict = {}
+_REST_CACHE_SIZE = 4
+
+
+def _linear_rest(A, B, C_rest, D, ud, fs) -> np.ndarray:
+    """(N, n_y) ZOH response ``C_rest x + D ud`` of ``x' = A x + B ud`` from rest, one exact
+    step a sample: the states an element does not move (:func:`_port_states`). Kept for the
+    next call with the same matrices and input (the latest _REST_CACHE_SIZE, by digest: a
+    44-state beam's response takes ~6 ms, the spring's substeps on its mode ~1 ms)."""
+    import hashlib
+
+    h = hashlib.blake2b(digest_size=16)
+    for M in (A, B, C_rest, D, ud):
+        M = np.ascontiguousarray(M, dtype=float)
+        h.update(repr(M.shape).encode())
+        h.update(M.tobytes())
+    h.update(repr(float(fs)).encode())
+    key = h.digest()
+    y = _REST_CACHE.pop(key, None)
+    if y is None:
+        Ad, B0, _, _ = sim.c2d_zoh(A, B, 1.0 / fs)
+        y = sim.dlsim(Ad, B0, C_rest, D, ud)
+        y.flags.writeable = False  # shared by the calls that ask for it again
+    _REST_CACHE[key] = y  # the latest used last
+    while len(_REST_CACHE) > _REST_CACHE_SIZE:
+        _REST_CACHE.pop(next(iter(_REST_CACHE)))
+    return y
+
+
+def _port_states(A: np.ndarray, Bp: np.ndarray, Cp: np.ndarray) -> np.ndarray:
+    """(n,) bool: the states an element on its own ports (force map ``Bp`` (n, n_p), port
+    displacement ``Cp`` (n_p, n)) moves or reads, and every state that drives them: those the
+    port forces enter and those they reach through ``A``, the ports' own states, then all that
+    feed any of these through ``A`` (exact zeros of the realization: a mode's companion block,
+    the actuator lags that drive it). The other states' response is the linear model's."""
+    A = np.asarray(A, float)
+    link = A != 0
+    on = np.any(np.asarray(Bp) != 0, axis=1)
+    while True:  # downstream: driven by a state on
+        grown = on | np.any(link[:, on], axis=1)
+        if (grown == on).all():
+            break
+        on = grown
+    on = on | np.any(np.asarray(Cp) != 0, axis=0)
+    while True:  # upstream: driving a state on
+        grown = on | np.any(link[on, :], axis=0)
+        if (grown == on).all():
+            break
+        on = grown
+    return on
 
 
 def fit_friction(
@@ -1031,6 +1102,60 @@ def _fit_saturation_levels(lin, meas, u, y, fs, *, refine=True):
     return level, err
 
 
+#: runs of a simulation model that :func:`fit_port_element` keeps for reuse (the latest; a
+#: stage record's run is about 0.6 MB)
+SIMULATION_CACHE = 8
+
+
+def _run_key(nl: PortNonlinearity, g) -> tuple:
+    """What a simulation run of :func:`fit_port_element` depends on besides the record: the
+    element's every field and the port gains ``g`` (None or (n_g,) m/N), as bytes."""
+
+    def raw(a):
+        return None if a is None else (np.shape(a), np.asarray(a, float).tobytes())
+
+    return (
+        raw(nl.friction_force),
+        float(nl.friction_velocity),
+        raw(nl.cubic_stiffness),
+        raw(nl.saturation),
+        int(nl.substeps),
+        raw(nl.port_forces),
+        raw(nl.port_displacements),
+        raw(g),
+    )
+
+
+class _RunCache:
+    """The latest ``size`` simulation runs (outputs y (N, n_y), ports p (N, n_p), read-only),
+    each under its :func:`_run_key`; a run serves any request over as many samples or fewer
+    (its first rows: a run from rest is causal)."""
+
+    def __init__(self, size: int):
+        self.size = size
+        self.runs: dict = {}
+
+    def get(self, key, n: int):
+        """(y[:n], p[:n]) of a kept run of ``key`` over at least ``n`` samples, or None."""
+        hit = self.runs.get(key)
+        if hit is None or hit[0].shape[0] < n:
+            return None
+        self.runs[key] = self.runs.pop(key)  # the latest used last
+        return hit[0][:n], hit[1][:n]
+
+    def put(self, key, y: np.ndarray, p: np.ndarray) -> None:
+        """Keep (y, p) under ``key`` unless a run as long is kept; the oldest dropped."""
+        old = self.runs.pop(key, None)
+        if old is not None and old[0].shape[0] >= y.shape[0]:
+            y, p = old
+        y, p = np.asarray(y), np.asarray(p)
+        y.flags.writeable = False  # shared with the callers: none may write into it
+        p.flags.writeable = False
+        self.runs[key] = (y, p)
+        while len(self.runs) > self.size:
+            self.runs.pop(next(iter(self.runs)))
+
+
 def fit_port_element(
     sys,
     u: np.ndarray,
@@ -1173,7 +1298,13 @@ def fit_port_element(
 
     def system(g):
         """The linear model the simulation runs: with its port gains ``g`` (SquarePorts)."""
-        return lin if g is None else as_model(family.system(g))
+        return lin if g is None else system_with(np.asarray(g, float).tobytes())
+
+    @functools.lru_cache(maxsize=SIMULATION_CACHE)
+    def system_with(g_bytes):
+        """:func:`system` of the gains given as bytes (a scan asks for the same gains again;
+        building the model takes about 2 ms)."""
+        return as_model(family.system(np.frombuffer(g_bytes)))
 
     @functools.cache
     def port_map_derivative():
@@ -1256,14 +1387,32 @@ def fit_port_element(
         g = params.get("port_gains")
         return None if g is None else np.asarray(g, float)
 
+    runs = _RunCache(SIMULATION_CACHE)
+
+    def run(nl, g, n, sens):
+        """``_simulate``'s (y, p[, dy]) of the record's first ``n`` samples (None: all), the
+        (y, p) of a run of the same model over at least as many samples reused: the fit
+        simulates a model again (a scan's best point, a converged count's own output, a
+        trial the Jacobian's run repeats), and a run from rest over a record's first part
+        is the first part of the run over a longer one (the same arithmetic, sample by sample)."""
+        n_run = u.shape[0] if n is None else min(n, u.shape[0])
+        key = _run_key(nl, g)
+        if sens is None:
+            hit = runs.get(key, n_run)
+            if hit is not None:
+                return hit
+        with np.errstate(over="ignore", invalid="ignore"):  # a diverging trial scores inf
+            out = _simulate(system(g), u[:n_run], fs, nl, 0.0, port_outputs, sens=sens)
+        runs.put(key, out[0], out[1])
+        return out
+
     def simulated(nl, g=None, *, residual=False, output=False, n=None, sens=None):
         """(error, simulated port motion) of the nonlinear simulation model with port gains
         ``g`` (SquarePorts; None otherwise), or its residual, or its output; the residual
         over the record's first ``n`` samples if given (relative to their norm). With ``sens``
         (:class:`workbench.sim.PortSensitivity`; the residual only) the residual's exact
         Jacobian (N n_y, n_th) in place of the port motion."""
-        with np.errstate(over="ignore", invalid="ignore"):  # a diverging trial scores inf
-            out = _simulate(system(g), u[:n], fs, nl, 0.0, port_outputs, sens=sens)
+        out = run(nl, g, n, sens)
         y_nl, p_nl = out[:2]
         if not np.all(np.isfinite(y_nl)):
             return np.inf, None
