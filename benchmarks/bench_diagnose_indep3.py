@@ -222,7 +222,7 @@ def main(argv=None) -> int:
         if args.save:
             save_case(case, Path(args.save) / f"{k:03d}-{case.name}")
         data = to_measurement(case)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         try:
             res = diagnose(case.nominal, data)
         except Exception as exc:  # a crash is a failed case, reported, not the end of the run
@@ -250,13 +250,16 @@ def main(argv=None) -> int:
         dt = time.perf_counter() - t0
         r = score(case, res)
         r["seconds"] = dt
+        # CPU of this process (the machine is shared: wall time depends on the neighbours)
+        r["cpu_seconds"] = time.process_time() - c0
         r["parameters"] = {k2: v for k2, v in res.top.parameters.items() if k2 not in ("matrix",)}
         rows.append(r)
         pe = "-" if r["param_err"] is None else f"{r['param_err']:.3g}"
         print(
             f"{k:3d} {case.name:38s} top {r['top']:20s} {'ok ' if r['right'] else 'BAD'} "
             f"perr {pe:>8s} err/floor {r['ratio']:8.3g} vis {r['visibility']:8.3g} "
-            f"{'PASS' if r['pass'] else 'fail'} {dt:6.2f} s  {'+'.join(r['findings'][1:])}",
+            f"{'PASS' if r['pass'] else 'fail'} {dt:6.2f} s ({r['cpu_seconds']:6.2f} s CPU)  "
+            f"{'+'.join(r['findings'][1:])}",
             flush=True,
         )
     print()
@@ -266,8 +269,11 @@ def main(argv=None) -> int:
     secs = [r["seconds"] for r in rows]
     for kind in kinds:
         s = [r["seconds"] for r in rows if r["kind"] == kind]
+        c = [r["cpu_seconds"] for r in rows if r["kind"] == kind and "cpu_seconds" in r]
         if s:
             print(f"diagnose time {kind}: median {np.median(s):.2f} s, max {np.max(s):.2f} s")
+        if c:
+            print(f"diagnose CPU {kind}: median {np.median(c):.2f} s, max {np.max(c):.2f} s")
     print(
         f"total {time.perf_counter() - t_all:.0f} s for {len(rows)} cases "
         f"({sum(secs):.0f} s in diagnose)"
