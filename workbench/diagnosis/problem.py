@@ -31,6 +31,7 @@ from workbench.modal.model import ModalModel, Mode
 from workbench.modal.simulate import (
     filtered_inputs,
     filtered_lines,
+    mixed_inputs,
     mixed_lines,
     mode_line_responses,
 )
@@ -873,9 +874,26 @@ class TimeProblem(_FilteredProblem):
         self._basis_cache: dict = {}
         self._anchors: list = []  # (channels, items, parts, sum), see _parts_sum
         self._residual_last = None  # (model, its weighted residual), see _regress
+        self._products: dict = {}  # T_in -> numerator, rows, cols -> mixed inputs (_mixed)
 
     def _filter(self, model, den, u_in):
         return filtered_inputs(model, den, u_in, self.fs)
+
+    def _mixed(self, model, den, N0, N1, u_in, channels):
+        """A mode's output on the record by :func:`mixed_inputs` (its inputs mixed by the
+        numerators, one recursion per output group); the filtered inputs (:meth:`_filter`)
+        only where a linear fit needs them as regressors. The feedthrough (``den`` None):
+        the delayed inputs mixed (:meth:`_FilteredProblem._mixed`)."""
+        if den is None:
+            return super()._mixed(model, den, N0, N1, u_in, channels)
+        # the inputs mixed by a numerator are kept per input coupling (u_in's only variable)
+        T_in = _key(model.T_in)
+        products = self._products.get(T_in)
+        if products is None:
+            if len(self._products) > 8:
+                self._products.clear()
+            products = self._products[T_in] = {}
+        return mixed_inputs(model, den, N0, N1, u_in, self.fs, products=products)
 
     def _start_basis(self, model: ModalModel) -> np.ndarray | None:
         """Orthonormal basis (N, n_b) of the model's free responses, or None (from rest)."""
