@@ -201,6 +201,12 @@ def main(argv=None) -> int:
         default="any",
         help="time records: only those starting at rest, or only those starting mid-motion",
     )
+    ap.add_argument(
+        "--domain",
+        choices=("auto", "time", "frequency"),
+        default="auto",
+        help="time records: the problem diagnose fits (make_problem's domain)",
+    )
     args = ap.parse_args(argv)
     from workbench.diagnosis import diagnose
 
@@ -224,7 +230,7 @@ def main(argv=None) -> int:
         data = to_measurement(case)
         t0, c0 = time.perf_counter(), time.process_time()
         try:
-            res = diagnose(case.nominal, data)
+            res = diagnose(case.nominal, data, domain=args.domain)
         except Exception as exc:  # a crash is a failed case, reported, not the end of the run
             print(f"{k:3d} {case.name:38s} CRASH {type(exc).__name__}: {exc}", flush=True)
             rows.append(

@@ -820,12 +820,28 @@ class _FilteredProblem:
         parts = [(None, model.D, None)] if np.any(model.D) else []
         parts += [(m.denominator(), *m.numerator()) for m in model.modes]
         R = np.zeros((self.target.shape[0], n_y, n_u, n_u))  # (n_rows, n_y, j, k)
+        # per output group, every part's filtered inputs (slots) stacked as Z (n_rows, n_u,
+        # P) and their numerators' rows as W (P, rows, n_u): R[:, rows, :, k] = Z[:, k] W,
+        # one product per input k (an outer product per part, slot and channel wrote the
+        # whole (n_rows, n_y, n_u, n_u) array each time: most of a joint fit's evaluation)
+        stacks: dict = {}  # group -> ([filtered inputs], [numerator rows])
+        groups = None
         for den, N0, N1 in parts:
             X, groups = self._filtered(model, den, u_in)
             for g, rows in enumerate(groups):
-                R[:, rows] += np.einsum("nk,ij->nijk", X[g, :, :, 0], N0[rows])
-                if N1 is not None and np.any(N1):
-                    R[:, rows] += np.einsum("nk,ij->nijk", X[g, :, :, 1], N1[rows])
+                Zs, Ws = stacks.setdefault(g, ([], []))
+                for slot, N in ((0, N0), (1, N1)):
+                    if N is not None and (slot == 0 or np.any(N)):
+                        Zs.append(X[g, :, :, slot])
+                        Ws.append(N[rows])
+        for g, (Zs, Ws) in stacks.items():
+            rows = groups[g]
+            Z = np.stack(Zs, axis=-1)  # (n_rows, n_u, P)
+            W = np.stack(Ws).reshape(len(Ws), -1)  # (P, rows n_u)
+            Rg = np.empty((Z.shape[0], rows.size, n_u, n_u))
+            for k in range(n_u):
+                Rg[..., k] = (Z[:, k, :] @ W).reshape(-1, rows.size, n_u)
+            R[:, rows] = Rg
         if model.T_out is not None:
             R = np.einsum("ab,nbjk->najk", model.T_out, R)
         R = self._project(model, R)

@@ -1,11 +1,12 @@
-"""The time-domain simulation's compiled recursion and closed-form ZOH coefficients.
+"""The time-domain fast paths: compiled recursion, closed-form ZOH coefficients, crosstalk.
 
 :func:`workbench._filter_kernel.iir_streams` against ``scipy.signal.lfilter`` summed over
 streams (every kernel path: a mode, a mode behind lags, a higher order); the partial-
 fraction coefficients (:func:`workbench.modal.simulate._pole_coefficients`) against the
 matrix-exponential discretization and against the exact line responses; a mode's output by
 :func:`mixed_inputs` against :func:`filtered_inputs` mixed by its numerators (delays,
-lags, coupling), and the time-domain problem's cost against the simulation's.
+lags, coupling), the time-domain problem's cost against the simulation's, and the
+input-side crosstalk's regressors against the parts' outer products summed.
 """
 
 from __future__ import annotations
@@ -165,3 +166,62 @@ def test_time_problem_cost_is_the_simulation_cost():
     for m in (model, moved):
         ref = np.sum(((y - S.simulate(m, u, fs)) / problem.scale) ** 2)
         assert problem.cost(m) == pytest.approx(ref, rel=1e-9)
+
+
+def _crosstalk_in_reference(problem, model):
+    """fit_crosstalk(side="in") as it was written: the regressor of E[j, k], column j of
+    the model driven by u_k, summed part by part as outer products."""
+    from workbench.diagnosis.problem import _lstsq_std
+
+    e = (problem.target - problem.fitted(model)) / problem.scale
+    n_y, n_u = model.n_y, model.n_u
+    u_in = problem._u_in(model)
+    parts = [(None, model.D, None)] if np.any(model.D) else []
+    parts += [(m.denominator(), *m.numerator()) for m in model.modes]
+    R = np.zeros((problem.target.shape[0], n_y, n_u, n_u))
+    for den, N0, N1 in parts:
+        X, groups = problem._filtered(model, den, u_in)
+        for g, rows in enumerate(groups):
+            R[:, rows] += np.einsum("nk,ij->nijk", X[g, :, :, 0], N0[rows])
+            if N1 is not None and np.any(N1):
+                R[:, rows] += np.einsum("nk,ij->nijk", X[g, :, :, 1], N1[rows])
+    if model.T_out is not None:
+        R = np.einsum("ab,nbjk->najk", model.T_out, R)
+    R = problem._project(model, R)
+    pairs = [(j, k) for j in range(n_u) for k in range(n_u) if j != k]
+    Xr = np.stack([R[:, :, j, k].ravel() for j, k in pairs], -1) / problem.scale
+    x, s = _lstsq_std(Xr, e.ravel())
+    E, S = np.zeros((n_u, n_u)), np.zeros((n_u, n_u))
+    for (j, k), xv, sv in zip(pairs, x, s):
+        E[j, k], S[j, k] = xv, sv
+    return E, S
+
+
+@pytest.mark.parametrize("transient", [False, True])
+def test_fit_crosstalk_inputs_is_the_outer_product_sum(transient):
+    """The input-side crosstalk's regressors, one product per input over the stacked parts,
+    are the parts' outer products summed (output lags in groups, an output coupling, a
+    feedthrough; from rest and from an estimated start)."""
+    rng = np.random.default_rng(5)
+    n_y, n_u = 3, 3
+    model = _model(
+        rng,
+        n_y=n_y,
+        n_u=n_u,
+        delay=0.7 / 4096,
+        tau_out=np.array([1 / (2 * np.pi * 500), 0.0, 0.0]),
+    )
+    model = replace(
+        model,
+        D=0.01 * rng.standard_normal((n_y, n_u)),
+        T_out=np.eye(n_y) + 0.02 * rng.standard_normal((n_y, n_y)),
+    )
+    u = rng.standard_normal((2500, n_u))
+    T_in = np.eye(n_u) + 0.03 * (1 - np.eye(n_u)) * rng.standard_normal((n_u, n_u))
+    y = S.simulate(replace(model, T_in=T_in), u, 4096.0) + 1e-3 * rng.standard_normal((2500, n_y))
+    problem = TimeProblem(TimeData(fs=4096.0, u=u, y=y), transient=transient)
+    E, Sd = problem.fit_crosstalk(model, "in")
+    E_ref, S_ref = _crosstalk_in_reference(problem, model)
+    assert np.allclose(E, E_ref, rtol=1e-9, atol=1e-12)
+    assert np.allclose(Sd, S_ref, rtol=1e-9, atol=1e-15)
+    assert np.max(np.abs(E - (T_in - np.eye(n_u)))) < 0.01  # and it finds the coupling
