@@ -309,7 +309,11 @@ def main(argv=None) -> int:
             print(f"diagnose time {kind}: median {np.median(s):.2f} s, max {np.max(s):.2f} s")
         if c:
             print(f"diagnose CPU {kind}: median {np.median(c):.2f} s, max {np.max(c):.2f} s")
-            lin = [r["cpu_seconds"] - r["cpu_nonlinear"] for r in rows if r["kind"] == kind]
+            lin = [
+                r["cpu_seconds"] - r["cpu_nonlinear"]
+                for r in rows
+                if r["kind"] == kind and "cpu_seconds" in r
+            ]
             print(
                 f"  without the port-element fits: median {np.median(lin):.2f} s, "
                 f"max {np.max(lin):.2f} s"
