@@ -1152,7 +1152,9 @@ class PeriodicProblem(_FilteredProblem):
             if self.settle == 0:
                 m_int, frac = split_delay(model.delay_s, 1.0 / self.fs)
                 n_delay = m_int + (1 if frac > 0 else 0)
-            key = (n_delay, tuple(np.round(poles, 15)))
+            # a pole met twice (two modes at one frequency and damping, a suspension's DOFs
+            # started together) once: the same span, where its columns twice are singular
+            key = (n_delay, tuple(dict.fromkeys(np.round(poles, 15).tolist())))
             if len(self._basis_key) > 2000:
                 self._basis_key.clear()
             self._basis_key[channels] = key
@@ -1278,10 +1280,15 @@ class PeriodicProblem(_FilteredProblem):
         span) is evaluated alone by :meth:`cost`.
         """
         out = np.full(len(models), np.nan)
-        together = self._moved_costs(models)
-        if together is not None:
-            idx, values = together
-            out[idx] = values
+        # in batches of about TOGETHER_ROWS / n_obs points: a whole record's rows (~ its
+        # samples) times a grid's hundreds of points made arrays of hundreds of MB, each
+        # pass over them bound by memory (a planar record's 360-point suspension grid: 12 s)
+        n_batches = -(-len(models) // max(2 * self.MIN_TOGETHER, self.TOGETHER_ROWS // self.n_obs))
+        for batch in np.array_split(np.arange(len(models)), max(n_batches, 1)):
+            together = self._moved_costs([models[i] for i in batch])
+            if together is not None:
+                idx, values = together
+                out[batch[idx]] = values
         for i, m in enumerate(models):
             if np.isnan(out[i]):
                 try:
@@ -1293,6 +1300,9 @@ class PeriodicProblem(_FilteredProblem):
 
     #: fewest models of one pattern that :meth:`_moved_costs` evaluates together
     MIN_TOGETHER = 8
+    #: real numbers of the residual (:attr:`n_obs`) times points that :meth:`costs` evaluates
+    #: in one batch (a whole record: 16 points; a periodic record's lines: the whole grid)
+    TOGETHER_ROWS = 2**20
 
     def _moved_costs(self, models: list):
         """The costs of the models that differ from the first only in moved modes, or None.
@@ -1380,6 +1390,13 @@ class PeriodicProblem(_FilteredProblem):
         poles = np.exp(lam / self.fs)
         slow = np.abs(poles) ** self.settle > SETTLED
         ok &= ~np.any(slow & (zeta >= 1.0), axis=1)  # an overdamped slow pole: alone
+        # a pole equal to another moved one adds nothing to the span (two modes' terms over
+        # one pole are one term; :meth:`_transient_key` drops it alike): its columns are left
+        # out, where they would make the point's columns singular and send it to be evaluated
+        # alone (a suspension's grid starts its DOFs at one shared frequency)
+        rounded = np.round(poles, 15)
+        for c in range(1, len(ks)):
+            slow[:, c] &= ~np.any(rounded[:, :c] == rounded[:, c : c + 1], axis=1)
         costs = np.full(P, np.nan)
         for pattern in {tuple(row) for row in slow}:
             sel = np.flatnonzero(np.all(slow == np.array(pattern, bool), axis=1) & ok)
