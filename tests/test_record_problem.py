@@ -235,3 +235,26 @@ def test_a_pole_met_twice_is_one_basis_term():
     P = problem._start_basis(doubled)
     assert P.shape[1] == Q.shape[1]
     assert np.max(np.abs(P @ P.T - Q @ Q.T)) <= 1e-9
+
+
+def test_a_screen_in_batches_is_the_screen_of_the_whole_grid(monkeypatch):
+    """fit.screen builds and evaluates a grid in the problem's batches (an added mode's
+    basis kept between its build and its cost): the same costs and order as the whole grid
+    at once."""
+    from workbench.diagnosis.effects import MissingMode
+    from workbench.diagnosis.fit import screen
+
+    data = _record(_model(delay_s=1.3e-3, tau_in=(0.0, 0.0), tau_out=(0.0, 0.0)))
+    base = replace(
+        _model(delay_s=1.3e-3, tau_in=(0.0, 0.0), tau_out=(0.0, 0.0)),
+        modes=_model().modes[:1],
+    )
+    out = {}
+    for rows in (2**40, 1):  # one batch; batches of 2 MIN_TOGETHER
+        monkeypatch.setattr(PeriodicProblem, "TOGETHER_ROWS", rows)
+        problem = make_problem(data, domain="frequency")
+        assert rows > 1 or problem.batch == 2 * PeriodicProblem.MIN_TOGETHER
+        out[rows] = screen(MissingMode(), problem, base)
+    a, b = out[2**40], out[1]
+    assert a.cost == pytest.approx(b.cost, rel=1e-12)
+    assert all(np.array_equal(x, y) for x, y in zip(a.starts[:10], b.starts[:10]))
