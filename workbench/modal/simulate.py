@@ -478,31 +478,54 @@ def _pole_coefficients(strict: np.ndarray, den: np.ndarray, dt: float, frac: flo
         return None
     if n == 2:  # a mode, the most frequent filter: in scalar arithmetic
         return _pair_coefficients(strict, float(den[1]), float(den[2]), dt, frac)
-    if n == 1:
-        lam = np.array([-den[1]], complex)
-    else:
-        lam = np.roots(den).astype(complex)
+    lam = np.array([-den[1]], complex) if n == 1 else np.roots(den).astype(complex)
     if _too_close(lam):
         return None
-    r = _residues(strict[None, :], den, lam)[0]
-    with np.errstate(all="ignore"):
-        small = np.abs(lam) * dt < 1e-8
-
-        def integral(h):  # int_0^h exp(lam s) ds, its limit h at lam = 0 (as _pole_responses)
-            x = lam * h
-            return np.where(small, h * (1 + 0.5 * x), np.expm1(x) / np.where(small, 1.0, lam))
-
-        p = np.exp(lam * dt)
-        b0 = integral(dt - frac)
-        b1 = np.exp(lam * (dt - frac)) * integral(frac) if frac > 0 else np.zeros_like(lam)
-        b = np.zeros(n + 2, complex)
-        for k in range(n):
-            rest = np.poly(np.delete(p, k)) if n > 1 else np.ones(1)
-            b[1:] += r[k] * np.convolve([b0[k], b1[k]], rest)
-        a = np.poly(p)
+    # scalar arithmetic from here (n <= 4 behind lags: numpy's per-call cost dominated)
+    lam = [complex(x) for x in lam]
+    dden = [(n - i) * float(den[i]) for i in range(n)]  # den', highest power first
+    try:
+        r = [_horner(strict, x) / _horner(dden, x) for x in lam]
+        p = [cmath.exp(x * dt) for x in lam]
+        b0 = [_integral(x, dt - frac, dt) for x in lam]
+        b1 = [cmath.exp(x * (dt - frac)) * _integral(x, frac, dt) for x in lam]
+    except (OverflowError, ZeroDivisionError):
+        return None
+    b = [0j] * (n + 2)
+    for k in range(n):
+        rest = _poly_z(p[:k] + p[k + 1 :])  # prod_{j != k} (1 - p_j z^-1), length n
+        for i, c in enumerate(rest):
+            b[1 + i] += r[k] * b0[k] * c
+            b[2 + i] += r[k] * b1[k] * c
+    a = _poly_z(p)
+    b, a = np.array([x.real for x in b]), np.array([x.real for x in a])
     if not (np.all(np.isfinite(b)) and np.all(np.isfinite(a))):
         return None
-    return np.ascontiguousarray(b.real), np.ascontiguousarray(a.real)
+    return b, a
+
+
+def _horner(c, x: complex) -> complex:
+    """The polynomial with coefficients ``c`` (highest power first) at ``x``."""
+    v = 0j
+    for ci in c:
+        v = v * x + float(ci)
+    return v
+
+
+def _poly_z(p: list) -> list:
+    """Coefficients of ``prod_k (1 - p_k z^-1)`` in powers of ``z^-1`` (0 first)."""
+    c = [1 + 0j]
+    for pk in p:
+        c = [x - pk * y for x, y in zip(c + [0j], [0j] + c)]
+    return c
+
+
+def _integral(lam: complex, t: float, dt: float) -> complex:
+    """``int_0^t exp(lam s) ds``, its limit ``t`` at ``lam = 0`` (as :func:`_pole_responses`)."""
+    x = lam * t
+    if abs(lam) * dt < 1e-8:
+        return t * (1 + 0.5 * x)
+    return _expm1(x) / lam
 
 
 def _pair_coefficients(strict: np.ndarray, a1: float, a0: float, dt: float, frac: float):
@@ -517,18 +540,12 @@ def _pair_coefficients(strict: np.ndarray, a1: float, a0: float, dt: float, frac
     c1, c0 = float(strict[0]), float(strict[1])
     r1, r2 = (c1 * l1 + c0) / d, -(c1 * l2 + c0) / d
 
-    def integral(lam, t):  # int_0^t exp(lam s) ds, its limit t at lam = 0 (as _pole_responses)
-        x = lam * t
-        if abs(lam) * dt < 1e-8:
-            return t * (1 + 0.5 * x)
-        return _expm1(x) / lam
-
     try:
         p1, p2 = cmath.exp(l1 * dt), cmath.exp(l2 * dt)
-        b01, b02 = integral(l1, dt - frac), integral(l2, dt - frac)
+        b01, b02 = _integral(l1, dt - frac, dt), _integral(l2, dt - frac, dt)
         if frac > 0:
-            b11 = cmath.exp(l1 * (dt - frac)) * integral(l1, frac)
-            b12 = cmath.exp(l2 * (dt - frac)) * integral(l2, frac)
+            b11 = cmath.exp(l1 * (dt - frac)) * _integral(l1, frac, dt)
+            b12 = cmath.exp(l2 * (dt - frac)) * _integral(l2, frac, dt)
         else:
             b11 = b12 = 0.0
     except OverflowError:
