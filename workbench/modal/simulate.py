@@ -195,15 +195,27 @@ def mixed_inputs(model, den, N0, N1, u: np.ndarray, fs: float, *, products=None)
     numerators = (N0, N1) if N1 is not None and np.any(N1) else (N0,)
     for f in filters:
         rows = groups[f.g]
-        bs, xs, a = [], [], None
-        for num, N_k in zip(f.nums, numerators):
+        coefficients = []
+        for num in f.nums[: len(numerators)]:
             (num,), dm = _monic([num], f.d)
             if num[0] or dm.size == 1:
                 raise ValueError("mixed_inputs: a mode's strictly proper filters only")
-            b, a = _zoh_coefficients(num.tobytes(), dm.tobytes(), float(dt), float(frac))
-            bs.append(b)
-            xs.append(_mixed_record(u, N_k, rows, f.cols, products))
-        out = iir_streams(np.stack(bs), a, np.stack(xs))  # (n_rows, N)
+            coefficients.append(_zoh_coefficients(num.tobytes(), dm.tobytes(), dt, frac))
+        a = coefficients[0][1]
+        if 2 * f.cols.size < rows.size and len(coefficients) == 2:
+            # a lag on one input of many outputs: its column through 1/d and s/d (two
+            # recursions) and mixed after, fewer than one recursion per output
+            x = np.ascontiguousarray(u[:, f.cols].T)[None]
+            out = 0.0
+            for (b, _), N_k in zip(coefficients, numerators):
+                X = iir_streams(b[None], a, x)  # (n_cols, N)
+                out = out + N_k[np.ix_(rows, f.cols)] @ X
+        else:
+            bs = np.stack([b for b, _ in coefficients])
+            xs = np.stack(
+                [_mixed_record(u, N_k, rows, f.cols, products) for N_k in numerators[: len(bs)]]
+            )
+            out = iir_streams(bs, a, xs)  # (n_rows, N)
         if m_int < N:
             y[m_int:, rows] += out[:, : N - m_int].T
     return y
