@@ -134,11 +134,13 @@ def iir_streams(b: np.ndarray, a: np.ndarray, x: np.ndarray) -> np.ndarray:
     -------
     (C, N) float: the filtered streams summed, per signal.
     """
-    b = np.ascontiguousarray(b, float)
-    a = np.ascontiguousarray(a, float)
+    # C-contiguous and writable: numba compiles one version per layout and per read-only
+    # flag (the cached coefficients and mixed inputs are read-only), each ~1-2 s on first use
+    b = np.require(b, float, ["C", "W"])
+    a = np.require(a, float, ["C", "W"])
     if a[0] != 1.0:
         b, a = b / a[0], a / a[0]
-    x = np.ascontiguousarray(x, float)
+    x = np.require(x, float, ["C", "W"])
     out = np.empty(x.shape[1:])
     if a.size == 3 and b.shape[1] <= 4:
         _order2(b, a, x, out)
