@@ -237,6 +237,30 @@ def summary(rows) -> str:
     return "\n".join(out)
 
 
+def _time_nonlinear_fits():
+    """Count the CPU seconds diagnose spends in its port-element fits
+    (``_nonlinearity_finding``); returns ``take()``: the seconds since the last take."""
+    import importlib
+
+    mod = importlib.import_module("workbench.diagnosis.diagnose")
+    inner = mod._nonlinearity_finding
+    acc = [0.0]
+
+    def timed(*args, **kwargs):
+        c0 = time.process_time()
+        try:
+            return inner(*args, **kwargs)
+        finally:
+            acc[0] += time.process_time() - c0
+
+    def take() -> float:
+        v, acc[0] = acc[0], 0.0
+        return v
+
+    mod._nonlinearity_finding = timed
+    return take
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seed", type=int, default=0)
@@ -252,8 +276,16 @@ def main(argv=None) -> int:
         default="any",
         help="time records: only those starting at rest, or only those starting mid-motion",
     )
+    ap.add_argument(
+        "--domain",
+        choices=("auto", "time", "frequency"),
+        default="auto",
+        help="time records: the problem diagnose fits (make_problem's domain)",
+    )
     args = ap.parse_args(argv)
     from workbench.diagnosis import diagnose
+
+    take_nonlinear_cpu = _time_nonlinear_fits()
 
     kinds = tuple(args.kinds.split(","))
     suite = make_suite(
@@ -273,10 +305,11 @@ def main(argv=None) -> int:
         if args.save:
             save_case(case, Path(args.save) / f"{k:03d}-{case.name}")
         data = to_measurement(case)
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         try:
-            res = diagnose(case.nominal, data)
+            res = diagnose(case.nominal, data, domain=args.domain)
         except Exception as exc:  # a crash is a failed case, reported, not the end of the run
+            take_nonlinear_cpu()
             print(f"{k:3d} {case.name:38s} CRASH {type(exc).__name__}: {exc}", flush=True)
             rows.append(
                 {
@@ -301,13 +334,18 @@ def main(argv=None) -> int:
         dt = time.perf_counter() - t0
         r = score(case, res)
         r["seconds"] = dt
+        # CPU of this process (the machine is shared: wall time depends on the neighbours)
+        r["cpu_seconds"] = time.process_time() - c0
+        r["cpu_nonlinear"] = take_nonlinear_cpu()  # of it, the port elements' fits
         r["parameters"] = {k2: v for k2, v in res.top.parameters.items() if k2 not in ("matrix",)}
         rows.append(r)
         pe = "-" if r["param_err"] is None else f"{r['param_err']:.3g}"
         print(
             f"{k:3d} {case.name:38s} top {r['top']:20s} {'ok ' if r['right'] else 'BAD'} "
             f"perr {pe:>8s} err/floor {r['ratio']:8.3g} vis {r['visibility']:8.3g} "
-            f"{'PASS' if r['pass'] else 'fail'} {dt:6.2f} s  {'+'.join(r['findings'][1:])}",
+            f"{'PASS' if r['pass'] else 'fail'} {dt:6.2f} s ({r['cpu_seconds']:6.2f} s CPU, "
+            f"{r['cpu_nonlinear']:6.2f} nonlinear)  "
+            f"{'+'.join(r['findings'][1:])}",
             flush=True,
         )
     print()
@@ -317,8 +355,20 @@ def main(argv=None) -> int:
     secs = [r["seconds"] for r in rows]
     for kind in kinds:
         s = [r["seconds"] for r in rows if r["kind"] == kind]
+        c = [r["cpu_seconds"] for r in rows if r["kind"] == kind and "cpu_seconds" in r]
         if s:
             print(f"diagnose time {kind}: median {np.median(s):.2f} s, max {np.max(s):.2f} s")
+        if c:
+            print(f"diagnose CPU {kind}: median {np.median(c):.2f} s, max {np.max(c):.2f} s")
+            lin = [
+                r["cpu_seconds"] - r["cpu_nonlinear"]
+                for r in rows
+                if r["kind"] == kind and "cpu_seconds" in r
+            ]
+            print(
+                f"  without the port-element fits: median {np.median(lin):.2f} s, "
+                f"max {np.max(lin):.2f} s"
+            )
     print(
         f"total {time.perf_counter() - t_all:.0f} s for {len(rows)} cases "
         f"({sum(secs):.0f} s in diagnose)"

@@ -179,3 +179,82 @@ def test_make_problem_picks_the_record_for_what_is_not_steady_state_periodic():
     assert isinstance(make_problem(short), TimeProblem)
     with pytest.raises(InputError, match="domain 'frequency'"):
         make_problem(short, domain="frequency")
+
+
+def _two_rigid_model():
+    """2 x 2 with a rigid body of rank 2 (two rigid DOFs merged in one rigid mode) and the
+    modes of :func:`_model`, no lags: a suspension screen's model."""
+    rng = np.random.default_rng(13)
+    base = _model(delay_s=1.3e-3, tau_in=(0.0, 0.0), tau_out=(0.0, 0.0))
+    rigid = Mode("rigid", 0.0, 0.0, rng.normal(size=2), rng.normal(size=2))
+    rigid = replace(rigid, N0=rng.normal(size=(2, 2)))
+    return replace(base, modes=base.modes + (rigid,))
+
+
+def test_a_whole_records_grid_in_batches_costs_what_each_model_costs_alone(monkeypatch):
+    """PeriodicProblem.costs on a whole record, in batches of a few points
+    (TOGETHER_ROWS), against cost() model by model: a suspension's grid (its DOFs started at
+    one shared frequency: a pole met twice, left out of the point's columns as
+    _transient_key leaves it out of the basis) and a moved mode's. The grids are evaluated
+    together, not point by point."""
+    from workbench.diagnosis.effects import ModalMismatch, RigidSuspension
+
+    truth = _model(delay_s=1.3e-3, tau_in=(0.0, 0.0), tau_out=(0.0, 0.0))
+    data = _record(truth)
+    problem = make_problem(data, domain="frequency")
+    assert isinstance(problem, PeriodicProblem) and problem.whole
+    monkeypatch.setattr(PeriodicProblem, "TOGETHER_ROWS", 20 * problem.n_obs)  # 20 a batch
+    base = _two_rigid_model()
+    alone_calls = []
+    cost = problem.cost
+    monkeypatch.setattr(problem, "cost", lambda m: alone_calls.append(m) or cost(m))
+    for s in (RigidSuspension(), ModalMismatch(0)):
+        grid = s.grid(problem, base)
+        assert len(grid) > 40
+        models = [s.build(g, problem, base).model for g in grid]
+        together = problem.costs(models)
+        assert not alone_calls  # every point in a batch
+        alone = np.array([cost(m) for m in models])
+        assert np.allclose(together, alone, rtol=1e-9, atol=1e-12 * np.max(alone))
+
+
+def test_a_pole_met_twice_is_one_basis_term():
+    """Two modes at one frequency and damping: their pole is one transient term (the same
+    span as Householder QR's rank decision on the columns with it twice)."""
+    data = _record(_model())
+    problem = make_problem(data, domain="frequency")
+    model = _model()
+    twin = replace(model.modes[0], b=model.modes[0].b[::-1].copy())
+    doubled = replace(model, modes=model.modes + (twin,))
+    key = problem._transient_key(doubled)
+    assert key == problem._transient_key(model)
+    # the reference: the 40 Hz pole's columns twice, the repeated ones dropped by the QR
+    C = problem._columns(list(key[1]) + [key[1][0]], drift=True, n_delay=key[0])
+    Q, R = np.linalg.qr(np.concatenate([C.real, C.imag]))
+    Q = Q[:, np.abs(np.diag(R)) > 1e-10 * np.max(np.abs(np.diag(R)))]
+    P = problem._start_basis(doubled)
+    assert P.shape[1] == Q.shape[1]
+    assert np.max(np.abs(P @ P.T - Q @ Q.T)) <= 1e-9
+
+
+def test_a_screen_in_batches_is_the_screen_of_the_whole_grid(monkeypatch):
+    """fit.screen builds and evaluates a grid in the problem's batches (an added mode's
+    basis kept between its build and its cost): the same costs and order as the whole grid
+    at once."""
+    from workbench.diagnosis.effects import MissingMode
+    from workbench.diagnosis.fit import screen
+
+    data = _record(_model(delay_s=1.3e-3, tau_in=(0.0, 0.0), tau_out=(0.0, 0.0)))
+    base = replace(
+        _model(delay_s=1.3e-3, tau_in=(0.0, 0.0), tau_out=(0.0, 0.0)),
+        modes=_model().modes[:1],
+    )
+    out = {}
+    for rows in (2**40, 1):  # one batch; batches of 2 MIN_TOGETHER
+        monkeypatch.setattr(PeriodicProblem, "TOGETHER_ROWS", rows)
+        problem = make_problem(data, domain="frequency")
+        assert rows > 1 or problem.batch == 2 * PeriodicProblem.MIN_TOGETHER
+        out[rows] = screen(MissingMode(), problem, base)
+    a, b = out[2**40], out[1]
+    assert a.cost == pytest.approx(b.cost, rel=1e-12)
+    assert all(np.array_equal(x, y) for x, y in zip(a.starts[:10], b.starts[:10]))

@@ -297,14 +297,19 @@ def screen(structure: Structure, problem, base: ModalModel) -> Screening:
     costs = []
     if lines is None and callable(getattr(problem, "costs", None)):
         # a problem that evaluates a grid's models together (a periodic record's lines:
-        # PeriodicProblem.costs), the same costs
-        models = []
-        for g in grid:
-            try:
-                models.append(structure.build(g, problem, base).model)
-            except NUMERICAL_FAILURES:
-                models.append(None)
-        costs = problem.costs(models)
+        # PeriodicProblem.costs), the same costs; built and evaluated in its batches
+        # (``batch``): what a build computes and the problem keeps for a few dozen models (an
+        # added mode's transient basis, a whole record's 16 000 rows) is still there when
+        # the model is evaluated, where a whole grid built first had pushed it out
+        step = max(int(getattr(problem, "batch", 0) or len(grid)), 1)
+        for start in range(0, len(grid), step):
+            models = []
+            for g in grid[start : start + step]:
+                try:
+                    models.append(structure.build(g, problem, base).model)
+                except NUMERICAL_FAILURES:
+                    models.append(None)
+            costs.extend(problem.costs(models))
     else:
         for g in grid:
             try:

@@ -31,6 +31,7 @@ from workbench.modal.model import ModalModel, Mode
 from workbench.modal.simulate import (
     filtered_inputs,
     filtered_lines,
+    mixed_inputs,
     mixed_lines,
     mode_line_responses,
 )
@@ -537,7 +538,7 @@ def _orthonormal_columns(B: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
     else Householder QR with rank detection (columns whose R_ii < rtol max R_ii are
     dropped).
     """
-    norms = np.linalg.norm(B, axis=0)
+    norms = np.sqrt(np.einsum("ij,ij->j", B, B))  # np.linalg.norm(axis=0): ~3x slower, tall B
     Bs = B[:, norms > 0] / norms[norms > 0]
     try:
         Q, R = cholesky_qr2(Bs)
@@ -558,7 +559,7 @@ def _lstsq_std(X: np.ndarray, b: np.ndarray):
     """
     if X.shape[1] == 0:
         return np.zeros((0,) + b.shape[1:]), np.zeros(0)
-    scale = np.linalg.norm(X, axis=0)
+    scale = np.sqrt(np.einsum("ij,ij->j", X, X))  # np.linalg.norm(axis=0): ~3x slower, tall X
     scale = np.where(scale > 0, scale, 1.0)
     Xs = X / scale
     M = Xs.T @ Xs
@@ -819,12 +820,28 @@ class _FilteredProblem:
         parts = [(None, model.D, None)] if np.any(model.D) else []
         parts += [(m.denominator(), *m.numerator()) for m in model.modes]
         R = np.zeros((self.target.shape[0], n_y, n_u, n_u))  # (n_rows, n_y, j, k)
+        # per output group, every part's filtered inputs (slots) stacked as Z (n_rows, n_u,
+        # P) and their numerators' rows as W (P, rows, n_u): R[:, rows, :, k] = Z[:, k] W,
+        # one product per input k (an outer product per part, slot and channel wrote the
+        # whole (n_rows, n_y, n_u, n_u) array each time: most of a joint fit's evaluation)
+        stacks: dict = {}  # group -> ([filtered inputs], [numerator rows])
+        groups = None
         for den, N0, N1 in parts:
             X, groups = self._filtered(model, den, u_in)
             for g, rows in enumerate(groups):
-                R[:, rows] += np.einsum("nk,ij->nijk", X[g, :, :, 0], N0[rows])
-                if N1 is not None and np.any(N1):
-                    R[:, rows] += np.einsum("nk,ij->nijk", X[g, :, :, 1], N1[rows])
+                Zs, Ws = stacks.setdefault(g, ([], []))
+                for slot, N in ((0, N0), (1, N1)):
+                    if N is not None and (slot == 0 or np.any(N)):
+                        Zs.append(X[g, :, :, slot])
+                        Ws.append(N[rows])
+        for g, (Zs, Ws) in stacks.items():
+            rows = groups[g]
+            Z = np.stack(Zs, axis=-1)  # (n_rows, n_u, P)
+            W = np.stack(Ws).reshape(len(Ws), -1)  # (P, rows n_u)
+            Rg = np.empty((Z.shape[0], rows.size, n_u, n_u))
+            for k in range(n_u):
+                Rg[..., k] = (Z[:, k, :] @ W).reshape(-1, rows.size, n_u)
+            R[:, rows] = Rg
         if model.T_out is not None:
             R = np.einsum("ab,nbjk->najk", model.T_out, R)
         R = self._project(model, R)
@@ -873,9 +890,26 @@ class TimeProblem(_FilteredProblem):
         self._basis_cache: dict = {}
         self._anchors: list = []  # (channels, items, parts, sum), see _parts_sum
         self._residual_last = None  # (model, its weighted residual), see _regress
+        self._products: dict = {}  # T_in -> numerator, rows, cols -> mixed inputs (_mixed)
 
     def _filter(self, model, den, u_in):
         return filtered_inputs(model, den, u_in, self.fs)
+
+    def _mixed(self, model, den, N0, N1, u_in, channels):
+        """A mode's output on the record by :func:`mixed_inputs` (its inputs mixed by the
+        numerators, one recursion per output group); the filtered inputs (:meth:`_filter`)
+        only where a linear fit needs them as regressors. The feedthrough (``den`` None):
+        the delayed inputs mixed (:meth:`_FilteredProblem._mixed`)."""
+        if den is None:
+            return super()._mixed(model, den, N0, N1, u_in, channels)
+        # the inputs mixed by a numerator are kept per input coupling (u_in's only variable)
+        T_in = _key(model.T_in)
+        products = self._products.get(T_in)
+        if products is None:
+            if len(self._products) > 8:
+                self._products.clear()
+            products = self._products[T_in] = {}
+        return mixed_inputs(model, den, N0, N1, u_in, self.fs, products=products)
 
     def _start_basis(self, model: ModalModel) -> np.ndarray | None:
         """Orthonormal basis (N, n_b) of the model's free responses, or None (from rest)."""
@@ -1118,7 +1152,9 @@ class PeriodicProblem(_FilteredProblem):
             if self.settle == 0:
                 m_int, frac = split_delay(model.delay_s, 1.0 / self.fs)
                 n_delay = m_int + (1 if frac > 0 else 0)
-            key = (n_delay, tuple(np.round(poles, 15)))
+            # a pole met twice (two modes at one frequency and damping, a suspension's DOFs
+            # started together) once: the same span, where its columns twice are singular
+            key = (n_delay, tuple(dict.fromkeys(np.round(poles, 15).tolist())))
             if len(self._basis_key) > 2000:
                 self._basis_key.clear()
             self._basis_key[channels] = key
@@ -1207,10 +1243,12 @@ class PeriodicProblem(_FilteredProblem):
         i, Q_rest = rest
         C = self._columns([poles[i]], drift=False)
         W = np.concatenate([C.real, C.imag])
-        W = W / np.linalg.norm(W, axis=0)
+        # column norms by einsum: np.linalg.norm(axis=0) of a tall array of 1-2 columns
+        # reduces across the rows at ~3x the cost
+        W = W / np.sqrt(np.einsum("ij,ij->j", W, W))
         for _ in range(2):
             W = W - Q_rest @ (Q_rest.T @ W)
-        norms = np.linalg.norm(W, axis=0)
+        norms = np.sqrt(np.einsum("ij,ij->j", W, W))
         if np.min(norms) < NEAR_SPAN:
             return None
         # the pole's own few columns (a pair's two may be near parallel for a pole near the
@@ -1244,10 +1282,15 @@ class PeriodicProblem(_FilteredProblem):
         span) is evaluated alone by :meth:`cost`.
         """
         out = np.full(len(models), np.nan)
-        together = self._moved_costs(models)
-        if together is not None:
-            idx, values = together
-            out[idx] = values
+        # in batches of about TOGETHER_ROWS / n_obs points: a whole record's rows (~ its
+        # samples) times a grid's hundreds of points made arrays of hundreds of MB, each
+        # pass over them bound by memory (a planar record's 360-point suspension grid: 12 s)
+        n_batches = -(-len(models) // self.batch)
+        for batch in np.array_split(np.arange(len(models)), max(n_batches, 1)):
+            together = self._moved_costs([models[i] for i in batch])
+            if together is not None:
+                idx, values = together
+                out[batch[idx]] = values
         for i, m in enumerate(models):
             if np.isnan(out[i]):
                 try:
@@ -1257,8 +1300,17 @@ class PeriodicProblem(_FilteredProblem):
         out[~np.isfinite(out)] = np.inf
         return out
 
+    @property
+    def batch(self) -> int:
+        """Models :meth:`costs` evaluates together, at most (and a screen builds at a time:
+        :func:`workbench.diagnosis.fit.screen`): about :data:`TOGETHER_ROWS` / n_obs."""
+        return max(2 * self.MIN_TOGETHER, self.TOGETHER_ROWS // self.n_obs)
+
     #: fewest models of one pattern that :meth:`_moved_costs` evaluates together
     MIN_TOGETHER = 8
+    #: real numbers of the residual (:attr:`n_obs`) times points that :meth:`costs` evaluates
+    #: in one batch (a whole record: 16 points; a periodic record's lines: the whole grid)
+    TOGETHER_ROWS = 2**20
 
     def _moved_costs(self, models: list):
         """The costs of the models that differ from the first only in moved modes, or None.
@@ -1346,6 +1398,13 @@ class PeriodicProblem(_FilteredProblem):
         poles = np.exp(lam / self.fs)
         slow = np.abs(poles) ** self.settle > SETTLED
         ok &= ~np.any(slow & (zeta >= 1.0), axis=1)  # an overdamped slow pole: alone
+        # a pole equal to another moved one adds nothing to the span (two modes' terms over
+        # one pole are one term; :meth:`_transient_key` drops it alike): its columns are left
+        # out, where they would make the point's columns singular and send it to be evaluated
+        # alone (a suspension's grid starts its DOFs at one shared frequency)
+        rounded = np.round(poles, 15)
+        for c in range(1, len(ks)):
+            slow[:, c] &= ~np.any(rounded[:, :c] == rounded[:, c : c + 1], axis=1)
         costs = np.full(P, np.nan)
         for pattern in {tuple(row) for row in slow}:
             sel = np.flatnonzero(np.all(slow == np.array(pattern, bool), axis=1) & ok)

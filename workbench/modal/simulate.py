@@ -1,35 +1,42 @@
 """Exact zero-order-hold simulation of a :class:`~workbench.modal.model.ModalModel`, mode by mode.
 
 Each mode ``(N1 s + N0) / den(s)`` is simulated by filtering the inputs
-through ``1/den`` and ``s/den`` (and the lags and delay of their channel)
-with ``scipy.signal.lfilter`` and mixing the filtered inputs with ``N0``,
-``N1``: a 10,000-sample 6x6 record takes milliseconds, and a fit that
-changes one mode refilters that mode only (the diagnosis's time-domain
-problem caches :func:`filtered_inputs` per mode).
+through ``1/den`` and ``s/den`` (and the lags and delay of their channel;
+exact ZOH coefficients, by partial fractions where the poles are distinct)
+with ``lfilter``'s recursion (compiled: :mod:`workbench._filter_kernel`) and
+mixing the filtered inputs with ``N0``, ``N1``: a 10,000-sample 6x6 record
+takes milliseconds, and a fit that changes one mode refilters that mode only
+(the diagnosis's time-domain problem caches :func:`filtered_inputs` per mode,
+the regressors of its linear fits, and computes a mode's output by
+:func:`mixed_inputs`: the inputs mixed by the numerators first, both filters
+in one recursion).
 
 Data flow::
 
     u (N, n_u) --T_in--> per (sensor-lag, actuator-lag) group:
         zoh_filter(num, den * lags, delay) --> X (groups, N, n_u, 2)
         --N0, N1 rows--> y (N, n_y) --T_out--> y
+    (mixed_inputs: u --N0, N1 rows--> per group one recursion --> y)
 """
 
 from __future__ import annotations
 
 import cmath
 import functools
+import math
 from typing import NamedTuple
 
 import numpy as np
 import scipy.linalg
-import scipy.signal
 
+from workbench._filter_kernel import iir_streams
 from workbench.sim import c2d_zoh, split_delay
 
 __all__ = [
     "filtered_inputs",
     "filtered_lines",
     "line_responses",
+    "mixed_inputs",
     "mixed_lines",
     "mode_line_responses",
     "simulate",
@@ -161,6 +168,84 @@ def filtered_inputs(model, den, u: np.ndarray, fs: float, *, numerator_s: bool =
         for k, num in enumerate(f.nums):
             X[f.g, :, f.cols, k] = zoh_filter(num, f.d, u[:, f.cols], 1.0 / fs, model.delay_s).T
     return X, groups
+
+
+def mixed_inputs(model, den, N0, N1, u: np.ndarray, fs: float, *, products=None) -> np.ndarray:
+    """One mode's output on the record, (N, n_y): :func:`filtered_inputs` mixed by the
+    numerator ``N1 s + N0``, without forming the filtered inputs.
+
+    Per filter (output group, input-lag set) the inputs are mixed by each numerator first,
+    ``x_k = u[:, cols] N_k[rows, cols]^T``, and the filters ``1/d`` and ``s/d`` (one
+    denominator) run as one recursion over the group's outputs
+    (:func:`workbench._filter_kernel.iir_streams`): n_rows signals where
+    :func:`filtered_inputs` filters 2 n_u and the mixing then reads them back (a fit
+    evaluates thousands of moved modes; their regressors are needed only by the linear
+    fits). ``den`` (a mode's, :meth:`Mode.denominator`; not None), ``N0``, ``N1`` (n_y,
+    n_u; ``N1`` None or zero: ``1/d`` only), ``u`` (N, n_u) after the input coupling, ``fs``
+    Hz. ``products``: a cache of the mixed inputs for this ``u`` (the caller keeps one per
+    ``u``), keyed by the numerator and the filter's rows and columns: a moved mode keeps
+    its numerator. The same output as mixing :func:`filtered_inputs` (the additions in
+    another order: rounding).
+    """
+    filters, groups = _channel_filters(model, den, True)
+    dt = 1.0 / fs
+    m_int, frac = split_delay(model.delay_s, dt)
+    N = u.shape[0]
+    y = np.zeros((N, N0.shape[0]))
+    numerators = (N0, N1) if N1 is not None and np.any(N1) else (N0,)
+    for f in filters:
+        rows = groups[f.g]
+        coefficients = []
+        for num in f.nums[: len(numerators)]:
+            (num,), dm = _monic([num], f.d)
+            if num[0] or dm.size == 1:
+                raise ValueError("mixed_inputs: a mode's strictly proper filters only")
+            coefficients.append(_zoh_coefficients(num.tobytes(), dm.tobytes(), dt, frac))
+        a = coefficients[0][1]
+        if 2 * f.cols.size < rows.size and len(coefficients) == 2:
+            # a lag on one input of many outputs: its column through 1/d and s/d (two
+            # recursions) and mixed after, fewer than one recursion per output
+            x = np.ascontiguousarray(u[:, f.cols].T)[None]
+            out = 0.0
+            for (b, _), N_k in zip(coefficients, numerators):
+                X = iir_streams(b[None], a, x)  # (n_cols, N)
+                out = out + N_k[np.ix_(rows, f.cols)] @ X
+        else:
+            bs = np.stack([b for b, _ in coefficients])
+            xs = np.stack(
+                [_mixed_record(u, N_k, rows, f.cols, products) for N_k in numerators[: len(bs)]]
+            )
+            out = iir_streams(bs, a, xs)  # (n_rows, N)
+        if m_int < N:
+            y[m_int:, rows] += out[:, : N - m_int].T
+    return y
+
+
+#: numerators whose mixed inputs a ``products`` cache of :func:`mixed_inputs` keeps (each
+#: n_y N floats: 0.4 MB for a 16 384-sample record with 3 outputs)
+RECORD_PRODUCTS_KEPT = 64
+
+
+def _mixed_record(u: np.ndarray, N: np.ndarray, rows, cols, products: dict | None):
+    """``(u[:, cols] N[rows][:, cols]^T)^T`` (n_rows, N_samples), C-contiguous, from / into
+    the ``products`` cache when given."""
+    key = None
+    if products is not None:
+        key = (N.tobytes(), np.asarray(rows).tobytes(), np.asarray(cols).tobytes())
+        out = products.get(key)
+        if out is not None:
+            return out
+    if cols.size == u.shape[1]:
+        x = (u @ N[rows].T).T
+    else:
+        x = (u[:, cols] @ N[np.ix_(rows, cols)].T).T
+    x = np.ascontiguousarray(x)
+    if products is not None:
+        if len(products) >= RECORD_PRODUCTS_KEPT:
+            products.pop(next(iter(products)))
+        x.flags.writeable = False
+        products[key] = x
+    return x
 
 
 def line_responses(model, den, z: np.ndarray, fs: float, *, numerator_s=True, responses=None):
@@ -371,6 +456,11 @@ def _zoh_coefficients(num_bytes: bytes, den_bytes: bytes, dt: float, frac: float
     """
     num, den = np.frombuffer(num_bytes), np.frombuffer(den_bytes)
     strict = num[1:] - num[0] * den[1:]
+    closed = _pole_coefficients(strict, den, dt, frac)
+    if closed is not None:
+        for x in closed:
+            x.flags.writeable = False
+        return closed
     Ad, B0, B1, t, a = _zoh_discretization(den_bytes, dt, frac)
     C = (strict * t)[None, :]
     # SISO transfer functions of (Ad, B0, C) and (Ad, B1, C): numerator
@@ -380,6 +470,119 @@ def _zoh_coefficients(num_bytes: bytes, den_bytes: bytes, dt: float, frac: float
     b = np.concatenate([b0, [0.0]]) + np.concatenate([[0.0], b1])
     b.flags.writeable = False
     return b, a
+
+
+def _pole_coefficients(strict: np.ndarray, den: np.ndarray, dt: float, frac: float):
+    """(b, a) of :func:`_zoh_coefficients` by partial fractions, or None.
+
+    Over the simple poles ``lam_k`` of the monic ``den`` (residues ``r_k`` of
+    ``strict(s) / den(s)``), each pole samples to ``r_k (b0_k z^-1 + b1_k z^-2) / (1 - p_k
+    z^-1)``, ``p_k = exp(lam_k dt)`` (:func:`_pole_responses`); over the common denominator
+    ``a = prod_k (1 - p_k z^-1)`` the numerator is ``b = sum_k r_k (b0_k z^-1 + b1_k z^-2)
+    prod_{j != k} (1 - p_j z^-1)``. The same filter as the discretization by the matrix
+    exponential (to ~1e-13 relative), without its balancing, exponential and three
+    characteristic polynomials: a fit moving a mode asks for new coefficients at every
+    evaluation. None where two poles lie within :data:`_POLE_SEPARATION` (the rigid body's
+    double pole among them) or the result is not finite: the exponential then.
+    """
+    n = den.size - 1
+    if n == 0:
+        return None
+    if n == 2:  # a mode, the most frequent filter: in scalar arithmetic
+        return _pair_coefficients(strict, float(den[1]), float(den[2]), dt, frac)
+    lam = np.array([-den[1]], complex) if n == 1 else np.roots(den).astype(complex)
+    if _too_close(lam):
+        return None
+    # scalar arithmetic from here (n <= 4 behind lags: numpy's per-call cost dominated)
+    lam = [complex(x) for x in lam]
+    dden = [(n - i) * float(den[i]) for i in range(n)]  # den', highest power first
+    try:
+        r = [_horner(strict, x) / _horner(dden, x) for x in lam]
+        p = [cmath.exp(x * dt) for x in lam]
+        b0 = [_integral(x, dt - frac, dt) for x in lam]
+        b1 = [cmath.exp(x * (dt - frac)) * _integral(x, frac, dt) for x in lam]
+    except (OverflowError, ZeroDivisionError):
+        return None
+    b = [0j] * (n + 2)
+    for k in range(n):
+        rest = _poly_z(p[:k] + p[k + 1 :])  # prod_{j != k} (1 - p_j z^-1), length n
+        for i, c in enumerate(rest):
+            b[1 + i] += r[k] * b0[k] * c
+            b[2 + i] += r[k] * b1[k] * c
+    a = _poly_z(p)
+    b, a = np.array([x.real for x in b]), np.array([x.real for x in a])
+    if not (np.all(np.isfinite(b)) and np.all(np.isfinite(a))):
+        return None
+    return b, a
+
+
+def _horner(c, x: complex) -> complex:
+    """The polynomial with coefficients ``c`` (highest power first) at ``x``."""
+    v = 0j
+    for ci in c:
+        v = v * x + float(ci)
+    return v
+
+
+def _poly_z(p: list) -> list:
+    """Coefficients of ``prod_k (1 - p_k z^-1)`` in powers of ``z^-1`` (0 first)."""
+    c = [1 + 0j]
+    for pk in p:
+        c = [x - pk * y for x, y in zip(c + [0j], [0j] + c)]
+    return c
+
+
+def _integral(lam: complex, t: float, dt: float) -> complex:
+    """``int_0^t exp(lam s) ds``, its limit ``t`` at ``lam = 0`` (as :func:`_pole_responses`)."""
+    x = lam * t
+    if abs(lam) * dt < 1e-8:
+        return t * (1 + 0.5 * x)
+    return _expm1(x) / lam
+
+
+def _pair_coefficients(strict: np.ndarray, a1: float, a0: float, dt: float, frac: float):
+    """:func:`_pole_coefficients` of ``s^2 + a1 s + a0`` (a mode), its two poles in closed
+    form and every step in scalar arithmetic (the array path's calls cost ~10x more)."""
+    h = 0.5 * a1
+    q = cmath.sqrt(h * h - a0)
+    l1, l2 = q - h, -h - q
+    d = 2.0 * q  # den'(l1) = -den'(l2) = l1 - l2
+    if abs(d) <= _POLE_SEPARATION * max(abs(l1), abs(l2), 1e-300):
+        return None
+    c1, c0 = float(strict[0]), float(strict[1])
+    r1, r2 = (c1 * l1 + c0) / d, -(c1 * l2 + c0) / d
+
+    try:
+        p1, p2 = cmath.exp(l1 * dt), cmath.exp(l2 * dt)
+        b01, b02 = _integral(l1, dt - frac, dt), _integral(l2, dt - frac, dt)
+        if frac > 0:
+            b11 = cmath.exp(l1 * (dt - frac)) * _integral(l1, frac, dt)
+            b12 = cmath.exp(l2 * (dt - frac)) * _integral(l2, frac, dt)
+        else:
+            b11 = b12 = 0.0
+    except OverflowError:
+        return None
+    b = np.array(
+        [
+            0.0,
+            (r1 * b01 + r2 * b02).real,
+            (r1 * (b11 - b01 * p2) + r2 * (b12 - b02 * p1)).real,
+            -(r1 * b11 * p2 + r2 * b12 * p1).real,
+        ]
+    )
+    a = np.array([1.0, -(p1 + p2).real, (p1 * p2).real])
+    if not (np.all(np.isfinite(b)) and np.all(np.isfinite(a))):
+        return None
+    return b, a
+
+
+def _expm1(x: complex) -> complex:
+    """``exp(x) - 1`` without the cancellation near x = 0 (cmath has no expm1):
+    ``e^a cos b - 1 = expm1(a) cos b - 2 sin(b/2)^2`` for ``x = a + ib``."""
+    a, b = x.real, x.imag
+    return complex(
+        math.expm1(a) * math.cos(b) - 2.0 * math.sin(0.5 * b) ** 2, math.exp(a) * math.sin(b)
+    )
 
 
 def _monic(nums, den):
@@ -407,7 +610,9 @@ def zoh_filter(num, den, u: np.ndarray, dt: float, delay_s: float = 0.0) -> np.n
     y = np.zeros(u.shape)
     if n > 0:
         b, a = _zoh_coefficients(num.tobytes(), den.tobytes(), float(dt), float(frac))
-        y = scipy.signal.lfilter(b, a, u, axis=0)
+        # lfilter's recursion, compiled, on the signals laid out one after the other
+        flat = np.ascontiguousarray(u.reshape(N, -1).T)
+        y = iir_streams(b[None], a, flat[None]).T.reshape(u.shape)
         if m_int:
             y = np.concatenate([np.zeros((min(m_int, N),) + u.shape[1:]), y[: max(N - m_int, 0)]])
     if d:
