@@ -55,3 +55,23 @@ def test_a_non_periodic_part_inflates_the_spread_not_the_white_estimate():
     # bin, so they lift the median a little (1.3x)
     assert detect.noise_floor(data) > 3 * floor
     assert 0.95 * floor < detect.noise_floor(data, white=True) < 1.5 * floor
+
+
+def test_white_residual_passes_white_noise_and_fails_a_resonance_below_it():
+    """Ljung-Box on a record without periods: white noise passes at the 1e-3 level (2 of
+    20 seeds failing would already be a 2e-4 event); a lightly
+    damped resonance's response at a tenth of the noise's power (what a port element's
+    distortion looks like through the plant) fails, as does a first-order coloured noise."""
+    N = 16384
+    passes = [
+        detect.white_residual(np.random.default_rng(s).standard_normal((N, 3))) for s in range(20)
+    ]
+    assert sum(passes) >= 18
+    rng = np.random.default_rng(7)
+    white = rng.standard_normal((N, 2))
+    b, a = scipy.signal.iirpeak(60.0, 20.0, fs=FS)
+    ring = scipy.signal.lfilter(b, a, rng.standard_normal(N))
+    ring *= np.sqrt(0.1) / ring.std()
+    assert not detect.white_residual(white + np.c_[ring, np.zeros(N)])
+    ar1 = scipy.signal.lfilter([1.0], [1.0, -0.2], rng.standard_normal(N))
+    assert not detect.white_residual(np.c_[ar1, white[:, 0]])

@@ -8,7 +8,9 @@
   excitation leaves empty, beyond the noise (the part of the output a linear
   model cannot produce);
 - :func:`noise_floor`: the spec time-domain error the noise of a periodic
-  record leaves, from the spread of its periods.
+  record leaves, from the spread of its periods;
+- :func:`white_residual`: whether a residual is white noise (Ljung-Box), where a
+  record without periods gives no floor.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ __all__ = [
     "nonlinearity",
     "noise_floor",
     "periodic_misfit",
+    "white_residual",
     "Where",
     "NonlinearityEvidence",
 ]
@@ -347,3 +350,34 @@ def noise_floor(
     xs = [data.y] + ([data.y - y_model] if y_model is not None else [])
     var = min(f(rec, x) for f in spreads for x in xs)
     return float(np.sqrt(var * data.y.shape[0]) / norm)
+
+
+def white_residual(resid: np.ndarray, *, max_lag: int = 20, false_alarm: float = 1e-3) -> bool:
+    """Whether every output's residual is white: the Ljung-Box test of its autocorrelation.
+
+    ``resid`` (N, n_y): a record's output residual. Per output, ``Q = N (N + 2) sum_k
+    r_k^2 / (N - k)`` over lags 1..``max_lag`` (``r_k`` the normalized autocorrelation) is
+    chi2(max_lag) for white noise (G. M. Ljung and G. E. P. Box, Biometrika 65, 1978); white
+    when every output's Q stays below the level a white residual passes with probability
+    ``1 - false_alarm`` (Bonferroni over the outputs).
+
+    What a record that is not periodic offers in place of a noise floor: a model that
+    leaves white output noise (the sensor noise of an output-error fit) leaves nothing a
+    dynamic element would explain, while a misfit through the plant's dynamics (a port
+    element's distortion beyond its linearization) is coloured. Coloured sensor noise fails
+    the test too: the caller must treat False as "unknown", not as "misfit".
+    """
+    import scipy.stats
+
+    from workbench.validate.compare import _xcorr
+
+    e = np.asarray(resid, float)
+    N, n_y = e.shape
+    L = int(min(max_lag, N // 4))
+    if L < 1:
+        return False
+    r = _xcorr(e, e, L)[L + 1 :]  # lags 1..L, (L, n_y, n_y)
+    r = r[:, np.arange(n_y), np.arange(n_y)]  # each output's own
+    k = np.arange(1, L + 1)[:, None]
+    Q = N * (N + 2) * np.sum(r**2 / (N - k), axis=0)
+    return bool(np.all(Q < scipy.stats.chi2.isf(false_alarm / n_y, L)))
