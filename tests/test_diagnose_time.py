@@ -64,3 +64,27 @@ def test_nonlinearity_on_unexcited_lines():
     assert "nonlinearity" in effects
     nl = next(f for f in result.findings if f.effect == "nonlinearity")
     assert 0 < nl.parameters["level"] < 1
+
+
+def test_none_on_a_record_without_periods_says_whether_the_residual_is_white():
+    """Without periods there is no noise floor: "nothing is missing" only where the right
+    model's residual is white; coloured (a slow drift of the sensor here) it says so."""
+    import scipy.signal
+
+    from workbench.diagnosis.diagnose import _none_finding, base_model
+    from workbench.diagnosis.problem import make_problem
+
+    case = time_case(beam(), "none", {}, rel=0.01, rng=np.random.default_rng(4))
+    d = case.data
+    drift = scipy.signal.lfilter(
+        [1.0], [1.0, -0.99], np.random.default_rng(5).standard_normal(d.y.shape), axis=0
+    )
+    texts = []
+    for y in (d.y, d.y + 0.3 * np.std(d.y - np.mean(d.y, 0)) * drift / np.std(drift)):
+        data = TimeData(fs=d.fs, u=d.u, y=y, r=d.r, loop=d.loop, period=None)
+        problem = make_problem(data)
+        model = base_model(case.nominal, data)
+        err = problem.error(model)
+        texts.append(_none_finding(problem, model, data, err, err, None, []).explanation)
+    assert texts[0].endswith("nothing is missing.")
+    assert "not white" in texts[1] and "nothing is missing" not in texts[1]

@@ -1828,7 +1828,8 @@ def _none_finding(
     ``drift``: the noise floor estimated from a periodic record's periods
     (:func:`workbench.diagnosis.detect.noise_floor`) when the error stays above
     DRIFT_RATIO times it: the steady state is right but not the from-rest simulation, and
-    the explanation says so instead of "nothing is missing".
+    the explanation says so instead of "nothing is missing". On a record without periods
+    it says "nothing is missing" only when the residual is white.
     """
     if problem.kind == "frf" and problem.has_var:
         chi = problem.cost(model) / problem.n_obs * 2
@@ -1844,7 +1845,19 @@ def _none_finding(
     if alternatives:
         a = alternatives[0]
         reason += f"; the best candidate, {a['effect']}, would only reach {a['error_after']:.4g}"
-    if drift is None:
+    coloured = (
+        isinstance(data, TimeData)
+        and not data.period
+        and not detect.white_residual(data.y - problem.predict(model))
+    )
+    if coloured:
+        # no periods, no noise floor: the residual's whiteness is the only noise test left
+        reason += (
+            ". The record has no periods to tell noise from misfit, and the residual is not "
+            "white (Ljung-Box, detect.white_residual): part of it may be a misfit no effect "
+            "of the vocabulary explains, or coloured sensor noise; a periodic record tells."
+        )
+    elif drift is None:
         reason += ": nothing is missing."
     else:
         reason += (
