@@ -7,28 +7,16 @@ the run over the whole record).
 
 from __future__ import annotations
 
-import control
 import numba
 import numpy as np
 import pytest
+from test_diagnosis_generalizes_nonlinear import _two_masses
 
 from workbench._port_kernel import _tanh
 from workbench.diagnosis import nonlinear
 from workbench.diagnosis.nonlinear import PortNonlinearity, fit_port_element, simulate_nonlinear
 
 FS = 1000.0
-
-
-def _two_masses() -> control.StateSpace:
-    """Two masses (1 kg, 2 kg) on springs, a coupling spring; forces and displacements
-    collocated (as in test_diagnosis_generalizes_nonlinear)."""
-    M = np.diag([1.0, 2.0])
-    K = np.array([[6e3, -2e3], [-2e3, 11e3]])
-    C = 0.002 * K + 0.5 * M
-    Mi = np.linalg.inv(M)
-    A = np.block([[np.zeros((2, 2)), np.eye(2)], [-Mi @ K, -Mi @ C]])
-    B = np.vstack([np.zeros((2, 2)), Mi])
-    return control.ss(A, B, np.hstack([np.eye(2), np.zeros((2, 2))]), 0)
 
 
 @numba.njit

@@ -676,6 +676,17 @@ class _FilteredProblem:
                 out[:, rows] += X[g, :, :, 1] @ N1[rows].T
         return out
 
+    def _products_of(self, model: ModalModel) -> dict:
+        """The cache of inputs mixed by each numerator for the model's input coupling
+        (``u_in``'s only variable): :func:`mixed_inputs` / :func:`mixed_lines` fill it."""
+        T_in = _key(model.T_in)
+        products = self._products.get(T_in)
+        if products is None:
+            if len(self._products) > 8:
+                self._products.clear()
+            products = self._products[T_in] = {}
+        return products
+
     def _u_in(self, model: ModalModel) -> np.ndarray:
         return self.u_rows if model.T_in is None else self.u_rows @ model.T_in.T
 
@@ -902,13 +913,7 @@ class TimeProblem(_FilteredProblem):
         the delayed inputs mixed (:meth:`_FilteredProblem._mixed`)."""
         if den is None:
             return super()._mixed(model, den, N0, N1, u_in, channels)
-        # the inputs mixed by a numerator are kept per input coupling (u_in's only variable)
-        T_in = _key(model.T_in)
-        products = self._products.get(T_in)
-        if products is None:
-            if len(self._products) > 8:
-                self._products.clear()
-            products = self._products[T_in] = {}
+        products = self._products_of(model)
         return mixed_inputs(model, den, N0, N1, u_in, self.fs, products=products)
 
     def _start_basis(self, model: ModalModel) -> np.ndarray | None:
@@ -1100,13 +1105,7 @@ class PeriodicProblem(_FilteredProblem):
         """The part on the lines from the filters' responses (:func:`mixed_lines`), the real
         parts of the lines stacked over the imaginary ones; the filtered inputs
         (:meth:`_filter`) only where a linear fit needs them as regressors."""
-        # the inputs mixed by a numerator are kept per input coupling (u_in's only variable)
-        T_in = _key(model.T_in)
-        products = self._products.get(T_in)
-        if products is None:
-            if len(self._products) > 8:
-                self._products.clear()
-            products = self._products[T_in] = {}
+        products = self._products_of(model)
         Y = mixed_lines(
             model, den, N0, N1, u_in, self.z, self.fs, responses=self._responses, products=products
         )
