@@ -761,6 +761,18 @@ def _diagnose(
         # simulation model can show
         nl_ev = _misfit_evidence(cur_err, F_end, problem.band_hz)
         nl_first_rank = [f.effect for f in found] == ["suspension_stiffness"]
+    elif (
+        timed
+        and nl_first is None
+        and not data.period
+        and not detect.white_residual(data.y - problem.predict(current))
+    ):
+        # no periods: the residual's colour is the only sign left that the linear search
+        # stopped above the noise (an indepgen stage record with subtle friction ended
+        # 'none' at 4.2x the floor); the element is tried, and must lower the error by
+        # ERROR_RATIO to be a finding (coloured sensor noise it cannot explain)
+        nl_ev = _misfit_evidence(cur_err, 0.0, problem.band_hz)
+        nl_first_rank = not found or [f.effect for f in found] == ["suspension_stiffness"]
     if nl_ev is not None:
         # the element is fitted on the final linear model and on the model as given: what
         # the linear search found may be only what the element linearizes to (a port
