@@ -410,3 +410,39 @@ def test_time_pairs_name_both_effects(name):
         perr = param_error(e["effect"], e["parameters"], got[e["effect"]].parameters)
         assert perr is None or perr <= TOL[e["effect"]][1], (e["effect"], perr)
     assert res.findings[-1].error_after <= 1.1 * floor
+
+
+_INC1 = 194290289479364712180083596243593368443
+#: indepgen seed 1 ``--kinds time --effects nonlinearity --nonperiodic``: records without
+#: periods, where only the residual's colour says the linear search stopped above the noise
+#: (stage: 'none' at 4.23x the floor; beam: two missing modes at 1.34x)
+_NONPERIODIC_DRAWS = {
+    "stage_subtle_friction": (
+        "stage",
+        (263799596099406378933971500594887409256, _INC1, 0, 267789403),
+        0.0030084064333515408,
+        "coulomb_friction",
+    ),
+    "beam_subtle_saturation": (
+        "beam",
+        (96408444668004718395943044380298202474, _INC1, 0, 1061767445),
+        0.008629984135195492,
+        "saturation",
+    ),
+}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(_NONPERIODIC_DRAWS))
+def test_nonperiodic_records_name_the_element(name):
+    plant, state, floor, element = _NONPERIODIC_DRAWS[name]
+    rng = _rng_at(*state)
+    case = make_case(
+        rng, plant=plant, kind="time", effects=("nonlinearity",), size="subtle", periodic=False
+    )
+    assert case.answer["noise_floor_error"] == pytest.approx(floor, rel=1e-9)
+    res = diagnose(case.nominal, case.data)
+    top = res.findings[0]
+    assert top.effect == "nonlinearity", [f.effect for f in res.findings]
+    assert top.parameters["element"] == element, top.parameters.get("element")
+    assert res.findings[-1].error_after <= 1.1 * floor
