@@ -369,14 +369,14 @@ def white_residual(resid: np.ndarray, *, max_lag: int = 20, false_alarm: float =
     """
     import scipy.stats
 
-    from workbench.validate.compare import _xcorr
+    from workbench.validate.compare import xcorr
 
     e = np.asarray(resid, float)
     N, n_y = e.shape
     L = int(min(max_lag, N // 4))
     if L < 1:
         return False
-    r = _xcorr(e, e, L)[L + 1 :]  # lags 1..L, (L, n_y, n_y)
+    r = xcorr(e, e, L)[L + 1 :]  # lags 1..L, (L, n_y, n_y)
     r = r[:, np.arange(n_y), np.arange(n_y)]  # each output's own
     k = np.arange(1, L + 1)[:, None]
     Q = N * (N + 2) * np.sum(r**2 / (N - k), axis=0)

@@ -40,7 +40,7 @@ from workbench.core.arrays import readonly
 from workbench.io.formats import FrfData, TimeData, check_model_matches
 from workbench.signals.quality import runs
 
-__all__ = ["Band", "Comparison", "FrfDetail", "TimeDetail", "compare", "band_threshold"]
+__all__ = ["Band", "Comparison", "FrfDetail", "TimeDetail", "compare", "band_threshold", "xcorr"]
 
 
 def _ro(a) -> np.ndarray | None:
@@ -500,7 +500,7 @@ def kalman_predict(
     return yhat + feed
 
 
-def _xcorr(e: np.ndarray, x: np.ndarray, max_lag: int) -> np.ndarray:
+def xcorr(e: np.ndarray, x: np.ndarray, max_lag: int) -> np.ndarray:
     """Normalized cross-correlation, (2L+1, n_y, n_u): sum_t e(t) x(t - tau) / norms."""
     N = e.shape[0]
     e = e - e.mean(axis=0)
@@ -647,7 +647,7 @@ def _compare_time(model, data: TimeData, *, delay_s, window, false_alarm, gap, m
     _, p_y = scipy.signal.welch(y, fs=data.fs, nperseg=nper, axis=0)
     exc, against = (data.r, "r") if data.r is not None else (data.u, "u")
     L = int(min(max_lag, data.n_samples - 1))
-    xc = _xcorr(resid, exc, L)
+    xc = xcorr(resid, exc, L)
     bound = 2.58 / np.sqrt(data.n_samples)
     exceeds = np.abs(xc).max(axis=0) > bound
     per = _periodic_z(data, resid)
