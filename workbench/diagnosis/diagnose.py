@@ -461,10 +461,18 @@ def _diagnose(
         elif floor is not None and cur_err <= FLOOR_RATIO * floor:
             break
         if isinstance(data, TimeData):
-            F = detect.periodic_misfit(data, problem.predict(current))
+            predicted = problem.predict(current)
+            F = detect.periodic_misfit(data, predicted)
             if round_ == 0:
                 F_given = F
             if F is not None and F < PERIODIC_F:
+                break
+            if round_ > 0 and not data.period and detect.white_residual(data.y - predicted):
+                # no periods, no floor: a residual left white by the findings so far is the
+                # sensor noise of an output-error fit, nothing a further effect would explain
+                # through the plant's dynamics (coloured). The next round's joint refits cost
+                # most of the diagnosis (an indep3 shaft suspension, 35 of 47 s, the error
+                # already 1.0001x the noise floor); coloured noise keeps the search going
                 break
         structures = candidate_structures(current, problem, exclude=exclude)
         if effects is not None:
