@@ -81,3 +81,28 @@ def test_residual_compliance_split_with_a_mode_that_rings_in_the_record():
     # an FRF shows no aliases: the same mode is named only at its own frequency
     assert param_error("missing_mode", truth, ringing, fs=None) > 0.5
     assert param_error("missing_mode", truth, ringing, fs=7900.0) < 1e-12
+
+
+def test_record_without_periods_stops_where_the_residual_is_white(monkeypatch):
+    """A record without periods has no noise floor of its own: once the findings leave a
+    white residual, no further round is searched (its joint refits were most of the time,
+    for nothing), and the finding is the generator's effect at the noise floor."""
+    from indepgen3 import make_suite
+
+    # the module (the package's name ``diagnose`` is the function)
+    diagnose_module = sys.modules["workbench.diagnosis.diagnose"]
+
+    calls = []
+    joint = diagnose_module.fit_joint
+    monkeypatch.setattr(
+        diagnose_module, "fit_joint", lambda *a, **k: calls.append(1) or joint(*a, **k)
+    )
+    ((plant, effect, kind, rng),) = make_suite(
+        0, kinds=("time",), plants=("shaft",), effects=("time_delay",)
+    )
+    case = make_case(effect, plant, kind, rng)
+    assert not case.answer["periodic"]
+    res = diagnose(case.nominal, to_measurement(case))
+    row = score(case, res)
+    assert row["top"] == "time_delay" and row["param_ok"] and row["ratio"] <= 1.05, row
+    assert len(res.findings) == 1 and not calls
