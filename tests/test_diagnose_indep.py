@@ -446,3 +446,30 @@ def test_nonperiodic_records_name_the_element(name):
     assert top.effect == "nonlinearity", [f.effect for f in res.findings]
     assert top.parameters["element"] == element, top.parameters.get("element")
     assert res.findings[-1].error_after <= 1.1 * floor
+
+
+@pytest.mark.slow
+def test_compliance_pseudo_mode_folded_from_twice_the_sampling_rate_is_the_missing_mode():
+    # indepgen seed 4 with ``--kinds time --plants stage --pairs --nonperiodic``: an actuator
+    # lag (4737 Hz on every input) and a missing mode at 2043 Hz, zeta 0.026, sampled at
+    # 8 kHz. The search took a residual compliance whose pseudo-mode sits at 18 043 Hz, zeta
+    # 0.003: 2 fs + 2043 Hz at the same decay rate, the same sampled poles, and the floor
+    # either way. The swap to the resonance in the band looked only between fs/2 and fs
+    rng = _rng_at(69028543481618933853410952156791356580, _INC4, 0, 2327426023)
+    case = make_case(
+        rng,
+        plant="stage",
+        kind="time",
+        effects=("actuator_dynamics", "missing_mode"),
+        size="clear",
+        periodic=False,
+    )
+    floor = case.answer["noise_floor_error"]
+    assert floor == pytest.approx(0.014054964085561306, rel=1e-9)
+    res = diagnose(case.nominal, case.data)
+    effects = {f.effect for f in res.findings}
+    assert "missing_mode" in effects and "residual_compliance" not in effects, effects
+    mode = next(f for f in res.findings if f.effect == "missing_mode").parameters
+    assert mode["freq_hz"] == pytest.approx(2043.33, rel=1e-3)
+    assert mode["damping"] == pytest.approx(0.02634, rel=0.02)
+    assert res.findings[-1].error_after <= 1.05 * floor

@@ -930,13 +930,15 @@ def _findings(fits, runners, bases, problem, data, err0: float, floor) -> list[F
 
 def _in_band_image(accepted, problem, base: ModalModel, err: float, err0: float):
     """(i, fits, bases): the chain with its residual compliance ``i`` (an upper residual
-    whose pseudo-mode lies between Nyquist and the sampling frequency) replaced by a
-    missing mode at the pseudo-mode's image in the excited band, refitted jointly, where
-    that reaches the chain's error ``err`` (within :data:`IMAGE_TIE`); else None.
+    whose pseudo-mode lies above Nyquist) replaced by a missing mode at the pseudo-mode's
+    image in the excited band (its frequency folded by a multiple of ``fs``), refitted
+    jointly, where that reaches the chain's error ``err`` (within :data:`IMAGE_TIE`); else
+    None.
 
-    Sampled, a mode at ``f`` and one at ``fs - f`` (damping scaled by ``f / (fs - f)``)
-    have the same discrete poles (:class:`~workbench.diagnosis.effects.AliasedMode`): the
-    record shows a resonance in the band, and the finding names it there;
+    Sampled, a mode at ``f`` and one at ``|f - k fs|`` (damping scaled by the frequency
+    ratio: the same decay rate) have the same discrete poles
+    (:class:`~workbench.diagnosis.effects.AliasedMode`): the record shows a resonance in
+    the band, and the finding names it there;
     :func:`_with_image` then reports the image above Nyquist beside it.
     """
     fs = getattr(problem.data, "fs", None)
@@ -946,8 +948,12 @@ def _in_band_image(accepted, problem, base: ModalModel, err: float, err0: float)
         if not isinstance(a.structure, UpperResidual):
             continue
         f, z = (float(x) for x in np.exp(a.theta))
-        f_img = fs - f
-        if not (0.5 * fs < f < fs and problem.band_hz[0] < f_img < problem.band_hz[1]):
+        # every mode at k fs +- f_img has the same sampled poles: a pseudo-mode folds into
+        # the band from any multiple of fs (an indepgen stage record at 8 kHz, a mode at
+        # 2043 Hz beside an actuator lag named as a compliance with its pseudo-mode at
+        # 18 043 Hz, zeta 0.003: the same decay rate, at the floor either way)
+        f_img = abs(f - fs * np.round(f / fs))
+        if not (f > 0.5 * fs and problem.band_hz[0] < f_img < problem.band_hz[1]):
             continue
         z_img = min(z * f / f_img, 0.5)
         parts = [MissingMode() if k == i else b.structure for k, b in enumerate(accepted)]
