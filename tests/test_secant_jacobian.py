@@ -3,7 +3,8 @@
 Broyden's update makes the Jacobian exact along the accepted step; difference quotients
 come back after a rejected step and at the start; and a fit on a simulated record of a
 known modal model reaches the optimum the difference-quotient search reaches (the same
-parameters within a small fraction of their std, the same std).
+parameters within a small fraction of their std, the same std). Only a structure that asks
+(``secant``: a coupled suspension, started at its rigid fit's optimum) takes them.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ def test_secant_update_is_exact_along_the_step():
     sec = _SecantJacobian(_rosenbrock, lo, hi)
     x0 = np.array([-1.2, 1.0])
     r0 = sec.fun(x0)
-    J0 = sec(x0)
+    J0 = sec(x0).copy()  # the update is in place
     assert sec.fresh
     assert np.allclose(J0, finite_difference_jacobian(_rosenbrock, x0, r0, lo, hi))
     x1 = x0 + np.array([0.05, -0.02])
@@ -109,6 +110,7 @@ def test_secant_fit_reaches_the_difference_quotient_optimum(name, monkeypatch):
     model = _model(rng)
     problem = _record(model, truth_of(model), rng)
     assert len(structure.bounds(problem, model)[0]) >= fit_engine.SECANT_MIN_THETA
+    monkeypatch.setattr(type(structure), "secant", True, raising=False)
     out = {}
     for mode in ("2-point", "secant"):
         monkeypatch.setattr(fit_engine, "TIME_JACOBIAN", mode)
@@ -122,3 +124,11 @@ def test_secant_fit_reaches_the_difference_quotient_optimum(name, monkeypatch):
     # the std from difference quotients at the optimum in both (the two ends a few
     # hundredths of a std apart: a weakly determined lag's std moves by several %)
     assert np.allclose(sec.theta_std, ref.theta_std, rtol=0.15)
+
+
+def test_only_a_structure_started_at_an_optimum_asks_for_secant_updates():
+    from workbench.diagnosis.effects import CoupledSuspension, RigidSuspension
+
+    assert CoupledSuspension().secant
+    for s in (RigidSuspension(), ActuatorDynamics(), SensorDynamics(), ModalModes()):
+        assert not getattr(s, "secant", False)

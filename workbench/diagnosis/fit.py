@@ -38,6 +38,7 @@ from typing import Any, Protocol
 
 import numpy as np
 import scipy.linalg
+import scipy.linalg.blas
 import scipy.optimize
 
 from workbench.modal.model import ModalModel
@@ -181,18 +182,28 @@ DIFF_STEP = 1e-4
 #: and of the tests' cross-checks)
 FRF_SOLVER = "lm"
 
-#: how fit() forms the Jacobian of scipy's trust-region search on a record simulated in the
-#: time domain (and on a whole record's lines, ``domain`` "time"): "secant" (difference
-#: quotients at the start and after a rejected step, Broyden's rank-one update after an
-#: accepted one: :class:`_SecantJacobian`) or "2-point" (difference quotients at every
-#: accepted point, the engine before)
+#: how fit() forms the Jacobian of scipy's trust-region search (a record simulated in the
+#: time domain, a whole record's lines, a structure that asks for trf) for a structure with
+#: ``secant = True``: "secant" (difference quotients at the start and after a rejected
+#: step, Broyden's rank-one update after an accepted one: :class:`_SecantJacobian`) or
+#: "2-point" (difference quotients at every accepted point, as every other structure).
+#: Levenberg-Marquardt on normal equations (FRF data, a periodic record's lines) keeps
+#: difference quotients: it rejects steps as it raises its damping, and secant updates
+#: through those took more evaluations (indep3 beam time suspension's coupled fit: 119 ->
+#: 173 evaluations and Jacobians 68 -> 99, no faster; without refreshing after a rejection
+#: it ran out of its 400 evaluations above the optimum)
 TIME_JACOBIAN = "secant"
 
-#: fewest parameters whose time-domain search takes secant updates: with one or two a
+#: fewest parameters whose search takes secant updates: with one or two a
 #: difference-quotient Jacobian costs one or two evaluations, and the secant's less exact
 #: steps took as many more (a moved mode, a 2-input actuator lag, a suspended rigid mode:
 #: 34 -> 50, 102 -> 74, 51 -> 46 evaluations); with four lags 112 -> 44, 86 -> 64, a coupled
-#: suspension's 17 parameters 669 -> 366
+#: suspension's 17 parameters 669 -> 366. Only a structure started at an optimum asks
+#: (``secant``: :class:`~workbench.diagnosis.effects.CoupledSuspension`, from its rigid
+#: fit): from a grid start, where parameters are not yet identifiable (a rigid suspension's
+#: P = I), the secant's trajectory stalled (indep3 beam time suspension: the rigid fit's
+#: 60 evaluations ended at cost 44 where difference quotients reached 13.2 in 26; the
+#: diagnosis then took three effects at 2.1x the floor instead of one at 1.0x)
 SECANT_MIN_THETA = 3
 
 
@@ -328,7 +339,13 @@ class _SecantJacobian:
             J = finite_difference_jacobian(self.residual, x, r, self.lo, self.hi)
             self.updates, self.fresh = 0, True
         else:
-            J = self.J + np.outer((r - self.rJ) - self.J @ dx, dx / (dx @ dx))
+            u, v = (r - self.rJ) - self.J @ dx, dx / (dx @ dx)
+            if self.J.flags.f_contiguous and self.J.dtype == np.float64:
+                # in place (BLAS dger): a tall J's outer product allocated and summed cost
+                # 10x more (50 000 x 37: 8 ms)
+                J = scipy.linalg.blas.dger(1.0, u, v, a=self.J, overwrite_a=True)
+            else:
+                J = self.J + np.outer(u, v)
             self.updates, self.fresh = self.updates + 1, False
         self.J, self.xJ, self.rJ, self.calls = J, x, r, 0
         return J
@@ -484,7 +501,8 @@ def fit(
                         residual, normal, th0, lo, hi, max_nfev=max_nfev, **normal.tolerances
                     )
                 else:
-                    res = _trust_region(residual, th0, lo, hi, max_nfev)
+                    secant = bool(getattr(structure, "secant", False))
+                    res = _trust_region(residual, th0, lo, hi, max_nfev, secant=secant)
             if best is None or res.cost < best.cost:
                 best = res
         theta, jac, gram = best.x, best.get("jac"), best.get("gram")
@@ -511,8 +529,11 @@ def fit(
     )
 
 
-def _trust_region(residual, x0, lo, hi, max_nfev: int) -> scipy.optimize.OptimizeResult:
-    """scipy's trust-region reflective search from ``x0``, Jacobian per :data:`TIME_JACOBIAN`.
+def _trust_region(
+    residual, x0, lo, hi, max_nfev: int, *, secant: bool = False
+) -> scipy.optimize.OptimizeResult:
+    """scipy's trust-region reflective search from ``x0``; difference quotients, or with
+    ``secant`` per :data:`TIME_JACOBIAN`.
 
     With secant updates (:class:`_SecantJacobian`, from :data:`SECANT_MIN_THETA`
     parameters) a search that ends on an updated Jacobian (its stops, the gradient's and the
@@ -534,7 +555,7 @@ def _trust_region(residual, x0, lo, hi, max_nfev: int) -> scipy.optimize.Optimiz
             diff_step=DIFF_STEP,
         )
 
-    if TIME_JACOBIAN != "secant" or np.size(x0) < SECANT_MIN_THETA:
+    if not secant or TIME_JACOBIAN != "secant" or np.size(x0) < SECANT_MIN_THETA:
         return run(x0, "2-point", residual, max_nfev)
     secant = _SecantJacobian(residual, lo, hi)
     res = run(x0, secant, secant.fun, max_nfev)
