@@ -38,6 +38,7 @@ from typing import Any, Protocol
 
 import numpy as np
 import scipy.linalg
+import scipy.linalg.blas
 import scipy.optimize
 
 from workbench.modal.model import ModalModel
@@ -181,6 +182,30 @@ DIFF_STEP = 1e-4
 #: and of the tests' cross-checks)
 FRF_SOLVER = "lm"
 
+#: how fit() forms the Jacobian of scipy's trust-region search (a record simulated in the
+#: time domain, a whole record's lines, a structure that asks for trf) for a structure with
+#: ``secant = True``: "secant" (difference quotients at the start and after a rejected
+#: step, Broyden's rank-one update after an accepted one: :class:`_SecantJacobian`) or
+#: "2-point" (difference quotients at every accepted point, as every other structure).
+#: Levenberg-Marquardt on normal equations (FRF data, a periodic record's lines) keeps
+#: difference quotients: it rejects steps as it raises its damping, and secant updates
+#: through those took more evaluations (indep3 beam time suspension's coupled fit: 119 ->
+#: 173 evaluations and Jacobians 68 -> 99, no faster; without refreshing after a rejection
+#: it ran out of its 400 evaluations above the optimum)
+TIME_JACOBIAN = "secant"
+
+#: fewest parameters whose search takes secant updates: with one or two a
+#: difference-quotient Jacobian costs one or two evaluations, and the secant's less exact
+#: steps took as many more (a moved mode, a 2-input actuator lag, a suspended rigid mode:
+#: 34 -> 50, 102 -> 74, 51 -> 46 evaluations); with four lags 112 -> 44, 86 -> 64, a coupled
+#: suspension's 17 parameters 669 -> 366. Only a structure started at an optimum asks
+#: (``secant``: :class:`~workbench.diagnosis.effects.CoupledSuspension`, from its rigid
+#: fit): from a grid start, where parameters are not yet identifiable (a rigid suspension's
+#: P = I), the secant's trajectory stalled (indep3 beam time suspension: the rigid fit's
+#: 60 evaluations ended at cost 44 where difference quotients reached 13.2 in 26; the
+#: diagnosis then took three effects at 2.1x the floor instead of one at 1.0x)
+SECANT_MIN_THETA = 3
+
 
 class _Normal:
     """``normal(theta, r) -> (J^T J, J^T r)`` for :func:`levenberg_marquardt`, with its stops."""
@@ -253,6 +278,77 @@ def structure_lines(structure, problem, base):
         cache.clear()
     cache[key] = (structure, base, fn(problem, base))
     return cache[key][2]
+
+
+class _SecantJacobian:
+    """The Jacobian of scipy's trust-region search by Broyden's secant updates (Broyden 1965).
+
+    ``fun`` evaluates the residual and keeps it; ``jac(x)`` (trf asks for it at every
+    accepted point, where ``fun`` was just evaluated) is :func:`finite_difference_jacobian`
+    at the start, after a step the trust region rejected (the model of the residual was
+    wrong there: more than one evaluation since the last Jacobian), and after
+    :attr:`MAX_UPDATES` updates in a row; else the last Jacobian with the rank-one update
+    ``J + (dr - J dx) dx^T / dx^T dx`` of the accepted step, which makes it exact along
+    that step at no evaluation (a difference-quotient Jacobian costs ``n_theta`` residual
+    evaluations, most of a search's time on a simulated record: a coupled suspension's 17
+    parameters). ``fresh`` says whether the last one was difference quotients.
+    """
+
+    #: secant updates in a row before difference quotients again
+    MAX_UPDATES = 4
+
+    def __init__(self, residual, lo, hi):
+        self.residual = residual
+        self.lo, self.hi = lo, hi
+        self.x = self.r = None  # the last evaluated point and its residual
+        self.J = self.xJ = self.rJ = None  # the last Jacobian, its point and residual
+        self.calls = 0  # evaluations since the last Jacobian
+        self.updates = 0  # secant updates in a row
+        self.fresh = False
+
+    def fun(self, x):
+        if self.x is not None and np.array_equal(self.x, x):
+            return self.r  # a search taken up from its end (:func:`_trust_region`)
+        r = self.residual(x)
+        self.x, self.r = np.array(x, float), r
+        self.calls += 1
+        return r
+
+    def prime(self, x, r, J):
+        """Difference quotients ``J`` at ``x`` (residual ``r``), where a search goes on."""
+        self.x = self.xJ = np.array(x, float)
+        self.r = self.rJ = r
+        self.J, self.calls, self.updates, self.fresh = J, 0, 0, True
+
+    def __call__(self, x):
+        x = np.array(x, float)
+        if self.fresh and self.calls == 0 and np.array_equal(self.xJ, x):
+            return self.J
+        if self.x is not None and np.array_equal(self.x, x):
+            r = self.r
+        else:
+            r = self.residual(x)
+        dx = None if self.xJ is None else x - self.xJ
+        if (
+            self.J is None
+            or self.calls > 1
+            or self.updates >= self.MAX_UPDATES
+            or not np.any(dx)
+            or not np.all(np.isfinite(r))
+        ):
+            J = finite_difference_jacobian(self.residual, x, r, self.lo, self.hi)
+            self.updates, self.fresh = 0, True
+        else:
+            u, v = (r - self.rJ) - self.J @ dx, dx / (dx @ dx)
+            if self.J.flags.f_contiguous and self.J.dtype == np.float64:
+                # in place (BLAS dger): a tall J's outer product allocated and summed cost
+                # 10x more (50 000 x 37: 8 ms)
+                J = scipy.linalg.blas.dger(1.0, u, v, a=self.J, overwrite_a=True)
+            else:
+                J = self.J + np.outer(u, v)
+            self.updates, self.fresh = self.updates + 1, False
+        self.J, self.xJ, self.rJ, self.calls = J, x, r, 0
+        return J
 
 
 def finite_difference_jacobian(residual, x, r, lo, hi, *, rel_step: float = DIFF_STEP):
@@ -405,16 +501,8 @@ def fit(
                         residual, normal, th0, lo, hi, max_nfev=max_nfev, **normal.tolerances
                     )
                 else:
-                    res = scipy.optimize.least_squares(
-                        residual,
-                        th0,
-                        jac="2-point",
-                        bounds=(lo, hi),
-                        method="trf",
-                        x_scale="jac",
-                        max_nfev=max_nfev,
-                        diff_step=DIFF_STEP,
-                    )
+                    secant = bool(getattr(structure, "secant", False))
+                    res = _trust_region(residual, th0, lo, hi, max_nfev, secant=secant)
             if best is None or res.cost < best.cost:
                 best = res
         theta, jac, gram = best.x, best.get("jac"), best.get("gram")
@@ -439,6 +527,62 @@ def fit(
         error=problem.error(realized.model),
         status=status,
     )
+
+
+def _trust_region(
+    residual, x0, lo, hi, max_nfev: int, *, secant: bool = False
+) -> scipy.optimize.OptimizeResult:
+    """scipy's trust-region reflective search from ``x0``; difference quotients, or with
+    ``secant`` per :data:`TIME_JACOBIAN`.
+
+    With secant updates (:class:`_SecantJacobian`, from :data:`SECANT_MIN_THETA`
+    parameters) a search that ends on an updated Jacobian (its stops, the gradient's and the
+    step's, judged a secant's model) is checked with difference quotients at its end (the
+    parameters' std needs them there): where the Gauss-Newton step they give would lower
+    the cost by more than scipy's ``ftol`` (1e-8) of it, the search is taken up from there.
+    ``nfev`` counts both searches.
+    """
+
+    def run(x, jac, fun, nfev):
+        return scipy.optimize.least_squares(
+            fun,
+            x,
+            jac=jac,
+            bounds=(lo, hi),
+            method="trf",
+            x_scale="jac",
+            max_nfev=nfev,
+            diff_step=DIFF_STEP,
+        )
+
+    if not secant or TIME_JACOBIAN != "secant" or np.size(x0) < SECANT_MIN_THETA:
+        return run(x0, "2-point", residual, max_nfev)
+    secant = _SecantJacobian(residual, lo, hi)
+    res = run(x0, secant, secant.fun, max_nfev)
+    for _ in range(2):  # a search, and where its end is no optimum one more
+        if secant.fresh and np.array_equal(secant.xJ, res.x):
+            return res
+        J = finite_difference_jacobian(residual, res.x, res.fun, lo, hi)
+        res.jac = J
+        if res.nfev >= max_nfev or _gauss_newton_gain(J, res.fun) <= 1e-8 * res.cost:
+            return res
+        secant.prime(res.x, res.fun, J)
+        again = run(res.x, secant, secant.fun, max(max_nfev - res.nfev, 2))
+        again.nfev += res.nfev
+        again.njev += res.njev
+        res = again
+    if not (secant.fresh and np.array_equal(secant.xJ, res.x)):
+        res.jac = finite_difference_jacobian(residual, res.x, res.fun, lo, hi)
+    return res
+
+
+def _gauss_newton_gain(J: np.ndarray, r: np.ndarray) -> float:
+    """The cost reduction ``|J dx|^2 / 2`` of the Gauss-Newton step ``dx`` (unbounded)."""
+    if not (np.all(np.isfinite(J)) and np.all(np.isfinite(r))):
+        return np.inf
+    dx = np.linalg.lstsq(J, -r, rcond=None)[0]
+    Jdx = J @ dx
+    return 0.5 * float(Jdx @ Jdx)
 
 
 def levenberg_marquardt(

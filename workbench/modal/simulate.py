@@ -200,7 +200,8 @@ def mixed_inputs(model, den, N0, N1, u: np.ndarray, fs: float, *, products=None)
             (num,), dm = _monic([num], f.d)
             if num[0] or dm.size == 1:
                 raise ValueError("mixed_inputs: a mode's strictly proper filters only")
-            coefficients.append(_zoh_coefficients(num.tobytes(), dm.tobytes(), dt, frac))
+            roots = b"" if f.roots is None else f.roots.tobytes()
+            coefficients.append(_zoh_coefficients(num.tobytes(), dm.tobytes(), dt, frac, roots))
         a = coefficients[0][1]
         if 2 * f.cols.size < rows.size and len(coefficients) == 2:
             # a lag on one input of many outputs: its column through 1/d and s/d (two
@@ -447,16 +448,21 @@ def _zoh_discretization(den_bytes: bytes, dt: float, frac: float):
 
 
 @functools.lru_cache(maxsize=512)
-def _zoh_coefficients(num_bytes: bytes, den_bytes: bytes, dt: float, frac: float):
+def _zoh_coefficients(
+    num_bytes: bytes, den_bytes: bytes, dt: float, frac: float, roots_bytes: bytes = b""
+):
     """(b, a) of the ZOH-sampled strictly proper part of num/den (monic den, num padded).
 
     Cached: a diagnosis fit evaluates the same mode with the same lag and delay
     many times (every other parameter's Jacobian column), and the discretization
     (balance, expm, three characteristic polynomials) costs more than the filter.
+    ``roots_bytes``: den's roots (complex) where the caller knows them in closed form (a
+    mode behind lags: :func:`_channel_filters`), else empty (then found numerically).
     """
     num, den = np.frombuffer(num_bytes), np.frombuffer(den_bytes)
     strict = num[1:] - num[0] * den[1:]
-    closed = _pole_coefficients(strict, den, dt, frac)
+    roots = np.frombuffer(roots_bytes, complex) if roots_bytes else None
+    closed = _pole_coefficients(strict, den, dt, frac, roots)
     if closed is not None:
         for x in closed:
             x.flags.writeable = False
@@ -472,8 +478,14 @@ def _zoh_coefficients(num_bytes: bytes, den_bytes: bytes, dt: float, frac: float
     return b, a
 
 
-def _pole_coefficients(strict: np.ndarray, den: np.ndarray, dt: float, frac: float):
+def _pole_coefficients(
+    strict: np.ndarray, den: np.ndarray, dt: float, frac: float, roots: np.ndarray | None = None
+):
     """(b, a) of :func:`_zoh_coefficients` by partial fractions, or None.
+
+    ``roots``: the roots of ``den`` when known (a mode's behind lags, in closed form:
+    np.roots' eigenvalue solve cost more than the rest of the coefficients on a fit's
+    hot path), else None (np.roots).
 
     Over the simple poles ``lam_k`` of the monic ``den`` (residues ``r_k`` of
     ``strict(s) / den(s)``), each pole samples to ``r_k (b0_k z^-1 + b1_k z^-2) / (1 - p_k
@@ -490,7 +502,10 @@ def _pole_coefficients(strict: np.ndarray, den: np.ndarray, dt: float, frac: flo
         return None
     if n == 2:  # a mode, the most frequent filter: in scalar arithmetic
         return _pair_coefficients(strict, float(den[1]), float(den[2]), dt, frac)
-    lam = np.array([-den[1]], complex) if n == 1 else np.roots(den).astype(complex)
+    if roots is not None and roots.size == n:
+        lam = np.asarray(roots, complex)
+    else:
+        lam = np.array([-den[1]], complex) if n == 1 else np.roots(den).astype(complex)
     if _too_close(lam):
         return None
     # scalar arithmetic from here (n <= 4 behind lags: numpy's per-call cost dominated)
