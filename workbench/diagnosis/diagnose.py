@@ -142,6 +142,13 @@ RIGID_FRICTION = True
 #: damping (4 F_c / (pi omega A)) and the equivalent stiffness of stiction or a hardening
 #: spring move the modes their port moves (a modal mismatch) or suspend a rigid body
 LINEARIZED_ELEMENT = ("modal_mismatch", "suspension_stiffness")
+#: a port element hypothesis (the element's ports on one linear model) is fitted only when
+#: the error its first-order signature reaches (the residual's distance from the span of the
+#: element's regressors at level zero, :func:`workbench.diagnosis.nonlinear.first_order_errors`,
+#: a few linear simulations) is within this factor of the error the element must go below
+SCREEN_FACTOR = 3.0
+#: ... and removes at least this share of the residual power the element must remove
+SCREEN_SHARE = 0.25
 
 
 @dataclass(frozen=True)
@@ -1476,6 +1483,7 @@ def _nonlinearity_finding(
             stop_above=needed if only_given else None,
             band_hz=nl.band_hz,
             mode_hz=mode_hz,
+            screen=needed,
         )
         if isinstance(data, TimeData)
         else None
@@ -1484,7 +1492,10 @@ def _nonlinearity_finding(
     if fitted is not None:
         ef, _, pair = fitted
         on_mode = "mode" in ef.parameters  # a spring on a mode's coordinate needs no port
+        screened = bool(ef.parameters.get("screened"))  # no hypothesis passed the screen
         portless = pair is None and data.n_y != data.n_u and not on_mode
+        if screened:  # (its pair is None: none fitted)
+            portless = bool(ef.parameters["portless"])
         if not ef.error_after < needed:
             tried = dict(params, element=ef.element, ports=list(ef.ports), **ef.parameters)
             tried["element_errors"] = ef.candidates
@@ -1505,6 +1516,14 @@ def _nonlinearity_finding(
                     "no port could be located for friction or a spring (no sensor collocated "
                     "with an input), and a saturation of the inputs, which needs none, does not "
                     "lower the error: not evidence of a nonlinearity"
+                )
+            if screened:
+                alt["rejected"] = (
+                    "no port nonlinearity (Coulomb friction, cubic spring, saturation) comes "
+                    f"within {SCREEN_FACTOR:g}x of the error it must reach ({needed:.4g}) "
+                    "to first order (its signature at level zero reaches "
+                    f"{ef.parameters['first_order_error']:.4g}): none was fitted, the misfit "
+                    "is linear"
                 )
             if not (portless and direct):
                 return None, alt
@@ -1613,12 +1632,24 @@ def _nonlinearity_finding(
     return finding, None
 
 
+def _screen_passes(e_lin: float, e_first: float, needed: float) -> bool:
+    """Whether an element hypothesis is worth its fit: the error its first-order signature
+    reaches, ``e_first``, is within SCREEN_FACTOR of the error it must go below, ``needed``,
+    and removes at least SCREEN_SHARE of the residual power the element must remove from
+    its linear model's (from-rest) error ``e_lin``. A linear model already below ``needed``
+    passes (nothing to remove)."""
+    if not e_first <= SCREEN_FACTOR * needed:
+        return False
+    return e_lin**2 - e_first**2 >= SCREEN_SHARE * (e_lin**2 - needed**2)
+
+
 def _fit_element(
     data: TimeData,
     linear: list,
     stop_above: float | None = None,
     band_hz: tuple[float, float] | None = None,
     mode_hz: float | None = None,
+    screen: float | None = None,
 ):
     """The port element that explains the record best: (ElementFit, linear model, pair) or None.
 
@@ -1656,12 +1687,28 @@ def _fit_element(
 
     ``mode_hz``: only the spring on the flexible mode of this frequency (Hz, within 1e-6
     relative) of each linear model, refined; None when no model has it.
+
+    ``screen``: the error the element must go below. A hypothesis (the port elements on one
+    pair's ports, the rigid bodies' friction, a mode's spring) is then fitted only when its
+    elements' first-order signature (:func:`~workbench.diagnosis.nonlinear.first_order_errors`:
+    the error the linear model plus the element reaches near level zero, from a few linear
+    simulations) comes within SCREEN_FACTOR of it and removes SCREEN_SHARE of the residual
+    power the element must remove (:func:`_screen_passes`): the fit starts from that regression and
+    moves the levels locally, hundreds of nonlinear simulations whose answer would be no
+    (a record whose from-rest linear response is far off, an initial state the element's
+    simulation from rest does not have; a linear misfit no element's signature spans). A
+    linear model none of whose hypotheses passes gets an ElementFit with no element
+    (``parameters["screened"]`` True, ``error_after`` the linear model's own from-rest
+    error, above ``screen``; ``candidates`` the first-order errors).
     """
     from workbench.diagnosis.nonlinear import (
+        ElementFit,
         ModalPort,
+        PortNonlinearity,
         RigidPorts,
         SquarePorts,
         collocated_pairs,
+        first_order_errors,
         fit_port_element,
         fit_saturation,
         simulate_nonlinear,
@@ -1724,6 +1771,53 @@ def _fit_element(
 
     several = len(hyps) > 1
     given = len(linear) - 1
+    # per linear model: (its from-rest error, the best first-order error per element) of the
+    # hypotheses the screen left out
+    screened: dict[int, tuple[float, dict[str, float]]] = {}
+
+    def passes(h) -> bool:
+        """Whether hypothesis ``h`` is fitted: no ``screen``, or its first-order errors come
+        within SCREEN_FACTOR of it (those that do not are kept for the report)."""
+        if screen is None:
+            return True
+        i, sys, port_outputs, _, motion = h
+        e_m, fo = first_order_errors(
+            sys,
+            data.u,
+            data.y,
+            data.fs,
+            port_outputs=port_outputs,
+            motion=motion,
+            ports=not saturation_only,
+        )
+        if _screen_passes(e_m, min(fo.values(), default=e_m), screen):
+            return True
+        e_prev, fo_prev = screened.get(i, (e_m, {}))
+        for name, e in fo.items():
+            fo_prev[name] = min(fo_prev.get(name, np.inf), e)
+        screened[i] = (min(e_prev, e_m), fo_prev)
+        return False
+
+    def none_fitted(i):
+        """The ElementFit of linear model ``i`` when the screen left no hypothesis on it."""
+        e_m, fo = screened[i]
+        best = min(fo, key=fo.get) if fo else "saturation"
+        nl = PortNonlinearity(friction_force=np.zeros(n_u))
+        ef = ElementFit(
+            element=best,
+            ports=(),
+            parameters={
+                "screened": True,
+                "first_order_error": float(fo.get(best, e_m)),
+                "portless": saturation_only,
+            },
+            nonlinearity=nl,
+            error_before=float(e_m),
+            error_after=float(e_m),
+            candidates={k: float(v) for k, v in fo.items()},
+            level=0.0,
+        )
+        return ef, (i, None, None, None, None)
 
     def modal_ports(m) -> list:
         """The ModalPorts of model ``m``'s flexible modes near the excited band (non-square)."""
@@ -1763,8 +1857,10 @@ def _fit_element(
     def fit_on(i):
         """The element's fit on linear model ``i``: (ElementFit, hypothesis); the port
         elements' best, or the modal spring's (the rigid-body friction's) when it leaves the
-        lower error."""
+        lower error. Only the hypotheses the screen passes are fitted."""
         rigid = rigid_ports(linear[i]) if RIGID_FRICTION else None
+        if rigid is not None and not passes((i, rigid, None, None, None)):
+            rigid = None
         ef_r = None
         if rigid is not None:
             # friction on the rigid bodies' motion (at their bearings, driving no flexible
@@ -1778,20 +1874,23 @@ def _fit_element(
                 floor_reached.add(i)
                 return ef_r, h_r
         ef, h = fit_on_ports(i)
-        if ef_r is not None and ef_r.error_after < ef.error_after:
+        if ef is None and ef_r is not None:
+            ef, h = ef_r, h_r
+        elif ef_r is not None and ef_r.error_after < ef.error_after:
             return ef_r, h_r
-        if at_floor(ef, h):
+        if ef is not None and at_floor(ef, h):
             floor_reached.add(i)
             return ef, h
-        modal = modal_ports(linear[i])
+        modal = [mp for mp in modal_ports(linear[i]) if passes((i, mp, None, None, None))]
         if not modal:
-            return ef, h
+            return (ef, h) if ef is not None else none_fitted(i)
+        err = ef.error_after if ef is not None else np.inf
         cheap = [(fit_port_element(mp, data.u, data.y, data.fs, refine=False), mp) for mp in modal]
         ef_m, mp = min(cheap, key=lambda t: t[0].error_after)
-        if not ef_m.error_after < ef.error_after:
+        if not ef_m.error_after < err and ef is not None:
             return ef, h
         ef_m = fit_port_element(mp, data.u, data.y, data.fs)
-        if not ef_m.error_after < ef.error_after:
+        if not ef_m.error_after < err and ef is not None:
             return ef, h
         return ef_m, (i, mp, None, None, None)
 
@@ -1805,8 +1904,11 @@ def _fit_element(
             return None
 
     def fit_on_ports(i):
-        """The port elements' fit on linear model ``i``: (ElementFit, hypothesis)."""
-        mine = [h for h in hyps if h[0] == i]
+        """The port elements' fit on linear model ``i``: (ElementFit, hypothesis); (None,
+        None) when the screen passes none of its hypotheses."""
+        mine = [h for h in hyps if h[0] == i and passes(h)]
+        if not mine:
+            return None, None
         if saturation_only:
             (h,) = mine
             return fit_one(h, True), h
