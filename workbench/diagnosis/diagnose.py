@@ -143,12 +143,14 @@ RIGID_FRICTION = True
 #: spring move the modes their port moves (a modal mismatch) or suspend a rigid body
 LINEARIZED_ELEMENT = ("modal_mismatch", "suspension_stiffness")
 #: a port element hypothesis (the element's ports on one linear model) is fitted only when
-#: the error its first-order signature reaches (the residual's distance from the span of the
+#: its first-order signature (the residual's distance from the non-negative span of the
 #: element's regressors at level zero, :func:`workbench.diagnosis.nonlinear.first_order_errors`,
-#: a few linear simulations) is within this factor of the error the element must go below
-SCREEN_FACTOR = 3.0
-#: ... and removes at least this share of the residual power the element must remove
-SCREEN_SHARE = 0.25
+#: a few linear simulations) removes at least this share of the residual power the element
+#: must remove (:func:`_screen_passes`)
+SCREEN_SHARE = 0.1
+#: ... and when the linear model's from-rest error is within this factor of its error on the
+#: record as the problem measures it (from the estimated start of a record that starts moving)
+SCREEN_START = 2.0
 
 
 @dataclass(frozen=True)
@@ -1484,6 +1486,7 @@ def _nonlinearity_finding(
             band_hz=nl.band_hz,
             mode_hz=mode_hz,
             screen=needed,
+            errors=[cur_err] + ([err] if len(linear) > 1 else []),
         )
         if isinstance(data, TimeData)
         else None
@@ -1519,11 +1522,12 @@ def _nonlinearity_finding(
                 )
             if screened:
                 alt["rejected"] = (
-                    "no port nonlinearity (Coulomb friction, cubic spring, saturation) comes "
-                    f"within {SCREEN_FACTOR:g}x of the error it must reach ({needed:.4g}) "
-                    "to first order (its signature at level zero reaches "
-                    f"{ef.parameters['first_order_error']:.4g}): none was fitted, the misfit "
-                    "is linear"
+                    "no port nonlinearity (Coulomb friction, cubic spring, saturation) was "
+                    f"fitted: none lowers the error towards {needed:.4g} to first order (its "
+                    "signature at level zero reaches "
+                    f"{ef.parameters['first_order_error']:.4g} from {ef.error_before:.4g} "
+                    "simulated from rest), or the record's start, which a simulation from "
+                    "rest does not have, is most of that error: the misfit is linear"
                 )
             if not (portless and direct):
                 return None, alt
@@ -1632,14 +1636,28 @@ def _nonlinearity_finding(
     return finding, None
 
 
-def _screen_passes(e_lin: float, e_first: float, needed: float) -> bool:
-    """Whether an element hypothesis is worth its fit: the error its first-order signature
-    reaches, ``e_first``, is within SCREEN_FACTOR of the error it must go below, ``needed``,
-    and removes at least SCREEN_SHARE of the residual power the element must remove from
-    its linear model's (from-rest) error ``e_lin``. A linear model already below ``needed``
-    passes (nothing to remove)."""
-    if not e_first <= SCREEN_FACTOR * needed:
+def _screen_passes(e_lin: float, e_first: float, needed: float, e_model: float) -> bool:
+    """Whether an element hypothesis is worth its fit (the element must go below ``needed``).
+
+    ``e_lin``: the linear model's error simulated from rest (as the element's simulation
+    runs), ``e_model`` its error as the problem measures it (from the estimated start of a
+    record that starts moving; the same on one at rest), ``e_first`` the error the
+    element's first-order signature reaches (:func:`~workbench.diagnosis.nonlinear.
+    first_order_errors`).
+
+    - ``e_lin`` above SCREEN_START times ``e_model``: the record's start is most of the
+      from-rest misfit, which an element simulated from rest does not have: no.
+    - ``e_lin`` >= 1 (the from-rest simulation is off by more than the record: a drift):
+      yes, whatever the first order says. Friction that holds a drifting rigid body is far
+      from its first order (an indepgen stage record: the signature removes 17 % of the
+      drift's power, the fit 100 %).
+    - else: the signature must remove at least SCREEN_SHARE of the residual power the
+      element must remove (a linear model already below ``needed`` passes).
+    """
+    if e_lin > SCREEN_START * e_model:
         return False
+    if e_lin >= 1.0:
+        return True
     return e_lin**2 - e_first**2 >= SCREEN_SHARE * (e_lin**2 - needed**2)
 
 
@@ -1650,6 +1668,7 @@ def _fit_element(
     band_hz: tuple[float, float] | None = None,
     mode_hz: float | None = None,
     screen: float | None = None,
+    errors: list | None = None,
 ):
     """The port element that explains the record best: (ElementFit, linear model, pair) or None.
 
@@ -1688,18 +1707,18 @@ def _fit_element(
     ``mode_hz``: only the spring on the flexible mode of this frequency (Hz, within 1e-6
     relative) of each linear model, refined; None when no model has it.
 
-    ``screen``: the error the element must go below. A hypothesis (the port elements on one
-    pair's ports, the rigid bodies' friction, a mode's spring) is then fitted only when its
-    elements' first-order signature (:func:`~workbench.diagnosis.nonlinear.first_order_errors`:
-    the error the linear model plus the element reaches near level zero, from a few linear
-    simulations) comes within SCREEN_FACTOR of it and removes SCREEN_SHARE of the residual
-    power the element must remove (:func:`_screen_passes`): the fit starts from that regression and
-    moves the levels locally, hundreds of nonlinear simulations whose answer would be no
-    (a record whose from-rest linear response is far off, an initial state the element's
-    simulation from rest does not have; a linear misfit no element's signature spans). A
-    linear model none of whose hypotheses passes gets an ElementFit with no element
-    (``parameters["screened"]`` True, ``error_after`` the linear model's own from-rest
-    error, above ``screen``; ``candidates`` the first-order errors).
+    ``screen``: the error the element must go below; ``errors`` the linear models' errors
+    as the problem measures them (aligned with ``linear``). A hypothesis (the port elements
+    on one pair's ports, the rigid bodies' friction, a mode's spring) is then fitted only
+    when :func:`_screen_passes` says so from its elements' first-order signature
+    (:func:`~workbench.diagnosis.nonlinear.first_order_errors`: the error the linear model
+    plus the element reaches near level zero, from a few linear simulations) and its linear
+    model's from-rest error: the fit starts from that regression and moves the levels
+    locally, hundreds of nonlinear simulations whose answer would be no (a linear misfit no
+    element's signature spans; a record that starts moving, whose start the element's
+    simulation from rest does not have). A linear model none of whose hypotheses passes
+    gets an ElementFit with no element (``parameters["screened"]`` True, ``error_after``
+    the linear model's own from-rest error; ``candidates`` the first-order errors).
     """
     from workbench.diagnosis.nonlinear import (
         ElementFit,
@@ -1776,8 +1795,8 @@ def _fit_element(
     screened: dict[int, tuple[float, dict[str, float]]] = {}
 
     def passes(h) -> bool:
-        """Whether hypothesis ``h`` is fitted: no ``screen``, or its first-order errors come
-        within SCREEN_FACTOR of it (those that do not are kept for the report)."""
+        """Whether hypothesis ``h`` is fitted: no ``screen``, or :func:`_screen_passes` (the
+        first-order errors of those it does not pass are kept for the report)."""
         if screen is None:
             return True
         i, sys, port_outputs, _, motion = h
@@ -1790,7 +1809,8 @@ def _fit_element(
             motion=motion,
             ports=not saturation_only,
         )
-        if _screen_passes(e_m, min(fo.values(), default=e_m), screen):
+        e_model = e_m if errors is None else errors[i]  # (None: at rest, as simulated)
+        if _screen_passes(e_m, min(fo.values(), default=e_m), screen, e_model):
             return True
         e_prev, fo_prev = screened.get(i, (e_m, {}))
         for name, e in fo.items():
