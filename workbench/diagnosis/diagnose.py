@@ -1521,14 +1521,24 @@ def _nonlinearity_finding(
                     "lower the error: not evidence of a nonlinearity"
                 )
             if screened:
-                alt["rejected"] = (
-                    "no port nonlinearity (Coulomb friction, cubic spring, saturation) was "
-                    f"fitted: none lowers the error towards {needed:.4g} to first order (its "
-                    "signature at level zero reaches "
+                why = (
+                    f"to first order (its signature at level zero reaches "
                     f"{ef.parameters['first_order_error']:.4g} from {ef.error_before:.4g} "
                     "simulated from rest), or the record's start, which a simulation from "
-                    "rest does not have, is most of that error: the misfit is linear"
+                    "rest does not have, is most of that error"
                 )
+                alt["rejected"] = (
+                    "no port nonlinearity (Coulomb friction, cubic spring, saturation) was "
+                    f"fitted: none lowers the error towards {needed:.4g} {why}: the misfit "
+                    "is linear"
+                )
+                if portless:
+                    alt["rejected"] = (
+                        "no port could be located for friction or a spring (no sensor "
+                        "collocated with an input), and a saturation of the inputs, which "
+                        f"needs none, does not lower the error towards {needed:.4g} {why}: "
+                        "not evidence of a nonlinearity"
+                    )
             if not (portless and direct):
                 return None, alt
             # distortion on unexcited lines is evidence on its own: the finding without an
