@@ -130,3 +130,6 @@ def test_screen_rule():
     assert _screen_passes(200.0, 190.0, 0.4, 200.0)
     # a linear model already below what is needed has nothing to remove
     assert _screen_passes(0.5, 0.5, 0.6, 0.5)
+    # a mode's spring: the start only, not the first order
+    assert _screen_passes(0.5, 0.499, 0.42, 0.5, first_order=False)
+    assert not _screen_passes(0.5, 0.1, 0.01, 0.01, first_order=False)
