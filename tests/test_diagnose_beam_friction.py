@@ -117,9 +117,13 @@ def test_element_does_not_replace_a_true_modal_mismatch():
             ev, case.data, problem.error(base), [found, base], err, direct=False
         )
     assert finding is None, finding.parameters
-    # an element was fitted (on ports located by a collocated pair) and did not lower the
-    # error of the linear finding by the factor a finding must
-    assert "collocated" in alt["parameters"] and alt["error_after"] >= 0.85 * err
+    # an element was fitted (on ports located by a collocated pair, or a spring on a mode's
+    # coordinate) and did not lower the error of the linear finding by the factor a finding
+    # must; the ports' elements may be left unfitted, their first-order signature not
+    # lowering the error enough to be worth the fit (diagnose's screen)
+    p = alt["parameters"]
+    assert any(k in p for k in ("collocated", "mode", "screened")), p
+    assert alt["error_after"] >= 0.85 * err
 
 
 @pytest.mark.slow

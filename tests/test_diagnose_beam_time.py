@@ -100,7 +100,10 @@ def test_no_nonlinearity_on_a_linear_record_the_vocabulary_cannot_explain():
     effects = [f.effect for f in result.findings]
     assert "nonlinearity" not in effects, effects
     rejected = [a for a in result.alternatives if a.get("effect") == "nonlinearity"]
-    assert rejected and "not evidence" in rejected[0]["rejected"]
+    # (a spring on a mode's coordinate, fitted when the ports' elements are not worth
+    # their fit, is rejected as any port element is: the misfit is linear)
+    why = rejected[0]["rejected"] if rejected else ""
+    assert "not evidence" in why or "the misfit is linear" in why, why
     # no finding makes the error worse
     errs = [result.error_before] + [f.error_after for f in result.findings]
     assert all(b <= a * (1 + 1e-9) for a, b in zip(errs, errs[1:])), errs

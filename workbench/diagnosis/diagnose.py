@@ -142,6 +142,15 @@ RIGID_FRICTION = True
 #: damping (4 F_c / (pi omega A)) and the equivalent stiffness of stiction or a hardening
 #: spring move the modes their port moves (a modal mismatch) or suspend a rigid body
 LINEARIZED_ELEMENT = ("modal_mismatch", "suspension_stiffness")
+#: a port element hypothesis (the element's ports on one linear model) is fitted only when
+#: its first-order signature (the residual's distance from the non-negative span of the
+#: element's regressors at level zero, :func:`workbench.diagnosis.nonlinear.first_order_errors`,
+#: a few linear simulations) removes at least this share of the residual power the element
+#: must remove (:func:`_screen_passes`)
+SCREEN_SHARE = 0.1
+#: ... and when the linear model's from-rest error is within this factor of its error on the
+#: record as the problem measures it (from the estimated start of a record that starts moving)
+SCREEN_START = 2.0
 
 
 @dataclass(frozen=True)
@@ -1502,6 +1511,8 @@ def _nonlinearity_finding(
             stop_above=needed if only_given else None,
             band_hz=nl.band_hz,
             mode_hz=mode_hz,
+            screen=needed,
+            errors=[cur_err] + ([err] if len(linear) > 1 else []),
         )
         if isinstance(data, TimeData)
         else None
@@ -1510,7 +1521,10 @@ def _nonlinearity_finding(
     if fitted is not None:
         ef, _, pair = fitted
         on_mode = "mode" in ef.parameters  # a spring on a mode's coordinate needs no port
+        screened = bool(ef.parameters.get("screened"))  # no hypothesis passed the screen
         portless = pair is None and data.n_y != data.n_u and not on_mode
+        if screened:  # (its pair is None: none fitted)
+            portless = bool(ef.parameters["portless"])
         if not ef.error_after < needed:
             tried = dict(params, element=ef.element, ports=list(ef.ports), **ef.parameters)
             tried["element_errors"] = ef.candidates
@@ -1532,6 +1546,25 @@ def _nonlinearity_finding(
                     "with an input), and a saturation of the inputs, which needs none, does not "
                     "lower the error: not evidence of a nonlinearity"
                 )
+            if screened:
+                why = (
+                    f"to first order (its signature at level zero reaches "
+                    f"{ef.parameters['first_order_error']:.4g} from {ef.error_before:.4g} "
+                    "simulated from rest), or the record's start, which a simulation from "
+                    "rest does not have, is most of that error"
+                )
+                alt["rejected"] = (
+                    "no port nonlinearity (Coulomb friction, cubic spring, saturation) was "
+                    f"fitted: none lowers the error towards {needed:.4g} {why}: the misfit "
+                    "is linear"
+                )
+                if portless:
+                    alt["rejected"] = (
+                        "no port could be located for friction or a spring (no sensor "
+                        "collocated with an input), and a saturation of the inputs, which "
+                        f"needs none, does not lower the error towards {needed:.4g} {why}: "
+                        "not evidence of a nonlinearity"
+                    )
             if not (portless and direct):
                 return None, alt
             # distortion on unexcited lines is evidence on its own: the finding without an
@@ -1639,12 +1672,45 @@ def _nonlinearity_finding(
     return finding, None
 
 
+def _screen_passes(
+    e_lin: float, e_first: float, needed: float, e_model: float, first_order: bool = True
+) -> bool:
+    """Whether an element hypothesis is worth its fit (the element must go below ``needed``).
+
+    ``e_lin``: the linear model's error simulated from rest (as the element's simulation
+    runs), ``e_model`` its error as the problem measures it (from the estimated start of a
+    record that starts moving; the same on one at rest), ``e_first`` the error the
+    element's first-order signature reaches (:func:`~workbench.diagnosis.nonlinear.
+    first_order_errors`).
+
+    - ``e_lin`` above SCREEN_START times ``e_model``: the record's start is most of the
+      from-rest misfit, which an element simulated from rest does not have: no.
+    - ``e_lin`` >= 1 (the from-rest simulation is off by more than the record: a drift):
+      yes, whatever the first order says. Friction that holds a drifting rigid body is far
+      from its first order (an indepgen stage record: the signature removes 17 % of the
+      drift's power, the fit 100 %).
+    - else: the signature must remove at least SCREEN_SHARE of the residual power the
+      element must remove (a linear model already below ``needed`` passes). Not with
+      ``first_order`` False (a spring on a lightly damped mode's coordinate: its response
+      moves with the mode's frequency, far from linearly in k3 at the levels a record shows;
+      on indepgen beam Duffing draws the signature removed almost none of what the fitted
+      spring did).
+    """
+    if e_lin > SCREEN_START * e_model:
+        return False
+    if e_lin >= 1.0 or not first_order:
+        return True
+    return e_lin**2 - e_first**2 >= SCREEN_SHARE * (e_lin**2 - needed**2)
+
+
 def _fit_element(
     data: TimeData,
     linear: list,
     stop_above: float | None = None,
     band_hz: tuple[float, float] | None = None,
     mode_hz: float | None = None,
+    screen: float | None = None,
+    errors: list | None = None,
 ):
     """The port element that explains the record best: (ElementFit, linear model, pair) or None.
 
@@ -1682,12 +1748,28 @@ def _fit_element(
 
     ``mode_hz``: only the spring on the flexible mode of this frequency (Hz, within 1e-6
     relative) of each linear model, refined; None when no model has it.
+
+    ``screen``: the error the element must go below; ``errors`` the linear models' errors
+    as the problem measures them (aligned with ``linear``). A hypothesis (the port elements
+    on one pair's ports, the rigid bodies' friction, a mode's spring) is then fitted only
+    when :func:`_screen_passes` says so from its elements' first-order signature
+    (:func:`~workbench.diagnosis.nonlinear.first_order_errors`: the error the linear model
+    plus the element reaches near level zero, from a few linear simulations) and its linear
+    model's from-rest error: the fit starts from that regression and moves the levels
+    locally, hundreds of nonlinear simulations whose answer would be no (a linear misfit no
+    element's signature spans; a record that starts moving, whose start the element's
+    simulation from rest does not have). A linear model none of whose hypotheses passes
+    gets an ElementFit with no element (``parameters["screened"]`` True, ``error_after``
+    the linear model's own from-rest error; ``candidates`` the first-order errors).
     """
     from workbench.diagnosis.nonlinear import (
+        ElementFit,
         ModalPort,
+        PortNonlinearity,
         RigidPorts,
         SquarePorts,
         collocated_pairs,
+        first_order_errors,
         fit_port_element,
         fit_saturation,
         simulate_nonlinear,
@@ -1750,6 +1832,56 @@ def _fit_element(
 
     several = len(hyps) > 1
     given = len(linear) - 1
+    # per linear model: (its from-rest error, the best first-order error per element) of the
+    # hypotheses the screen left out
+    screened: dict[int, tuple[float, dict[str, float]]] = {}
+
+    def passes(h) -> bool:
+        """Whether hypothesis ``h`` is fitted: no ``screen``, or :func:`_screen_passes` (the
+        first-order errors of those it does not pass are kept for the report)."""
+        if screen is None:
+            return True
+        i, sys, port_outputs, _, motion = h
+        e_m, fo = first_order_errors(
+            sys,
+            data.u,
+            data.y,
+            data.fs,
+            port_outputs=port_outputs,
+            motion=motion,
+            ports=not saturation_only,
+        )
+        e_model = e_m if errors is None else errors[i]  # (None: at rest, as simulated)
+        # a mode's spring is judged by the record's start only (not by its first order)
+        modal = isinstance(sys, ModalPort)
+        if _screen_passes(e_m, min(fo.values(), default=e_m), screen, e_model, not modal):
+            return True
+        e_prev, fo_prev = screened.get(i, (e_m, {}))
+        for name, e in fo.items():
+            fo_prev[name] = min(fo_prev.get(name, np.inf), e)
+        screened[i] = (min(e_prev, e_m), fo_prev)
+        return False
+
+    def none_fitted(i):
+        """The ElementFit of linear model ``i`` when the screen left no hypothesis on it."""
+        e_m, fo = screened[i]
+        best = min(fo, key=fo.get) if fo else "saturation"
+        nl = PortNonlinearity(friction_force=np.zeros(n_u))
+        ef = ElementFit(
+            element=best,
+            ports=(),
+            parameters={
+                "screened": True,
+                "first_order_error": float(fo.get(best, e_m)),
+                "portless": saturation_only,
+            },
+            nonlinearity=nl,
+            error_before=float(e_m),
+            error_after=float(e_m),
+            candidates={k: float(v) for k, v in fo.items()},
+            level=0.0,
+        )
+        return ef, (i, None, None, None, None)
 
     def modal_ports(m) -> list:
         """The ModalPorts of model ``m``'s flexible modes near the excited band (non-square)."""
@@ -1789,8 +1921,10 @@ def _fit_element(
     def fit_on(i):
         """The element's fit on linear model ``i``: (ElementFit, hypothesis); the port
         elements' best, or the modal spring's (the rigid-body friction's) when it leaves the
-        lower error."""
+        lower error. Only the hypotheses the screen passes are fitted."""
         rigid = rigid_ports(linear[i]) if RIGID_FRICTION else None
+        if rigid is not None and not passes((i, rigid, None, None, None)):
+            rigid = None
         ef_r = None
         if rigid is not None:
             # friction on the rigid bodies' motion (at their bearings, driving no flexible
@@ -1804,21 +1938,26 @@ def _fit_element(
                 floor_reached.add(i)
                 return ef_r, h_r
         ef, h = fit_on_ports(i)
-        if ef_r is not None and ef_r.error_after < ef.error_after:
+        if ef is None and ef_r is not None:
+            ef, h = ef_r, h_r
+        elif ef_r is not None and ef_r.error_after < ef.error_after:
             return ef_r, h_r
-        if at_floor(ef, h):
+        if ef is not None and at_floor(ef, h):
             floor_reached.add(i)
             return ef, h
-        modal = modal_ports(linear[i])
+        modal = [mp for mp in modal_ports(linear[i]) if passes((i, mp, None, None, None))]
         if not modal:
-            return ef, h
+            return (ef, h) if ef is not None else none_fitted(i)
+        # the port elements' error, or (none passed the screen) the linear model's own
+        err = ef.error_after if ef is not None else screened[i][0]
+        kept = (ef, h) if ef is not None else none_fitted(i)
         cheap = [(fit_port_element(mp, data.u, data.y, data.fs, refine=False), mp) for mp in modal]
         ef_m, mp = min(cheap, key=lambda t: t[0].error_after)
-        if not ef_m.error_after < ef.error_after:
-            return ef, h
+        if not ef_m.error_after < err:
+            return kept
         ef_m = fit_port_element(mp, data.u, data.y, data.fs)
-        if not ef_m.error_after < ef.error_after:
-            return ef, h
+        if not ef_m.error_after < err:
+            return kept
         return ef_m, (i, mp, None, None, None)
 
     def rigid_ports(m):
@@ -1831,8 +1970,11 @@ def _fit_element(
             return None
 
     def fit_on_ports(i):
-        """The port elements' fit on linear model ``i``: (ElementFit, hypothesis)."""
-        mine = [h for h in hyps if h[0] == i]
+        """The port elements' fit on linear model ``i``: (ElementFit, hypothesis); (None,
+        None) when the screen passes none of its hypotheses."""
+        mine = [h for h in hyps if h[0] == i and passes(h)]
+        if not mine:
+            return None, None
         if saturation_only:
             (h,) = mine
             return fit_one(h, True), h

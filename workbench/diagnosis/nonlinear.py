@@ -89,6 +89,7 @@ __all__ = [
     "fit_saturation",
     "ElementFit",
     "ELEMENTS",
+    "first_order_errors",
 ]
 
 
@@ -1951,3 +1952,115 @@ def fit_saturation(sys, u: np.ndarray, y: np.ndarray, fs: float, *, refine: bool
         candidates={"saturation": float(after)},
         level=_output_share(y_sat, y_lin, y),
     )
+
+
+#: the smooth friction law's velocity scales the first-order screen tries, times the fit's
+#: estimate (the fit moves v0 within VELOCITY_RANGE of it; below it the law is the sign's)
+SCREEN_VELOCITIES = (1.0, 10.0, 100.0)
+
+
+def first_order_errors(
+    sys,
+    u: np.ndarray,
+    y: np.ndarray,
+    fs: float,
+    *,
+    port_outputs=None,
+    motion: np.ndarray | None = None,
+    ports: bool = True,
+) -> tuple[float, dict[str, float]]:
+    """The linear model's error and, per element, the error the linear model plus the
+    element's first-order signature reaches at best: what :func:`fit_port_element` could
+    reach near level zero, at the cost of a few linear simulations (no nonlinear one).
+
+    The arguments are :func:`fit_port_element`'s (the same port hypotheses: a square
+    model, ``port_outputs``, :class:`SquarePorts` at unit gains, :class:`ModalPort`,
+    :class:`RigidPorts`). At a small level an element adds to the linear model's output
+    the linear model's response to its law of the port motion at each port (the regressors
+    of the fit's regression): ``-F_j tanh(v_j / v0)`` (friction; at every v0 of
+    SCREEN_VELOCITIES times the fit's estimate, jointly) and ``-k_j p_j^3`` (the cubic
+    spring). The error reported is the residual's least-squares distance from their
+    non-negative combinations (the levels are >= 0, as the fit's; the several v0 jointly,
+    a lower bound of any one's), relative to ``||y||`` like the spec error. Saturation:
+    the best common quantile of ``|u|`` (the fit's first scan). The motion is the measured
+    output (square model), ``motion``, or the linear model's simulated ports, as in the
+    fit. ``ports=False``: no port is located (a model that is not square, no
+    ``port_outputs``), saturation only, as :func:`fit_saturation` fits it.
+
+    Returns ``(error, {element: error})``: the linear model's own error and the elements'
+    for those the hypothesis has (the mode's port: the spring only; the rigid bodies':
+    friction only).
+    """
+    from dataclasses import replace
+
+    from workbench.core.model import as_model
+
+    family = sys if isinstance(sys, SquarePorts) else None
+    modal = sys if isinstance(sys, ModalPort) else None
+    rigid = sys if isinstance(sys, RigidPorts) else None
+    if family is not None:
+        port_outputs = family.port_outputs
+        lin = as_model(family.system(family.unit))
+    elif modal is not None or rigid is not None:
+        lin = as_model((modal or rigid).lti)
+    else:
+        lin = as_model(sys)
+    u = np.asarray(u, float)
+    y = np.asarray(y, float)
+    n_u = u.shape[1]
+    norm = max(float(np.linalg.norm(y)), 1e-300)
+    if not ports:
+        meas = np.arange(lin.C.shape[0])
+        err = float(np.linalg.norm(y - sim.simulate_zoh(lin, u, fs)) / norm)
+        return err, {"saturation": _saturation_scan(lin, meas, u, y, fs)[1]}
+    if modal is not None or rigid is not None:
+        meas = np.arange(lin.C.shape[0])
+        Bp, Cp = (modal or rigid).maps
+    else:
+        _, _, _, _, _, meas = _ports(lin, port_outputs)
+    n_p = n_u if modal is None else 1
+    y_all = sim.simulate_zoh(lin, u, fs)
+    r = y - y_all[:, meas]
+    port = lin.without_delay()
+    if modal is not None or rigid is not None:
+        port = replace(port, B=Bp, D=np.zeros((lin.C.shape[0], n_p)), input_names=())
+    measured_ports = (port_outputs is None or family is not None) and motion is None
+    measured_ports = measured_ports and modal is None
+    if motion is None and modal is not None:
+        motion = sim.simulate_zoh(replace(lin, C=Cp, D=np.zeros((1, n_u)), output_names=()), u, fs)
+    elif motion is None:
+        motion = y if measured_ports else y_all[:, np.asarray(port_outputs, int)]
+    motion = np.asarray(motion, float)
+    vel = np.gradient(motion, 1.0 / fs, axis=0)
+    v_share = RIGID_VELOCITY if rigid is not None else 1e-3
+    v0 = v_share * float(np.sqrt(np.mean(vel**2))) or 1e-12
+
+    def projected(laws) -> float:
+        """The residual's distance from the cone of the ports' responses to ``laws``
+        (non-negative combinations: the element's levels are >= 0)."""
+        cols = []
+        for phi in laws:
+            for j in range(n_p):
+                if not np.any(phi[:, j]):
+                    continue
+                # the output of a unit force law at port j, resisting (minus sign)
+                force = -np.eye(n_p)[j] * phi[:, [j]]
+                cols.append(sim.simulate_zoh(port, force, fs)[:, meas].ravel())
+        if not cols:
+            return float(np.linalg.norm(r) / norm)
+        X = np.stack(cols, -1)
+        scale = np.linalg.norm(X, axis=0)
+        X = X[:, scale > 0] / scale[scale > 0]
+        if X.shape[1] == 0:
+            return float(np.linalg.norm(r) / norm)
+        # levels >= 0, as the fit's (a friction level, a hardening spring)
+        return float(scipy.optimize.nnls(X, r.ravel())[1] / norm)
+
+    out: dict[str, float] = {}
+    if modal is None and rigid is None:
+        out["saturation"] = _saturation_scan(lin, meas, u, y, fs)[1]
+    if modal is None:
+        out["coulomb_friction"] = projected([np.tanh(vel / (s * v0)) for s in SCREEN_VELOCITIES])
+    if rigid is None:
+        out["cubic_stiffness"] = projected([motion**3])
+    return float(np.linalg.norm(r) / norm), out

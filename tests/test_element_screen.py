@@ -1,0 +1,135 @@
+"""The first-order screen of the port elements (nonlinear.first_order_errors, diagnose's
+``_fit_element(screen=...)``): an element hypothesis is fitted only when its signature at
+level zero can come near the error it must reach.
+
+Oracles: records made by the nonlinear simulation model with friction at the ports (the
+element's first-order signature spans most of the residual) and by a linear model with a
+static compliance the nominal model lacks (a residual compliance: no element's signature
+spans it), each against the nominal model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from workbench import sim
+from workbench.diagnosis.diagnose import (
+    ERROR_RATIO,
+    _fit_element,
+    _misfit_evidence,
+    _nonlinearity_finding,
+    _screen_passes,
+)
+from workbench.diagnosis.nonlinear import (
+    PortNonlinearity,
+    first_order_errors,
+    simulate_nonlinear,
+)
+from workbench.io.formats import TimeData
+from workbench.modal.model import ModalModel, Mode
+
+FS = 1000.0
+N = 4000
+
+
+def _model() -> ModalModel:
+    """Two collocated suspended modes on two ports (square: the outputs are the ports)."""
+    b1, b2 = np.array([1.0, 0.3]), np.array([-0.2, 1.0])
+    modes = (
+        Mode(kind="flexible", freq_hz=8.0, damping=0.05, b=b1, c=b1),
+        Mode(kind="flexible", freq_hz=13.0, damping=0.05, b=b2, c=b2),
+    )
+    return ModalModel(modes=modes, D=np.zeros((2, 2)))
+
+
+def _input() -> np.ndarray:
+    rng = np.random.default_rng(3)
+    t = np.arange(N) / FS
+    u = np.zeros((N, 2))
+    for f in (1.0, 3.0, 7.0, 11.0, 19.0):
+        u += np.outer(np.sin(2 * np.pi * f * t + rng.uniform(0, 2 * np.pi)), rng.normal(size=2))
+    return u
+
+
+def _noisy(y: np.ndarray, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return y + 1e-3 * np.std(y) * rng.standard_normal(y.shape)
+
+
+@pytest.fixture(scope="module")
+def records():
+    """(nominal model, input, friction record, linear record)."""
+    m, u = _model(), _input()
+    lin = m.to_lti()
+    vel = float(np.sqrt(np.mean(np.gradient(sim.simulate_zoh(lin, u, FS), 1 / FS, axis=0) ** 2)))
+    friction = PortNonlinearity(
+        friction_force=np.array([0.3, 0.2]), friction_velocity=1e-3 * vel, substeps=16
+    )
+    y_f = _noisy(simulate_nonlinear(lin, u, FS, friction), 1)
+    # a static compliance the nominal model lacks: linear, no element's signature
+    compliant = replace(m, D=np.array([[4e-5, 1e-5], [1e-5, 3e-5]]))
+    y_l = _noisy(sim.simulate_zoh(compliant.to_lti(), u, FS), 2)
+    return m, u, y_f, y_l
+
+
+def test_friction_signature_spans_a_friction_record(records):
+    m, u, y_f, _ = records
+    e_lin, fo = first_order_errors(m.to_lti(), u, y_f, FS)
+    assert set(fo) == {"saturation", "coulomb_friction", "cubic_stiffness"}
+    assert min(fo, key=fo.get) == "coulomb_friction"
+    assert fo["coulomb_friction"] < 0.1 * e_lin  # most of the residual is friction's signature
+    assert all(e <= e_lin * (1 + 1e-9) for e in fo.values())  # a projection never adds
+
+
+def test_no_signature_spans_a_linear_misfit(records):
+    m, u, _, y_l = records
+    e_lin, fo = first_order_errors(m.to_lti(), u, y_l, FS)
+    assert all(e > 0.9 * e_lin for e in fo.values())
+
+
+def test_screen_rejects_the_element_on_a_linear_record(records):
+    m, u, _, y_l = records
+    data = TimeData(fs=FS, u=u, y=y_l)
+    e_lin = first_order_errors(m.to_lti(), u, y_l, FS)[0]
+    needed = ERROR_RATIO * e_lin
+    ef, model, pair = _fit_element(data, [m], screen=needed, errors=[e_lin])
+    assert ef.parameters["screened"] is True
+    assert ef.error_after == pytest.approx(e_lin)
+    assert ef.error_after > needed  # rejected as a finding
+    assert model is m and pair is None
+    # the finding: none, with the screen's reason
+    ev = _misfit_evidence(e_lin, 0.0, (1.0, 20.0))
+    finding, alt = _nonlinearity_finding(ev, data, e_lin, [m], e_lin, direct=False)
+    assert finding is None
+    assert "first order" in alt["rejected"]
+
+
+def test_screen_passes_the_element_on_a_friction_record(records):
+    m, u, y_f, _ = records
+    data = TimeData(fs=FS, u=u, y=y_f)
+    e_lin = first_order_errors(m.to_lti(), u, y_f, FS)[0]
+    needed = ERROR_RATIO * e_lin
+    ef, model, _ = _fit_element(data, [m], screen=needed, errors=[e_lin])
+    assert "screened" not in ef.parameters
+    assert ef.element == "coulomb_friction"
+    assert ef.error_after < 0.05 * e_lin
+
+
+def test_screen_rule():
+    # the signature removes a good share of what must go: passes
+    assert _screen_passes(0.5, 0.3, 0.4, 0.5)
+    # it removes almost none of what must go (a linear misfit)
+    assert not _screen_passes(0.5, 0.499, 0.42, 0.5)
+    # the record's start is most of the from-rest error (a record that starts moving)
+    assert not _screen_passes(0.5, 0.1, 0.01, 0.01)
+    # a drift (the from-rest simulation off by more than the record): first order says
+    # little about friction that holds it, the element is fitted
+    assert _screen_passes(200.0, 190.0, 0.4, 200.0)
+    # a linear model already below what is needed has nothing to remove
+    assert _screen_passes(0.5, 0.5, 0.6, 0.5)
+    # a mode's spring: the start only, not the first order
+    assert _screen_passes(0.5, 0.499, 0.42, 0.5, first_order=False)
+    assert not _screen_passes(0.5, 0.1, 0.01, 0.01, first_order=False)
