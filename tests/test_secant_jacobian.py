@@ -13,6 +13,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from test_time_fast_paths import _model
 
 import workbench.diagnosis.fit as fit_engine
 from workbench.diagnosis.effects import ActuatorDynamics, ModalModes, SensorDynamics
@@ -20,7 +21,6 @@ from workbench.diagnosis.fit import _SecantJacobian, finite_difference_jacobian,
 from workbench.diagnosis.problem import TimeProblem
 from workbench.io.formats import TimeData
 from workbench.modal import simulate as S
-from workbench.modal.model import ModalModel, Mode
 
 
 def _rosenbrock(x):
@@ -63,20 +63,6 @@ def test_secant_difference_quotients_after_a_rejected_step_and_in_a_row():
         assert sec.fresh == (k == sec.MAX_UPDATES)
 
 
-def _model(rng, n_y=3, n_u=3, *, tau_in=None, tau_out=None):
-    modes = [
-        Mode("flexible", f, z, rng.standard_normal(n_u), rng.standard_normal(n_y))
-        for f, z in ((37.0, 0.02), (180.0, 0.01), (640.0, 0.03))
-    ]
-    modes.append(Mode("rigid", 0.0, 0.0, rng.standard_normal(n_u), rng.standard_normal(n_y)))
-    return ModalModel(
-        modes=tuple(modes),
-        D=np.zeros((n_y, n_u)),
-        tau_in=tau_in,
-        tau_out=tau_out,
-    )
-
-
 def _record(model, truth, rng, fs=4096.0, n=6000, noise=2e-3):
     u = rng.standard_normal((n, model.n_u))
     y = S.simulate(truth, u, fs)
@@ -107,7 +93,7 @@ CASES = {
 def test_secant_fit_reaches_the_difference_quotient_optimum(name, monkeypatch):
     structure, truth_of = CASES[name]
     rng = np.random.default_rng(5)
-    model = _model(rng)
+    model = _model(rng, n_u=3)
     problem = _record(model, truth_of(model), rng)
     assert len(structure.bounds(problem, model)[0]) >= fit_engine.SECANT_MIN_THETA
     monkeypatch.setattr(type(structure), "secant", True, raising=False)

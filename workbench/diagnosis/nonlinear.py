@@ -1226,7 +1226,6 @@ def fit_port_element(
     model gives (at the true level that is the true motion: a consistent fixed point), and
     the levels are then refined on the simulation model's output error (``refine``).
     """
-    from dataclasses import replace
 
     from workbench.core.model import as_model
 
@@ -1267,23 +1266,20 @@ def fit_port_element(
     y_all = sim.simulate_zoh(lin, u, fs)
     y_lin = y_all[:, meas]
     before = lti.relative_error_time(y, y_lin)
-    port = lin.without_delay()  # port forces act directly, not through the input delay
-    if modal is not None or rigid is not None:  # ... and enter the mode's (the rigid modes')
-        no_d = np.zeros((lin.C.shape[0], n_p))  # velocity rows, not through B
-        port = replace(port, B=Bp, D=no_d, input_names=())
-    # a square model's outputs are its ports' motion: exactly for the collocated modes and,
-    # with non-collocated ones (SquarePorts), up to their share of the displacement (small
-    # for modes far above the motion's band); the regression takes them as measured. A
-    # mode's coordinate is never measured: the linear model's estimate, then its own
-    measured_ports = (port_outputs is None or family is not None) and motion is None
-    measured_ports = measured_ports and modal is None
-    if motion is None and modal is not None:
-        motion = sim.simulate_zoh(replace(lin, C=Cp, D=np.zeros((1, n_u)), output_names=()), u, fs)
-    elif motion is None:
-        motion = y if measured_ports else y_all[:, np.asarray(port_outputs, int)]
-    motion = np.asarray(motion, float)
-    v_share = RIGID_VELOCITY if rigid is not None else 1e-3
-    v0 = v_share * float(np.sqrt(np.mean(np.gradient(motion, 1.0 / fs, axis=0) ** 2))) or 1e-12
+    port, measured_ports, motion, _, v0 = _port_motion(
+        lin,
+        u,
+        y,
+        y_all,
+        fs,
+        (Bp, Cp) if modal is not None or rigid is not None else None,
+        n_p=n_p,
+        modal=modal,
+        rigid=rigid,
+        family=family,
+        port_outputs=port_outputs,
+        motion=motion,
+    )
     log_v_bounds = np.log(v0) + np.log(VELOCITY_RANGE) * np.array([-1.0, 1.0])
     drive = None
     if rigid is not None:  # the rms force the input applies at each rigid port (its units):
@@ -1991,7 +1987,6 @@ def first_order_errors(
     for those the hypothesis has (the mode's port: the spring only; the rigid bodies':
     friction only).
     """
-    from dataclasses import replace
 
     from workbench.core.model import as_model
 
@@ -2021,19 +2016,20 @@ def first_order_errors(
     n_p = n_u if modal is None else 1
     y_all = sim.simulate_zoh(lin, u, fs)
     r = y - y_all[:, meas]
-    port = lin.without_delay()
-    if modal is not None or rigid is not None:
-        port = replace(port, B=Bp, D=np.zeros((lin.C.shape[0], n_p)), input_names=())
-    measured_ports = (port_outputs is None or family is not None) and motion is None
-    measured_ports = measured_ports and modal is None
-    if motion is None and modal is not None:
-        motion = sim.simulate_zoh(replace(lin, C=Cp, D=np.zeros((1, n_u)), output_names=()), u, fs)
-    elif motion is None:
-        motion = y if measured_ports else y_all[:, np.asarray(port_outputs, int)]
-    motion = np.asarray(motion, float)
-    vel = np.gradient(motion, 1.0 / fs, axis=0)
-    v_share = RIGID_VELOCITY if rigid is not None else 1e-3
-    v0 = v_share * float(np.sqrt(np.mean(vel**2))) or 1e-12
+    port, _, motion, vel, v0 = _port_motion(
+        lin,
+        u,
+        y,
+        y_all,
+        fs,
+        (Bp, Cp) if modal is not None or rigid is not None else None,
+        n_p=n_p,
+        modal=modal,
+        rigid=rigid,
+        family=family,
+        port_outputs=port_outputs,
+        motion=motion,
+    )
 
     def projected(laws) -> float:
         """The residual's distance from the cone of the ports' responses to ``laws``
@@ -2064,3 +2060,40 @@ def first_order_errors(
     if rigid is None:
         out["cubic_stiffness"] = projected([motion**3])
     return float(np.linalg.norm(r) / norm), out
+
+
+def _port_motion(lin, u, y, y_all, fs, maps, *, n_p, modal, rigid, family, port_outputs, motion):
+    """What an element's regressors start from: ``(port, measured_ports, motion, vel, v0)``.
+
+    ``port`` is the linear model whose inputs are the element's forces: without the input
+    delay (port forces act directly), entering through ``maps``' ``Bp`` (the mode's or the
+    rigid modes' velocity rows) where those are given. ``motion`` (N, n_p) is the ports'
+    motion (m): the measured outputs of a square model (``measured_ports``), the given
+    ``motion``, the mode's coordinate simulated through ``maps``' ``Cp``, or the linear
+    model's simulated ports; ``vel`` its velocity (m/s) and ``v0`` the smooth friction
+    law's velocity scale from it (m/s).
+    """
+    from dataclasses import replace
+
+    n_u = u.shape[1]
+    port = lin.without_delay()
+    if maps is not None:
+        port = replace(port, B=maps[0], D=np.zeros((lin.C.shape[0], n_p)), input_names=())
+    # a square model's outputs are its ports' motion: exactly for the collocated modes and,
+    # with non-collocated ones (SquarePorts), up to their share of the displacement (small
+    # for modes far above the motion's band); the regression takes them as measured. A
+    # mode's coordinate is never measured: the linear model's estimate, then its own
+    measured_ports = (port_outputs is None or family is not None) and motion is None
+    measured_ports = measured_ports and modal is None
+    if motion is None and modal is not None:
+        C_mode = maps[1]
+        motion = sim.simulate_zoh(
+            replace(lin, C=C_mode, D=np.zeros((1, n_u)), output_names=()), u, fs
+        )
+    elif motion is None:
+        motion = y if measured_ports else y_all[:, np.asarray(port_outputs, int)]
+    motion = np.asarray(motion, float)
+    vel = np.gradient(motion, 1.0 / fs, axis=0)
+    v_share = RIGID_VELOCITY if rigid is not None else 1e-3
+    v0 = v_share * float(np.sqrt(np.mean(vel**2))) or 1e-12
+    return port, measured_ports, motion, vel, v0
