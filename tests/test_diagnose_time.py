@@ -88,3 +88,17 @@ def test_none_on_a_record_without_periods_says_whether_the_residual_is_white():
         texts.append(_none_finding(problem, model, data, err, err, None, []).explanation)
     assert texts[0].endswith("nothing is missing.")
     assert "not white" in texts[1] and "nothing is missing" not in texts[1]
+
+
+def test_time_delay_of_many_samples_is_found():
+    """A delay of 64 samples (12.8 ms at 5 kHz: a network or computation delay) is a delay,
+    not an actuator lag plus a shorter delay (the search once stopped at 16 samples)."""
+    delay = 64 / 5000.0
+    case = time_case(
+        beam(), "time_delay", {"delay_s": delay}, rel=0.01, rng=np.random.default_rng(3)
+    )
+    result = diagnose(case.nominal, case.data)
+    top = result.findings[0]
+    assert [f.effect for f in result.findings] == ["time_delay"]
+    assert abs(top.parameters["delay_s"] - delay) < 0.02 * delay
+    assert top.error_after < 1.2 * case.noise_floor

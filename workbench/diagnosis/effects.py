@@ -229,15 +229,30 @@ class TimeDelay:
     effect: str = "time_delay"
     theta_names: tuple[str, ...] = ("delay_ms",)
 
+    def _max_samples(self, problem) -> float:
+        """Longest delay a time record is searched for, samples: 1/20 of the record, 16..256.
+
+        A network or computation delay can be tens of samples (an indepgen beam record:
+        64 samples at 4096 Hz, a lag and a shorter delay took its place while the grid
+        stopped at 16); evaluations of a delayed model are cheap (a shift).
+        """
+        return float(np.clip(problem.data.n_samples // 20, 16, 256))
+
     def _max_s(self, problem) -> float:
         if problem.kind == "time":
-            return 16.0 / problem.fs
+            return self._max_samples(problem) / problem.fs
         return min(0.05, 10.0 / problem.band_hz[1])
 
     def grid(self, problem, base):
         tmax = self._max_s(problem)
         if problem.kind == "time":
-            samples = np.array([0, 0.5, 1, 1.5, 2, 3, 4, 6, 8, 11, 16])
+            samples = [0, 0.5, 1, 1.5, 2, 3, 4, 6, 8, 11, 16]
+            # beyond 16 samples, steps of sqrt(2): the cost of a delay is smooth on this
+            # scale (a record's delay error grows with the phase it leaves at the band's
+            # dominant frequencies), the refinement finds the minimum between two points
+            samples += [
+                k for k in 16 * np.sqrt(2) ** np.arange(1, 9) if k <= self._max_samples(problem)
+            ]
             return [np.array([k * 1e3 / problem.fs]) for k in samples]
         return [np.array([t * 1e3]) for t in np.linspace(0, tmax, 400)]
 
