@@ -66,6 +66,39 @@ def _with_outer(base, *, T_in=True, T_out=False):
     )
 
 
+def _split_modes(base):
+    """ModalModes fitting the lower half of the pattern's modes, the upper half moved by a
+    shared factor."""
+    f = sorted(base.modes[k].freq_hz for k in ModalPattern().indices(base))
+    return ModalModes(max_freq_hz=f[(len(f) - 1) // 2], scale=(1.02, 1.3), scale_std=(0.001, 0.05))
+
+
+@pytest.mark.parametrize("plant,params", [(stage, stage_params), (beam, beam_params)])
+def test_mode_by_mode_refinement_starts_at_the_patterns_model(plant, params):
+    """A pattern refined mode by mode (each mode the record shows on its own, those above
+    by the pattern's factor) starts at the pattern's model, and its report lists every
+    mode: the fitted ones, then those moved by the shared factor."""
+    from workbench.diagnosis.fit import FitResult
+
+    problem, base = _problem(plant, params, "modal_mismatch")
+    theta = np.log([1.02, 1.3])
+    mm = _split_modes(base)
+    ks, above = mm.indices(base), mm._above(base)
+    assert ks and above
+    pattern = ModalPattern().build(theta, problem, base).model
+    split = mm.build(mm.from_pattern(theta, base), problem, base).model
+    for a, b in zip(pattern.modes, split.modes):
+        assert a.freq_hz == pytest.approx(b.freq_hz, rel=1e-12)
+        assert a.damping == pytest.approx(b.damping, rel=1e-12)
+    th = mm.from_pattern(theta, base)
+    realized = mm.build(th, problem, base)
+    fr = FitResult(mm, th, np.full(th.size, 0.01), realized, 0.0, 0.0, th.size, 0.0)
+    params, std = mm.report(fr, problem, base)
+    assert len(params["modes"]) == len(ks) + len(above) == len(std["modes"])
+    for m in params["modes"][len(ks) :]:
+        assert m["freq_hz"] == pytest.approx(1.02 * m["model_freq_hz"], rel=1e-12)
+
+
 @pytest.mark.parametrize("plant,params", [(stage, stage_params), (beam, beam_params)])
 def test_analytic_jacobians_match_central_differences(plant, params):
     problem, base0 = _problem(plant, params, "modal_mismatch")
@@ -77,6 +110,7 @@ def test_analytic_jacobians_match_central_differences(plant, params):
         (ModalMismatch(index=1), None, base),
         (ModalPattern(), None, base),
         (ModalModes(), None, base),
+        (_split_modes(base), None, base),
     ]
     if any(m.kind == "rigid" for m in base.modes):
         structures.append((SuspensionStiffness(), None, base))
@@ -97,6 +131,7 @@ def test_lines_match_the_model_residual(plant, params):
     problem, base0 = _problem(plant, params, "modal_mismatch")
     for base in (base0, _with_outer(base0, T_in=False, T_out=True)):
         structures = [TimeDelay(), ActuatorDynamics(), ModalPattern(), ModalModes()]
+        structures.append(_split_modes(base))
         structures += [
             ModalMismatch(index=k) for k, m in enumerate(base.modes) if m.kind == "flexible"
         ]
