@@ -102,3 +102,39 @@ def test_time_delay_of_many_samples_is_found():
     assert [f.effect for f in result.findings] == ["time_delay"]
     assert abs(top.parameters["delay_s"] - delay) < 0.02 * delay
     assert top.error_after < 1.2 * case.noise_floor
+
+
+def test_unrepeated_periods_note_on_a_time_varying_record():
+    """The note's rule alone: the right model's own record repeats its periods; the same
+    record from a plant whose gain drifts by 30 % over it does not."""
+    from workbench.diagnosis import detect
+    from workbench.diagnosis.diagnose import _unrepeated_periods, base_model
+    from workbench.diagnosis.problem import make_problem
+
+    case = time_case(beam(), "none", {}, rel=0.01, rng=np.random.default_rng(4))
+    d = case.data
+    drift = 1.0 + 0.3 * np.arange(d.n_samples)[:, None] / d.n_samples
+    varying = TimeData(fs=d.fs, u=d.u, y=d.y * drift, r=d.r, loop=d.loop, period=d.period)
+    for data, expected in ((d, False), (varying, True)):
+        problem = make_problem(data)
+        y_model = problem.predict(base_model(case.nominal, data))
+        spread = detect.noise_floor(data, y_model)
+        err = float(np.linalg.norm(data.y - y_model) / np.linalg.norm(data.y))
+        assert (_unrepeated_periods(data, y_model, spread, err) is not None) == expected
+
+
+@pytest.mark.slow
+def test_periods_that_do_not_repeat_are_said_so():
+    """A periodic record whose periods do not repeat (here a plant whose gain drifts by 30 %
+    over the record: time-varying) says so in the notes and in compare's explanation, with
+    the spread against its white-noise estimate; the right model on its own record does not."""
+    case = time_case(beam(), "none", {}, rel=0.01, rng=np.random.default_rng(4))
+    right = diagnose(case.nominal, case.data)
+    assert not any("do not repeat" in n for n in right.notes)
+    d = case.data
+    drift = 1.0 + 0.3 * np.arange(d.n_samples)[:, None] / d.n_samples
+    varying = TimeData(fs=d.fs, u=d.u, y=d.y * drift, r=d.r, loop=d.loop, period=d.period)
+    res = diagnose(case.nominal, varying)
+    note = [n for n in res.notes if "do not repeat" in n]
+    assert len(note) == 1, res.notes
+    assert "x its estimate as white noise" in note[0]

@@ -110,6 +110,9 @@ PERIODIC_NL = 2.5
 #: periods (:func:`workbench.diagnosis.detect.noise_floor`) is a misfit, even with the
 #: period-synchronous residual at the noise (a drift); the benchmarks' pass mark
 DRIFT_RATIO = 2.0
+#: a periodic record whose periods' spread exceeds its white-noise estimate this many times
+#: has not settled into a periodic response (:func:`_unrepeated_periods`)
+UNREPEATED_RATIO = 3.0
 #: raw-record distortion is stationary: last period's unexcited-line power over the first kept
 #: one within these bounds (a transient decays, a lightly damped closed-loop mode may grow)
 NL_STATIONARY = (0.5, 1.2)
@@ -835,6 +838,12 @@ def _diagnose(
     if isinstance(data, TimeData):
         found = [_with_image(f, current, problem) for f in found]
     remaining = _remaining(current, data)
+    if time_floor is not None and nl_early is None:
+        note = _unrepeated_periods(data, problem.predict(current), time_floor, cur_err)
+        if note is not None:
+            notes.append(note)
+            if remaining is not None:
+                remaining["explanation"] += "; " + note
     element = next((f for f in found if f.effect == "nonlinearity" and f.model is not None), None)
     if remaining is not None and not remaining["within_noise"] and element is not None:
         # compare simulates a linear model: the element's simulation model is what explains
@@ -862,6 +871,32 @@ def _diagnose(
         notes=tuple(notes),
         model=current,
         remaining=remaining,
+    )
+
+
+def _unrepeated_periods(data, y_model, spread_floor: float, err: float) -> str | None:
+    """A note when a periodic record's periods do not repeat, else None.
+
+    The periods' spread about their mean (``spread_floor``, :func:`detect.noise_floor`,
+    the lower of the record's and the final model's residual's) more than
+    :data:`UNREPEATED_RATIO` times its estimate with the noise taken as white, and the final
+    error beyond DRIFT_RATIO times that white floor: the response to a periodic input does
+    not settle into a periodic one. compare judges the kept periods' excited lines (their
+    mean) and may find the final model within noise while its error is far above it (an
+    indepgen beam record with a strong cubic spring on a mode, held-out seed 7: spread 0.113
+    of the output, white floor 0.012, its residual growing from 4 % to 29 % of the output
+    over ten periods; no spring on a mode of the model reproduced it).
+    """
+    white = detect.noise_floor(data, y_model, white=True)
+    if white is None or not (spread_floor > UNREPEATED_RATIO * white and err > DRIFT_RATIO * white):
+        return None
+    return (
+        f"the record's periods do not repeat: their spread is {spread_floor:.3g} of the output, "
+        f"{spread_floor / white:.1f}x its estimate as white noise ({white:.3g}), and the final "
+        f"error {err:.4g} is {err / white:.1f}x that: the response to the periodic input has "
+        "not settled into a periodic one (a nonlinearity such as a strong spring, a drift, a "
+        "time-varying plant, or a transient slower than the record), which no finding here "
+        "explains; compare judges the kept periods' mean on the excited lines only"
     )
 
 
