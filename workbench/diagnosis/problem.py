@@ -1078,6 +1078,7 @@ class PeriodicProblem(_FilteredProblem):
         lines = np.concatenate(blocks)
         self.z = np.exp(2j * np.pi * lines / rec.period)
         self._zi = 1.0 / self.z
+        self._lines, self._period = lines, rec.period  # z = exp(2j pi lines / period)
         self._blocks = [self.block_of == b for b in np.unique(self.block_of)]
         #: the excited lines' frequencies (every block's), Hz, ascending
         self.line_hz = np.unique(lines) * self.fs / rec.period
@@ -1181,13 +1182,19 @@ class PeriodicProblem(_FilteredProblem):
             self._basis_cache.clear()
         self._basis_cache[key] = Q
 
-    def _columns(self, poles, drift: bool, n_delay: int = 0) -> np.ndarray:
+    def _columns(self, poles, drift: bool, n_delay: int = 0, first_delay: int = 0) -> np.ndarray:
         """Transient columns (n_l, k) complex: the rigid body's drift (``drift``), the delay
-        line's ``z^-j``, j < ``n_delay``, and the sampled ``poles``' free responses, one set
-        per block."""
+        line's ``z^-j``, ``first_delay`` <= j < ``n_delay``, and the sampled ``poles``' free
+        responses, one set per block."""
         zi = self._zi
         cols = [1.0 / (1.0 - zi), 1.0 / (1.0 - zi) ** 2] if drift else []
-        cols += [zi**j for j in range(n_delay)]
+        if n_delay > first_delay:
+            # z^-j = exp(-2j pi (lines j mod period) / period): one exp per entry with the phase
+            # reduced exactly (complex powers zi**j one column at a time were most of a long
+            # delay line's basis: 300 terms, 0.25 s)
+            j = np.arange(first_delay, n_delay)
+            phase = (self._lines[:, None] * j) % self._period
+            cols.append(np.exp((-2j * np.pi / self._period) * phase))  # (n_l, m): m columns
         for pk in poles:
             b = 1.0 / (1.0 - pk * zi)
             if pk.imag > 0:  # a pair: c b + conj(c) b(conj(p)) with c complex
@@ -1208,39 +1215,58 @@ class PeriodicProblem(_FilteredProblem):
         return _orthonormal_columns(np.concatenate([C.real, C.imag]))
 
     def _basis_near(self, key: tuple) -> np.ndarray | None:
-        """The basis of ``key`` from a kept basis of all its poles but one, or None.
+        """The basis of ``key`` from a kept basis of a part of its terms, or None.
 
-        A fit or a screen moves one mode (or adds one) and the other poles stay: the
-        basis of those (kept, or computed once here when the previous new key differed
-        from this one in the same single place) is extended by the moved pole's columns,
-        orthogonalized against it twice (classical Gram-Schmidt, twice is enough;
-        Giraud et al. 2005). The same span as :meth:`_basis_of`'s, at a fraction of its
-        cost. None where a new column lies within :data:`NEAR_SPAN` of the others' span
-        (there :func:`_orthonormal_columns`'s rank decision on all columns applies).
+        A fit or a screen moves one mode (or adds one, or moves a few together: a
+        suspension's stiffness moves every rigid-body DOF's pole) or lengthens the delay
+        line, and the other terms stay: the basis of those (kept: the same poles with a
+        shorter delay line, or the most of its poles; or computed once here when the
+        previous new key differed from this one in the same places) is extended by the
+        new terms' columns (:meth:`_appended`). The same
+        span as :meth:`_basis_of`'s, at a fraction of its cost. None where a new column
+        lies within :data:`NEAR_SPAN` of the others' span (there
+        :func:`_orthonormal_columns`'s rank decision on all columns applies).
         """
         last, self._last_new = self._last_new, key
         n_delay, poles = key
-
-        def without(i):  # the key of the poles but the i-th
-            return (n_delay, poles[:i] + poles[i + 1 :])
-
-        rest = None
-        for i in range(len(poles)):
-            Q_rest = self._basis_cache.get(without(i))
-            if Q_rest is not None:
-                rest = (i, Q_rest)
-                break
+        # a delay's grid (ascending) and its fit lengthen the delay line of the same poles:
+        # its further terms z^-j appended (a 300-term line afresh was 0.3 s)
+        shorter = [k[0] for k in self._basis_cache if k[1] == poles and k[0] < n_delay]
+        if shorter:
+            m = max(shorter)
+            C = self._columns((), drift=False, n_delay=n_delay, first_delay=m)
+            return self._appended(self._basis_cache[(m, poles)], C)
+        have = set(poles)
+        rest = None  # (the kept key's poles, its basis), the fewest poles missing
+        for k, Q_rest in self._basis_cache.items():
+            missing = len(poles) - len(k[1])
+            if k[0] != n_delay or missing < 1 or not have >= set(k[1]):
+                continue
+            if rest is None or len(k[1]) > len(rest[0]):
+                rest = (k[1], Q_rest)
         if rest is None and last is not None and last[0] == n_delay and len(last[1]) == len(poles):
             differ = [i for i in range(len(poles)) if last[1][i] != poles[i]]
-            if len(differ) == 1:
-                i = differ[0]
-                Q_rest = self._basis_of(without(i))
-                self._keep_basis(without(i), Q_rest)
-                rest = (i, Q_rest)
+            if differ:
+                kept = tuple(p for i, p in enumerate(poles) if i not in differ)
+                Q_rest = self._basis_of((n_delay, kept))
+                self._keep_basis((n_delay, kept), Q_rest)
+                rest = (kept, Q_rest)
         if rest is None:
             return None
-        i, Q_rest = rest
-        C = self._columns([poles[i]], drift=False)
+        kept = set(rest[0])
+        return self._appended(rest[1], self._columns([p for p in poles if p not in kept], False))
+
+    def _appended(self, Q_rest: np.ndarray, C: np.ndarray) -> np.ndarray | None:
+        """``Q_rest`` (2 n_l, r) orthonormal extended by the span of the transient columns ``C``
+        (n_l, m) complex (:meth:`_columns`): (2 n_l, r + m), or None where a new column lies
+        within :data:`NEAR_SPAN` of the span of ``Q_rest`` and the other new columns.
+
+        The new columns orthogonalized against ``Q_rest`` twice (classical Gram-Schmidt,
+        twice is enough; Giraud et al. 2005), then among themselves by
+        :func:`~workbench.diagnosis.fit.cholesky_qr2` (Gram-Schmidt twice in exact
+        arithmetic, as accurate below the :data:`NEAR_SPAN` limit, and batched products where
+        a loop over a long delay line's 60-80 new columns passed over the rows m^2 / 2 times).
+        """
         W = np.concatenate([C.real, C.imag])
         # column norms by einsum: np.linalg.norm(axis=0) of a tall array of 1-2 columns
         # reduces across the rows at ~3x the cost
@@ -1250,19 +1276,14 @@ class PeriodicProblem(_FilteredProblem):
         norms = np.sqrt(np.einsum("ij,ij->j", W, W))
         if np.min(norms) < NEAR_SPAN:
             return None
-        # the pole's own few columns (a pair's two may be near parallel for a pole near the
-        # real axis; then the whole basis afresh): Gram-Schmidt twice per column, which for
-        # these 2-12 columns is Householder QR's Q (up to signs) and |diag R| at a tenth of
-        # np.linalg.qr's call overhead
-        W = W / norms
-        Q_new = np.empty_like(W)
-        d = np.empty(W.shape[1])
-        for j in range(W.shape[1]):
-            w = W[:, j]
-            for _ in range(2 if j else 0):
-                w = w - Q_new[:, :j] @ (Q_new[:, :j].T @ w)
-            d[j] = np.linalg.norm(w)
-            Q_new[:, j] = w / d[j] if d[j] > 0 else 0.0
+        # the new columns' own span (a pair's two may be near parallel for a pole near the
+        # real axis; then the whole basis afresh): |diag R| are the columns' distances from
+        # the previous ones
+        try:
+            Q_new, R = cholesky_qr2(W / norms)
+        except np.linalg.LinAlgError:
+            return None
+        d = np.abs(np.diag(R))
         if np.min(d) < NEAR_SPAN * np.max(d):
             return None
         return np.ascontiguousarray(np.column_stack([Q_rest, Q_new]))
