@@ -150,3 +150,20 @@ def test_a_moved_or_added_mode_extends_the_kept_time_basis():
         assert np.abs((X - Q @ (Q.T @ X)) - (X - Qr @ (Qr.T @ X))).max() < 1e-10
     assert len(fresh) == 2
     assert fresh[1] == (0, tuple((m.freq_hz, m.damping) for m in base.modes[:k] if m.freq_hz > 0))
+
+
+def test_free_response_columns_are_the_sampled_poles_powers():
+    """TimeProblem._pole_columns (tables of powers multiplied) against exp, cos and sin of
+    every sample; a pole gone within a sample has none."""
+    data, _ = record(n_skip=3000, n=4001)  # not a multiple of the tables' block
+    problem = TimeProblem(data)
+    poles = [(31.0, 0.02), (0.3, 0.9), (450.0, 0.001), (1200.0, 0.999)]  # the last: gone
+    C = problem._pole_columns(poles)
+    k = np.arange(data.y.shape[0], dtype=float)
+    ref = []
+    for f, z in poles[:3]:
+        w = 2 * np.pi * f / FS
+        env = np.exp(-z * w * k)
+        ref += [env * np.cos(w * np.sqrt(1 - z * z) * k), env * np.sin(w * np.sqrt(1 - z * z) * k)]
+    assert C.shape == (k.size, 6)
+    assert np.abs(C - np.column_stack(ref)).max() < 1e-12

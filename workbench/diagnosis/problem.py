@@ -1049,19 +1049,33 @@ class TimeProblem(_FilteredProblem):
 
     def _pole_columns(self, poles) -> np.ndarray:
         """Free responses (N, k) real, ``Re, Im lambda^n`` of each (freq Hz, damping) of
-        ``poles`` but those gone within a sample."""
-        k = np.arange(self.y.shape[0], dtype=float)
-        cols = []
+        ``poles`` but those gone within a sample.
+
+        ``lambda^n = lambda^(B a) lambda^b`` (n = B a + b, b < B): two short tables of
+        powers (complex exponentials of ``n log lambda``, as accurate as those of every
+        sample) and one product per sample, where an exp, a cos and a sin per sample
+        were most of a fresh basis (10 modes, 16 384 samples: 4.3 against 0.6 ms).
+        """
+        N = self.y.shape[0]
+        logs = []
         for f, z in poles:
             w = 2 * np.pi * f
             z = min(z, 0.999)
-            # lam^k = exp(k log lam) in real arithmetic (4x faster than complex powers)
             sigma, wd = -z * w / self.fs, w * np.sqrt(1 - z * z) / self.fs
             if sigma < np.log(1e-3):  # gone within a sample
                 continue
-            envelope = np.exp(sigma * k)
-            cols += [envelope * np.cos(wd * k), envelope * np.sin(wd * k)]
-        return np.column_stack(cols) if cols else np.zeros((k.size, 0))
+            logs.append(complex(sigma, wd))
+        if not logs:
+            return np.zeros((N, 0))
+        s = np.array(logs)[:, None]
+        B = int(np.ceil(np.sqrt(N)))
+        powers = (
+            np.exp(s * (B * np.arange(-(-N // B))))[:, :, None] * np.exp(s * np.arange(B))[:, None]
+        )
+        powers = powers.reshape(len(logs), -1)[:, :N]
+        C = np.empty((N, 2 * len(logs)))
+        C[:, 0::2], C[:, 1::2] = powers.real.T, powers.imag.T
+        return C
 
     def predict(self, model: ModalModel) -> np.ndarray:
         """Simulated output (N, n_y): from rest, or from the estimated start (``transient``)."""
