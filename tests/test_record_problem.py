@@ -258,3 +258,44 @@ def test_a_screen_in_batches_is_the_screen_of_the_whole_grid(monkeypatch):
     a, b = out[2**40], out[1]
     assert a.cost == pytest.approx(b.cost, rel=1e-12)
     assert all(np.array_equal(x, y) for x, y in zip(a.starts[:10], b.starts[:10]))
+
+
+def _projector_afresh(problem, key) -> np.ndarray:
+    """The projector on the transient columns of ``key`` by Householder QR (the reference)."""
+    C = problem._columns(key[1], drift=True, n_delay=key[0])
+    Q = np.linalg.qr(np.concatenate([C.real, C.imag]))[0]
+    return Q @ Q.T
+
+
+def test_delay_line_terms_are_the_powers_of_z():
+    """The delay line's columns (exact phase reduction) are ``z^-j``, from any first term."""
+    problem = make_problem(_record(_model()), domain="frequency")
+    C = problem._columns((), drift=False, n_delay=40, first_delay=7)
+    ref = np.column_stack([problem.z ** (-j) for j in range(7, 40)])
+    assert C.shape == ref.shape
+    assert np.max(np.abs(C - ref)) <= 1e-12
+
+
+def test_a_longer_delay_line_or_several_moved_poles_extend_a_kept_basis():
+    """The basis of a longer delay line (a delay's grid) from the kept basis of a shorter one,
+    and of a model whose two modes moved together (a suspension's DOFs) from the kept basis
+    of the other poles (:meth:`PeriodicProblem._basis_near`): the projector of the basis
+    afresh, and no basis computed afresh but the first and the other poles'."""
+    model = _model(tau_in=(0.0, 0.0), tau_out=(0.0, 0.0), rigid=True)
+    quiet = [Mode("flexible", f, 0.01, np.zeros(2), np.zeros(2)) for f in (80.0, 300.0)]
+    model = replace(model, modes=model.modes + tuple(quiet))  # 4 poles, two of them move
+    problem = make_problem(_record(model), domain="frequency")
+    fresh = []
+    problem._basis_of = lambda key, f=problem._basis_of: fresh.append(key) or f(key)
+    models = [replace(model, delay_s=d / FS) for d in (2.37, 5.0, 11.5, 31.0)]
+    for j in range(1, 4):  # the first two modes moved, the others (and the drift) kept
+        modes = [m.moved(m.freq_hz * (1 + 0.02 * j), m.damping) for m in model.modes[:2]]
+        models.append(replace(models[-1], modes=tuple(modes) + model.modes[2:]))
+    for m in models:
+        Q = problem._start_basis(m)
+        P_ref = _projector_afresh(problem, problem._transient_key(m))
+        assert np.max(np.abs(Q @ Q.T - P_ref)) <= 1e-10
+    keys = [problem._transient_key(m) for m in models]
+    assert [k[0] for k in keys[:4]] == [3, 5, 12, 31]
+    # afresh: the first model's, and (moved twice in the same places) the unmoved poles'
+    assert fresh == [keys[0], (31, keys[0][1][2:])]

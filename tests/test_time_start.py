@@ -109,3 +109,61 @@ def test_orthonormal_columns_span_the_same_space_as_householder_qr():
         assert Q.shape == Qr.shape
         assert np.abs(Q.T @ Q - np.eye(Q.shape[1])).max() < 1e-12
         assert np.abs((X - Q @ (Q.T @ X)) - (X - Qr @ (Qr.T @ X))).max() < 1e-10
+
+
+def test_a_moved_or_added_mode_extends_the_kept_time_basis():
+    """The time record's start basis of a model whose mode moved or was added, extended
+    from the kept basis of the other modes (:meth:`TimeProblem._basis_near`), projects as
+    the basis of all its free responses by Householder QR does; only the first model's
+    and (moved in the same place twice) the other modes' are computed afresh."""
+    from dataclasses import replace
+
+    from workbench.modal.model import Mode
+
+    data, sys = record(n_skip=3000)
+    problem = TimeProblem(data)
+    base = base_model(sys, data)
+    extra = Mode("flexible", 31.0, 0.02, np.zeros(2), np.zeros(2))
+    base = replace(base, modes=base.modes + (extra,))
+    k = len(base.modes) - 1
+    fresh = []
+    problem._basis_of = lambda key, f=problem._basis_of: fresh.append(key) or f(key)
+    models = [base]
+    for j in range(1, 4):
+        modes = list(base.modes)
+        modes[k] = modes[k].moved(31.0 * (1 + 0.03 * j), 0.02)
+        models.append(replace(base, modes=tuple(modes)))
+    added = Mode("flexible", 55.0, 0.01, np.zeros(2), np.zeros(2))
+    models.append(replace(models[-1], modes=models[-1].modes + (added,)))
+    t = np.arange(data.y.shape[0], dtype=float)
+    X = np.random.default_rng(1).standard_normal((t.size, 3))
+    for m in models:
+        Q = problem._start_basis(m)
+        cols = [np.ones_like(t), t]
+        for mode in m.modes:
+            if mode.freq_hz > 0:  # the sampled pole's powers, complex
+                w, z = mode.omega / FS, mode.damping
+                lam = np.exp(complex(-z * w, w * np.sqrt(1 - z * z)))
+                cols += [(lam**t).real, (lam**t).imag]
+        Qr = np.linalg.qr(np.column_stack(cols))[0]
+        assert Q.shape == Qr.shape
+        assert np.abs((X - Q @ (Q.T @ X)) - (X - Qr @ (Qr.T @ X))).max() < 1e-10
+    assert len(fresh) == 2
+    assert fresh[1] == (0, tuple((m.freq_hz, m.damping) for m in base.modes[:k] if m.freq_hz > 0))
+
+
+def test_free_response_columns_are_the_sampled_poles_powers():
+    """TimeProblem._pole_columns (tables of powers multiplied) against exp, cos and sin of
+    every sample; a pole gone within a sample has none."""
+    data, _ = record(n_skip=3000, n=4001)  # not a multiple of the tables' block
+    problem = TimeProblem(data)
+    poles = [(31.0, 0.02), (0.3, 0.9), (450.0, 0.001), (1200.0, 0.999)]  # the last: gone
+    C = problem._pole_columns(poles)
+    k = np.arange(data.y.shape[0], dtype=float)
+    ref = []
+    for f, z in poles[:3]:
+        w = 2 * np.pi * f / FS
+        env = np.exp(-z * w * k)
+        ref += [env * np.cos(w * np.sqrt(1 - z * z) * k), env * np.sin(w * np.sqrt(1 - z * z) * k)]
+    assert C.shape == (k.size, 6)
+    assert np.abs(C - np.column_stack(ref)).max() < 1e-12

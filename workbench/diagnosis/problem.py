@@ -608,6 +608,58 @@ def _remove(Q: np.ndarray | None, X: np.ndarray) -> np.ndarray:
     return (flat - Q @ (Q.T @ flat)).reshape(X.shape)
 
 
+#: new transient columns :func:`_appended` orthonormalizes one by one, at most
+SMALL_BLOCK = 12
+
+
+def _appended(Q_rest: np.ndarray, W: np.ndarray) -> np.ndarray | None:
+    """``Q_rest`` (n_rows, r) orthonormal extended by the span of the columns ``W`` (n_rows,
+    m): (n_rows, r + m), or None where a new column lies within :data:`NEAR_SPAN` of the
+    span of ``Q_rest`` and the other new columns.
+
+    The new columns orthogonalized against ``Q_rest`` twice (classical Gram-Schmidt,
+    twice is enough; Giraud et al. 2005), then among themselves: up to
+    :data:`SMALL_BLOCK` columns (a pole's 1-2, a few moved together) by Gram-Schmidt
+    twice per column, which is Householder QR's Q (up to signs) and |diag R| at a tenth
+    of np.linalg.qr's call overhead; more (a delay line's 60-80 further terms) by
+    :func:`~workbench.diagnosis.fit.cholesky_qr2`, the same in exact arithmetic and as
+    accurate below the :data:`NEAR_SPAN` limit, in batched products where the column loop
+    passes over the rows m^2 / 2 times (for 2-6 columns it was 2x slower: 16 000 rows).
+    """
+    if W.shape[1] == 0:
+        return Q_rest
+    # column norms by einsum: np.linalg.norm(axis=0) of a tall array of 1-2 columns
+    # reduces across the rows at ~3x the cost
+    W = W / np.sqrt(np.einsum("ij,ij->j", W, W))
+    for _ in range(2):
+        W = W - Q_rest @ (Q_rest.T @ W)
+    norms = np.sqrt(np.einsum("ij,ij->j", W, W))
+    if np.min(norms) < NEAR_SPAN:
+        return None
+    # the new columns' own span (a pair's two may be near parallel for a pole near the
+    # real axis; then the whole basis afresh): d, the columns' distances from the previous
+    # ones (|diag R|)
+    W = W / norms
+    if W.shape[1] > SMALL_BLOCK:
+        try:
+            Q_new, R = cholesky_qr2(W)
+        except np.linalg.LinAlgError:
+            return None
+        d = np.abs(np.diag(R))
+    else:
+        Q_new = np.empty_like(W)
+        d = np.empty(W.shape[1])
+        for j in range(W.shape[1]):
+            w = W[:, j]
+            for _ in range(2 if j else 0):
+                w = w - Q_new[:, :j] @ (Q_new[:, :j].T @ w)
+            d[j] = np.linalg.norm(w)
+            Q_new[:, j] = w / d[j] if d[j] > 0 else 0.0
+    if np.min(d) < NEAR_SPAN * np.max(d):
+        return None
+    return np.ascontiguousarray(np.column_stack([Q_rest, Q_new]))
+
+
 #: directly summed model outputs the time-record problems keep as anchors
 #: (:meth:`_FilteredProblem._parts_sum`)
 ROW_ANCHORS = 4
@@ -765,6 +817,70 @@ class _FilteredProblem:
     def cost(self, model: ModalModel) -> float:
         return float(np.sum(((self.target - self.fitted(model)) / self.scale) ** 2))
 
+    # ------------------------------------------------------ transient basis
+    def _keep_basis(self, key: tuple, Q: np.ndarray) -> None:
+        if len(self._basis_cache) > 50:
+            self._basis_cache.clear()
+        self._basis_cache[key] = Q
+
+    def _cached_basis(self, key: tuple) -> np.ndarray:
+        """The transient basis of ``key`` = (head terms, poles) (the subclass's
+        ``_start_basis``): kept, extended from a kept one (:meth:`_basis_near`), or afresh
+        (``_basis_of``)."""
+        Q = self._basis_cache.get(key)
+        if Q is None:
+            Q = self._basis_near(key)
+            if Q is None:
+                Q = self._basis_of(key)
+            self._keep_basis(key, Q)
+        return Q
+
+    def _basis_near(self, key: tuple) -> np.ndarray | None:
+        """The basis of ``key`` = (head terms, poles) from a kept basis of a part of its
+        terms, or None.
+
+        A fit or a screen moves one mode (or adds one, or moves a few together: a
+        suspension's stiffness moves every rigid-body DOF's pole) or lengthens the delay
+        line (the head: a whole record's delay-line terms, ``_head_columns``), and the
+        other terms stay: the basis of those (kept: the same poles with a shorter head,
+        or the most of its poles, at least half; or computed once here when the previous
+        new key differed from this one in the same places) is extended by the new terms' columns
+        (``_pole_columns``, :func:`_appended`). The same span as ``_basis_of``'s, at a
+        fraction of its cost. None where a new column lies within :data:`NEAR_SPAN` of
+        the others' span (there :func:`_orthonormal_columns`'s rank decision on all
+        columns applies).
+        """
+        last, self._last_new = self._last_new, key
+        n_head, poles = key
+        # a delay's grid (ascending) and its fit lengthen the delay line of the same poles:
+        # its further terms z^-j appended (a 300-term line afresh was 0.3 s)
+        shorter = [k[0] for k in self._basis_cache if k[1] == poles and k[0] < n_head]
+        if shorter:
+            m = max(shorter)
+            return _appended(self._basis_cache[(m, poles)], self._head_columns(m, n_head))
+        # at most half the poles new (one of one): where most move (a coupled suspension's
+        # refit on a record, 6 of 10 modes) their columns appended cost more than the whole
+        # basis afresh (indep3 beam record: 6.0 against 4.6 ms)
+        most = max(1, len(poles) // 2)
+        have = set(poles)
+        rest = None  # (the kept key's poles, its basis), the fewest poles missing
+        for k, Q_rest in self._basis_cache.items():
+            if k[0] != n_head or not 0 < len(poles) - len(k[1]) <= most or not have >= set(k[1]):
+                continue
+            if rest is None or len(k[1]) > len(rest[0]):
+                rest = (k[1], Q_rest)
+        if rest is None and last is not None and last[0] == n_head and len(last[1]) == len(poles):
+            differ = [i for i in range(len(poles)) if last[1][i] != poles[i]]
+            if 0 < len(differ) <= most:
+                kept = tuple(p for i, p in enumerate(poles) if i not in differ)
+                Q_rest = self._basis_of((n_head, kept))
+                self._keep_basis((n_head, kept), Q_rest)
+                rest = (kept, Q_rest)
+        if rest is None:
+            return None
+        kept = set(rest[0])
+        return _appended(rest[1], self._pole_columns([p for p in poles if p not in kept]))
+
     # --------------------------------------------------------- linear parts
     def _regress_basis(self, model: ModalModel, den) -> np.ndarray | None:
         """The free-response basis the regressors of a term over ``den`` are projected on
@@ -899,6 +1015,7 @@ class TimeProblem(_FilteredProblem):
         self._cache: dict = {}
         self._filter_cache: dict = {}
         self._basis_cache: dict = {}
+        self._last_new: tuple | None = None  # the last key whose basis was not kept
         self._anchors: list = []  # (channels, items, parts, sum), see _parts_sum
         self._residual_last = None  # (model, its weighted residual), see _regress
         self._products: dict = {}  # T_in -> numerator, rows, cols -> mixed inputs (_mixed)
@@ -921,27 +1038,44 @@ class TimeProblem(_FilteredProblem):
         if not self.transient:
             return None
         poles = tuple((m.freq_hz, m.damping) for m in model.modes if m.freq_hz > 0)
-        Q = self._basis_cache.get(poles)
-        if Q is not None:
-            return Q
+        return self._cached_basis((0, poles))
+
+    def _basis_of(self, key: tuple) -> np.ndarray:
+        """Orthonormal basis (N, r) of the rigid body's position and velocity and the free
+        responses of ``key`` = (0, ((freq Hz, damping), ..)) (:meth:`_start_basis`), afresh."""
         k = np.arange(self.y.shape[0], dtype=float)
-        cols = [np.ones_like(k), k / k[-1]]
-        for m in model.modes:
-            if m.freq_hz <= 0:
-                continue
-            w = 2 * np.pi * m.freq_hz
-            z = min(m.damping, 0.999)
-            # lam^k = exp(k log lam) in real arithmetic (4x faster than complex powers)
+        drift = np.column_stack([np.ones_like(k), k / k[-1]])
+        return _orthonormal_columns(np.column_stack([drift, self._pole_columns(key[1])]))
+
+    def _pole_columns(self, poles) -> np.ndarray:
+        """Free responses (N, k) real, ``Re, Im lambda^n`` of each (freq Hz, damping) of
+        ``poles`` but those gone within a sample.
+
+        ``lambda^n = lambda^(B a) lambda^b`` (n = B a + b, b < B): two short tables of
+        powers (complex exponentials of ``n log lambda``, as accurate as those of every
+        sample) and one product per sample, where an exp, a cos and a sin per sample
+        were most of a fresh basis (10 modes, 16 384 samples: 4.3 against 0.6 ms).
+        """
+        N = self.y.shape[0]
+        logs = []
+        for f, z in poles:
+            w = 2 * np.pi * f
+            z = min(z, 0.999)
             sigma, wd = -z * w / self.fs, w * np.sqrt(1 - z * z) / self.fs
             if sigma < np.log(1e-3):  # gone within a sample
                 continue
-            envelope = np.exp(sigma * k)
-            cols += [envelope * np.cos(wd * k), envelope * np.sin(wd * k)]
-        Q = _orthonormal_columns(np.column_stack(cols))
-        if len(self._basis_cache) > 50:
-            self._basis_cache.clear()
-        self._basis_cache[poles] = Q
-        return Q
+            logs.append(complex(sigma, wd))
+        if not logs:
+            return np.zeros((N, 0))
+        s = np.array(logs)[:, None]
+        B = int(np.ceil(np.sqrt(N)))
+        powers = (
+            np.exp(s * (B * np.arange(-(-N // B))))[:, :, None] * np.exp(s * np.arange(B))[:, None]
+        )
+        powers = powers.reshape(len(logs), -1)[:, :N]
+        C = np.empty((N, 2 * len(logs)))
+        C[:, 0::2], C[:, 1::2] = powers.real.T, powers.imag.T
+        return C
 
     def predict(self, model: ModalModel) -> np.ndarray:
         """Simulated output (N, n_y): from rest, or from the estimated start (``transient``)."""
@@ -1078,6 +1212,7 @@ class PeriodicProblem(_FilteredProblem):
         lines = np.concatenate(blocks)
         self.z = np.exp(2j * np.pi * lines / rec.period)
         self._zi = 1.0 / self.z
+        self._lines, self._period = lines, rec.period  # z = exp(2j pi lines / period)
         self._blocks = [self.block_of == b for b in np.unique(self.block_of)]
         #: the excited lines' frequencies (every block's), Hz, ascending
         self.line_hz = np.unique(lines) * self.fs / rec.period
@@ -1122,14 +1257,7 @@ class PeriodicProblem(_FilteredProblem):
         (a pole of order m at z = 0). A kept period of a periodic record starts with the
         delay line holding the previous period's inputs, the same as at its end: nothing.
         """
-        key = self._transient_key(model)
-        Q = self._basis_cache.get(key)
-        if Q is None:
-            Q = self._basis_near(key)
-            if Q is None:
-                Q = self._basis_of(key)
-            self._keep_basis(key, Q)
-        return Q
+        return self._cached_basis(self._transient_key(model))
 
     def _transient_key(self, model: ModalModel) -> tuple:
         """What :meth:`_start_basis` spans for ``model``: (the delay line's number of
@@ -1176,18 +1304,19 @@ class PeriodicProblem(_FilteredProblem):
         )
         return self._start_basis(replace(model, modes=model.modes + (term,)))
 
-    def _keep_basis(self, key: tuple, Q: np.ndarray) -> None:
-        if len(self._basis_cache) > 50:
-            self._basis_cache.clear()
-        self._basis_cache[key] = Q
-
-    def _columns(self, poles, drift: bool, n_delay: int = 0) -> np.ndarray:
+    def _columns(self, poles, drift: bool, n_delay: int = 0, first_delay: int = 0) -> np.ndarray:
         """Transient columns (n_l, k) complex: the rigid body's drift (``drift``), the delay
-        line's ``z^-j``, j < ``n_delay``, and the sampled ``poles``' free responses, one set
-        per block."""
+        line's ``z^-j``, ``first_delay`` <= j < ``n_delay``, and the sampled ``poles``' free
+        responses, one set per block."""
         zi = self._zi
         cols = [1.0 / (1.0 - zi), 1.0 / (1.0 - zi) ** 2] if drift else []
-        cols += [zi**j for j in range(n_delay)]
+        if n_delay > first_delay:
+            # z^-j = exp(-2j pi (lines j mod period) / period): one exp per entry with the phase
+            # reduced exactly (complex powers zi**j one column at a time were most of a long
+            # delay line's basis: 300 terms, 0.25 s)
+            j = np.arange(first_delay, n_delay)
+            phase = (self._lines[:, None] * j) % self._period
+            cols.append(np.exp((-2j * np.pi / self._period) * phase))  # (n_l, m): m columns
         for pk in poles:
             b = 1.0 / (1.0 - pk * zi)
             if pk.imag > 0:  # a pair: c b + conj(c) b(conj(p)) with c complex
@@ -1207,65 +1336,17 @@ class PeriodicProblem(_FilteredProblem):
         C = self._columns(key[1], drift=True, n_delay=key[0])
         return _orthonormal_columns(np.concatenate([C.real, C.imag]))
 
-    def _basis_near(self, key: tuple) -> np.ndarray | None:
-        """The basis of ``key`` from a kept basis of all its poles but one, or None.
+    def _pole_columns(self, poles) -> np.ndarray:
+        """The transient columns of ``poles`` (sampled, upper half plane or real), real and
+        imaginary parts of the lines stacked, (2 n_l, k)."""
+        C = self._columns(poles, drift=False)
+        return np.concatenate([C.real, C.imag])
 
-        A fit or a screen moves one mode (or adds one) and the other poles stay: the
-        basis of those (kept, or computed once here when the previous new key differed
-        from this one in the same single place) is extended by the moved pole's columns,
-        orthogonalized against it twice (classical Gram-Schmidt, twice is enough;
-        Giraud et al. 2005). The same span as :meth:`_basis_of`'s, at a fraction of its
-        cost. None where a new column lies within :data:`NEAR_SPAN` of the others' span
-        (there :func:`_orthonormal_columns`'s rank decision on all columns applies).
-        """
-        last, self._last_new = self._last_new, key
-        n_delay, poles = key
-
-        def without(i):  # the key of the poles but the i-th
-            return (n_delay, poles[:i] + poles[i + 1 :])
-
-        rest = None
-        for i in range(len(poles)):
-            Q_rest = self._basis_cache.get(without(i))
-            if Q_rest is not None:
-                rest = (i, Q_rest)
-                break
-        if rest is None and last is not None and last[0] == n_delay and len(last[1]) == len(poles):
-            differ = [i for i in range(len(poles)) if last[1][i] != poles[i]]
-            if len(differ) == 1:
-                i = differ[0]
-                Q_rest = self._basis_of(without(i))
-                self._keep_basis(without(i), Q_rest)
-                rest = (i, Q_rest)
-        if rest is None:
-            return None
-        i, Q_rest = rest
-        C = self._columns([poles[i]], drift=False)
-        W = np.concatenate([C.real, C.imag])
-        # column norms by einsum: np.linalg.norm(axis=0) of a tall array of 1-2 columns
-        # reduces across the rows at ~3x the cost
-        W = W / np.sqrt(np.einsum("ij,ij->j", W, W))
-        for _ in range(2):
-            W = W - Q_rest @ (Q_rest.T @ W)
-        norms = np.sqrt(np.einsum("ij,ij->j", W, W))
-        if np.min(norms) < NEAR_SPAN:
-            return None
-        # the pole's own few columns (a pair's two may be near parallel for a pole near the
-        # real axis; then the whole basis afresh): Gram-Schmidt twice per column, which for
-        # these 2-12 columns is Householder QR's Q (up to signs) and |diag R| at a tenth of
-        # np.linalg.qr's call overhead
-        W = W / norms
-        Q_new = np.empty_like(W)
-        d = np.empty(W.shape[1])
-        for j in range(W.shape[1]):
-            w = W[:, j]
-            for _ in range(2 if j else 0):
-                w = w - Q_new[:, :j] @ (Q_new[:, :j].T @ w)
-            d[j] = np.linalg.norm(w)
-            Q_new[:, j] = w / d[j] if d[j] > 0 else 0.0
-        if np.min(d) < NEAR_SPAN * np.max(d):
-            return None
-        return np.ascontiguousarray(np.column_stack([Q_rest, Q_new]))
+    def _head_columns(self, first: int, n: int) -> np.ndarray:
+        """The delay line's terms ``z^-j``, ``first`` <= j < ``n``, stacked as
+        :meth:`_pole_columns`, (2 n_l, n - first)."""
+        C = self._columns((), drift=False, n_delay=n, first_delay=first)
+        return np.concatenate([C.real, C.imag])
 
     def costs(self, models: list) -> np.ndarray:
         """:meth:`cost` of each model (inf for None or a numerical failure), (n_models,).
