@@ -106,6 +106,9 @@ def test_the_fit_reusing_its_runs_is_the_fit_simulating_each_afresh(monkeypatch)
     assert reused.parameters == fresh.parameters
     assert reused.error_after == fresh.error_after
     assert reused.candidates == fresh.candidates
+    # the outputs the fit hands on (its own run) are the element's simulation, to the bit
+    for fit in (reused, fresh):
+        np.testing.assert_array_equal(fit.output, simulate_nonlinear(sys, u, FS, fit.nonlinearity))
 
 
 def _full_substeps(sys, u, fs, nl, sens=None):

@@ -105,3 +105,23 @@ def test_square_ports_map_derivative_is_the_change_of_the_port_rows():
         np.testing.assert_array_equal(np.asarray(sys_k.A), np.asarray(base.A))
         change = (np.asarray(sys_k.C) - np.asarray(base.C))[ports]
         np.testing.assert_allclose(change, 0.37 * g[k] * dCp[k], atol=1e-9 * np.abs(change).max())
+
+
+@pytest.mark.parametrize("sliding", [(), (1, 4), (0, 2, 3, 5), tuple(range(6))])
+def test_port_solve_equals_the_whole_systems_solution(sliding):
+    """The Newton step's and the sensitivities' solve on the ports not sliding (slope s_i = 0
+    rows substituted) equals numpy's solve of the whole ``(I + diag(s) Mv) X' = R'``."""
+    from workbench._port_kernel import _port_solve
+
+    rng = np.random.default_rng(3)
+    n_p, n_rhs = 6, 4
+    L = rng.standard_normal((n_p, n_p))
+    Mv = L @ L.T * 1e-6  # a driving-point mobility: symmetric, positive definite
+    s = 10.0 ** rng.uniform(2, 8, n_p)  # stiff and mild slopes (1/m/s units of F_c / v0)
+    s[list(sliding)] = 0.0
+    R = rng.standard_normal((n_rhs, n_p))
+    ref = np.linalg.solve(np.eye(n_p) + s[:, None] * Mv, R.T).T
+    X = R.copy()
+    _port_solve(Mv, s, X, np.empty((n_p, n_p)), np.empty((n_rhs, n_p)), np.empty(n_p, np.int64))
+    np.testing.assert_allclose(X, ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
+    np.testing.assert_array_equal(X[:, list(sliding)], R[:, list(sliding)])

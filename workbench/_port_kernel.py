@@ -14,7 +14,8 @@ with ``G1 = int_0^h e^{A s} (1 - s / h) ds Bp`` (the end value's weight) and
 ``xp`` the state without it and ``Mv = Cv G1``, it is the root ``r`` of
 ``g(r) = r + F_c tanh((Cv xp + Mv r) / v0)``, unique because the friction law is
 monotone in the velocity and Mv is a (symmetric, positive semi-definite)
-driving-point mobility. Newton steps ``-(I + diag(F_c sech^2 / v0) Mv)^-1 g`` are
+driving-point mobility. Newton steps ``-(I + diag(F_c sech^2 / v0) Mv)^-1 g`` (solved on
+the ports not sliding at +-F_c only, :func:`_port_solve`: a sliding port's row is e_i) are
 taken whole when they halve max |g|, else to the minimum along them of the convex
 merit ``E(r) = r' Mv r / 2 + sum_j F_c v0 log cosh((Cv xp + Mv r)_j / v0)`` (its
 gradient is Mv g: a Newton step on g is a descent direction of E; with one port the
@@ -28,7 +29,7 @@ friction re-solved from the corrected prediction.
 friction law's parameters (levels, v0, the port velocity map) through the same substeps: the
 linear part is linear in them, the friction's end value is differentiated at its converged
 root (implicit function theorem, :func:`_sens_end`), so they are the exact derivative of the
-simulation as computed (to the Newton tolerance), at about 2-3 simulations' cost for nine
+simulation as computed (to the Newton tolerance), at about 2-2.5 simulations' cost for nine
 parameters where forward differences take nine.
 
 numba is a dependency of the project; :meth:`workbench.sim.SubstepZoh.advance` with
@@ -127,8 +128,8 @@ def _sens_start(x, a, CvT, Fc, iv0, dFc, dlv, dCvT, has_dcv, S, dr, dw):
 
 @numba.njit(cache=True, inline="always")
 def _gauss_solve(J, R, n_p):
-    """Solve ``J x = R[q]`` for every row q of R (n_rhs, n_p) in place: Gaussian elimination
-    with partial pivoting on J (n_p, n_p, overwritten), the solutions in R's rows."""
+    """Solve ``J x = R[q]`` for every row q of R (n_rhs, >= n_p) in place: Gaussian elimination
+    with partial pivoting on J[:n_p, :n_p] (overwritten), the solutions in R[:, :n_p]."""
     n_rhs = R.shape[0]
     for c in range(n_p):
         piv = c
@@ -163,25 +164,60 @@ def _gauss_solve(J, R, n_p):
 
 
 @numba.njit(cache=True, inline="always")
-def _sens_end(x, CvT, G1T, Fc, iv0, Mv, dFc, dlv, dCvT, has_dcv, S, Sp, dr, w, dw, J):
-    """S (in place): the sensitivities of the substep's end state ``x = xp + G1 r``, those of
-    ``xp`` given (``Sp``, n_th x n); dr (n_th, n_p) those of the friction's end value ``r``.
+def _port_solve(Mv, s, R, J, W, idx):
+    """Solve ``(I + diag(s) Mv) X = R[q]`` for every row q of R (n_rhs, n_p), in place (X in R).
+
+    A port sliding at +-F_c (tanh 1 to the bit) has slope ``s_i = 0``: its row is ``e_i``, its
+    unknown ``R[q, i]`` itself, substituted into the other ports' rows; those ports' (m of them,
+    2-3 of a stage's 6 at a time) system is solved by Gaussian elimination with partial
+    pivoting in ``J[:m, :m]``, their right-hand sides in ``W[:, :m]`` (W (n_rhs, n_p), idx
+    (n_p,) int work arrays). The whole system's solution to rounding, at a fraction of its
+    elimination's cost (the elimination dominated a stage's Newton step).
+    """
+    n_rhs, n_p = R.shape
+    m = 0
+    for i in range(n_p):
+        if s[i] != 0.0:
+            idx[m] = i
+            m += 1
+    if m == 0:
+        return
+    for a in range(m):
+        i = idx[a]
+        for b in range(m):
+            J[a, b] = s[i] * Mv[i, idx[b]]
+        J[a, a] += 1.0
+        for q in range(n_rhs):
+            acc = 0.0  # the sliding ports' known unknowns, moved to the right-hand side
+            for k in range(n_p):
+                if s[k] == 0.0:
+                    acc += Mv[i, k] * R[q, k]
+            W[q, a] = R[q, i] - s[i] * acc
+    _gauss_solve(J, W, m)
+    for q in range(n_rhs):
+        for a in range(m):
+            R[q, idx[a]] = W[q, a]
+
+
+@numba.njit(cache=True, inline="always")
+def _sens_end(x, CvT, Fc, iv0, Mv, dFc, dlv, dCvT, has_dcv, Sp, dr, w, sl, J, W, idx):
+    """dr (n_th, n_p, in place): the sensitivities of a substep's friction end value ``r``,
+    those of the state without it, ``xp``, given (``Sp``, n_th x n); ``x = xp + G1 r`` the end
+    state (its sensitivities ``Sp + G1 dr``: :func:`_advance` forms them).
 
     ``r`` is the root of ``r + F_c tanh(w / v0) = 0``, ``w = Cv x = Cv xp + Mv r``; the implicit
     function theorem: ``(I + diag(s) Mv) dr = -(dF_c tanh + s (dCv x + Cv Sp - w dlog v0))``,
     ``s = F_c sech^2(w / v0) / v0`` (the converged root's, exact to the Newton tolerance: the
-    derivative of the simulation as computed, not of a continuous-time idealization).
+    derivative of the simulation as computed, not of a continuous-time idealization), solved by
+    :func:`_port_solve` (sl (n_p,), J, W (n_th, n_p), idx: its work arrays).
     """
-    n_th, n = S.shape
+    n_th, n = Sp.shape
     n_p = Fc.shape[0]
     _port_map(CvT, x, w)
-    # LU of I + diag(s) Mv (partial pivoting) in J, the permutation in the rows of dr below
     for i in range(n_p):
         ti = _tanh(w[i] * iv0)
         si = Fc[i] * (1.0 - ti * ti) * iv0
-        for k in range(n_p):
-            J[i, k] = si * Mv[i, k]
-        J[i, i] += 1.0
+        sl[i] = si
         for q in range(n_th):  # the right-hand sides, in dr
             if si == 0.0:  # a port sliding at +-F_c (tanh 1 to the bit): its force moves
                 dr[q, i] = -dFc[q, i] * ti - 0.0  # with its level only (the same number)
@@ -193,21 +229,14 @@ def _sens_end(x, CvT, G1T, Fc, iv0, Mv, dFc, dlv, dCvT, has_dcv, S, Sp, dr, w, d
                 for m in range(n):
                     Sp_w += dCvT[q, m, i] * x[m]
             dr[q, i] = -dFc[q, i] * ti - si * (Sp_w - w[i] * dlv[q])
-    _gauss_solve(J, dr, n_p)
-    for q in range(n_th):
-        for i in range(n):
-            S[q, i] = Sp[q, i]
-        for m in range(n_p):
-            dm = dr[q, m]
-            for i in range(n):
-                S[q, i] += G1T[m, i] * dm
+    _port_solve(Mv, sl, dr, J, W, idx)
 
 
 @numba.njit(cache=True)
 def _advance(
     x, PhiT, GaT, G1T, G_oldT, G_newT, has_old, u_new, u_old, CvT, CpT, Fc, v0, k3, Mv,
     has_fr, has_k3, fc_max, xp, f0, c0, r, a, g, J, dlt, rt, t, gt, tt,
-    dFc, dlv, dCvT, has_dcv, S, Sp, dr, w, dw, phi_m, phi_i,
+    dFc, dlv, dCvT, has_dcv, S, Sp, dr, w, dw, phi_m, phi_i, HT, sl, R1, W1, W, idx,
 ):  # fmt: skip
     """x (in place) after the ``G_newT.shape[0]`` substeps of one sample (the matrices
     transposed: PhiT = Phi', GaT = Ga', G1T = G1', G_oldT[j] = G_old[j]', CvT = Cv', CpT = Cp').
@@ -216,7 +245,10 @@ def _advance(
     in the order of the dense sum, the same result; a modal model's Phi is 2x2 blocks, 26 of
     the stage's 256 entries), and so is ``Phi S``: with ``n_th = dFc.shape[0] > 0`` parameters
     (friction only, no cubic spring) also the state's sensitivities ``S[q] = dx / dtheta_q``
-    (n_th, n), in place: see :func:`_sens_start` and :func:`_sens_end`.
+    (n_th, n), in place: see :func:`_sens_start` and :func:`_sens_end`; then ``HT`` =
+    (Phi G1 + Ga)' (n_p, n, :func:`_folded_input`) and ``W`` (n_th, n_p) a work array. ``sl``
+    (n_p,), ``R1``, ``W1`` (1, n_p), ``idx`` (n_p,) int: the port solves' work arrays
+    (:func:`_port_solve`).
 
     Written out in one function: a call with array arguments costs reference counting
     (atomic operations), more than the arithmetic at these sizes. Products M x are summed
@@ -275,16 +307,36 @@ def _advance(
             else:  # (no spring: c0 = 0, its term skipped)
                 for i in range(n):
                     xp[i] += GaT[m, i] * fm
-        if n_th > 0:  # Sp = Phi S + Ga df0 (df0 = dr: the end value before, or _sens_start's)
+        if n_th > 0:
+            # Sp = Phi S + Ga df0 at the sample's first substep (S its start, df0 = dr the start
+            # value's, :func:`_sens_start`); after it the end state's S = Sp + G1 dr of the
+            # substep before is folded in, Sp = Phi Sp + (Phi G1 + Ga) dr = Phi Sp + H dr
+            # (HT = H'), S formed at the sample's end only (one product by G1 a sample, not a
+            # substep). dr is sparse (a sliding port's force moves with its own level only):
+            # its zeros are skipped
             for q in range(n_th):
-                for i in range(n):
-                    Sp[q, i] = 0.0
+                if j == 0:
+                    for i in range(n):
+                        Sp[q, i] = 0.0
+                    for e in range(phi_m.shape[0]):
+                        Sp[q, phi_i[e]] += PhiT[phi_m[e], phi_i[e]] * S[q, phi_m[e]]
+                    for m in range(n_p):
+                        fm = dr[q, m]
+                        if fm != 0.0:
+                            for i in range(n):
+                                Sp[q, i] += GaT[m, i] * fm
+                    continue
+                for i in range(n):  # S[q] is free within the sample: the product's work row
+                    S[q, i] = 0.0
                 for e in range(phi_m.shape[0]):
-                    Sp[q, phi_i[e]] += PhiT[phi_m[e], phi_i[e]] * S[q, phi_m[e]]
+                    S[q, phi_i[e]] += PhiT[phi_m[e], phi_i[e]] * Sp[q, phi_m[e]]
                 for m in range(n_p):
                     fm = dr[q, m]
-                    for i in range(n):
-                        Sp[q, i] += GaT[m, i] * fm
+                    if fm != 0.0:
+                        for i in range(n):
+                            S[q, i] += HT[m, i] * fm
+                for i in range(n):
+                    Sp[q, i] = S[q, i]
         for rep in range(2 if has_k3 else 1):
             if rep == 1:  # Heun: the spring's end value from the state just found
                 for i in range(n_p):
@@ -297,9 +349,6 @@ def _advance(
             for i in range(n):
                 x[i] = xp[i]
             if not has_fr:
-                for q in range(n_th):
-                    for i in range(n):
-                        S[q, i] = Sp[q, i]
                 continue
             _port_map(CvT, xp, a)
             # Newton on g(r) = r + F_c tanh((a + Mv r) / v0), r warm-started (g, t at r)
@@ -321,15 +370,11 @@ def _advance(
                 if gmax <= NEWTON_TOL * fc_max:
                     break
                 for i in range(n_p):
-                    slope_i = Fc[i] * (1.0 - t[i] * t[i]) * iv0
-                    for k in range(n_p):
-                        J[i, k] = slope_i * Mv[i, k]
-                    J[i, i] += 1.0
-                    rt[i] = -g[i]
-                # J dlt = rt by Gaussian elimination with partial pivoting
-                _gauss_solve(J, rt.reshape((1, n_p)), n_p)
+                    sl[i] = Fc[i] * (1.0 - t[i] * t[i]) * iv0
+                    R1[0, i] = -g[i]
+                _port_solve(Mv, sl, R1, J, W1, idx)  # (I + diag(sl) Mv) dlt = -g
                 for i in range(n_p):
-                    dlt[i] = rt[i]
+                    dlt[i] = R1[0, i]
                 dmax = 0.0
                 for i in range(n_p):
                     dmax = max(dmax, abs(dlt[i]))
@@ -384,7 +429,15 @@ def _advance(
                 for i in range(n):
                     x[i] += G1T[m, i] * rm
             if n_th > 0:
-                _sens_end(x, CvT, G1T, Fc, iv0, Mv, dFc, dlv, dCvT, has_dcv, S, Sp, dr, w, dw, J)
+                _sens_end(x, CvT, Fc, iv0, Mv, dFc, dlv, dCvT, has_dcv, Sp, dr, w, sl, J, W, idx)
+    for q in range(n_th):  # the end state's sensitivities S = Sp + G1 dr
+        for i in range(n):
+            S[q, i] = Sp[q, i]
+        for m in range(n_p):
+            dm = dr[q, m]
+            if dm != 0.0:
+                for i in range(n):
+                    S[q, i] += G1T[m, i] * dm
 
 
 @numba.njit(cache=True)
@@ -427,8 +480,25 @@ def port_sample(x, PhiT, GaT, G1T, G_oldT, G_newT, has_old, u_new, u_old, CvT, C
         np.empty((0, n_p)), np.empty(0), np.empty((0, n, n_p)), np.empty(0, np.bool_),
         np.empty((0, n)),
         np.empty((0, n)), np.empty((0, n_p)), np.empty(n_p), np.empty(n_p), phi_m, phi_i,
+        np.empty((0, n)), np.empty(n_p), np.empty((1, n_p)), np.empty((1, n_p)),
+        np.empty((0, n_p)), np.empty(n_p, np.int64),
     )  # fmt: skip
     return out
+
+
+@numba.njit(cache=True)
+def _folded_input(PhiT, GaT, G1T):
+    """HT = (Phi G1 + Ga)' (n_p, n): the weight of a substep's friction end value in the next
+    substep's state without its own (``xp+ = Phi (xp + G1 r) + Ga r + ...``)."""
+    n_p, n = GaT.shape
+    HT = GaT.copy()
+    for m in range(n_p):
+        for i in range(n):
+            acc = 0.0
+            for k in range(n):
+                acc += PhiT[k, i] * G1T[m, k]
+            HT[m, i] += acc
+    return HT
 
 
 @numba.njit(cache=True)
@@ -473,6 +543,12 @@ def port_record(
     w = np.empty(n_p)
     dw = np.empty(n_p)
     phi_m, phi_i = _nonzeros(PhiT)
+    HT = _folded_input(PhiT, GaT, G1T) if n_th > 0 else np.empty((0, n))
+    sl = np.empty(n_p)
+    R1 = np.empty((1, n_p))
+    W1 = np.empty((1, n_p))
+    W = np.empty((n_th, n_p))
+    idx = np.empty(n_p, np.int64)
     for k in range(um.shape[0]):
         for i in range(n_y):
             acc = 0.0
@@ -490,5 +566,5 @@ def port_record(
         _advance(
             x, PhiT, GaT, G1T, G_oldT, G_newT, has_old, um[k], um1[k], CvT, CpT, Fc, v0, k3, Mv,
             fc_max > 0.0, has_k3, fc_max, xp, f0, c0, r, a, g, J, dlt, rt, t, gt, tt,
-            dFc, dlv, dCvT, has_dcv, S, Sp, dr, w, dw, phi_m, phi_i,
+            dFc, dlv, dCvT, has_dcv, S, Sp, dr, w, dw, phi_m, phi_i, HT, sl, R1, W1, W, idx,
         )  # fmt: skip

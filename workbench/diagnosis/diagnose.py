@@ -1959,7 +1959,11 @@ def _fit_element(
             g = ef.parameters.get("port_gains")
             port_outputs = sys.port_outputs
             sys = sys.system(sys.unit if g is None else np.asarray(g, float))
-        y_el = simulate_nonlinear(sys, data.u, data.fs, ef.nonlinearity, port_outputs=port_outputs)
+        y_el = ef.output  # the fit's own run of the element (friction, a spring), else run it
+        if y_el is None:
+            y_el = simulate_nonlinear(
+                sys, data.u, data.fs, ef.nonlinearity, port_outputs=port_outputs
+            )
         floor = detect.noise_floor(data, y_el, white=True)
         return floor is not None and ef.error_after <= FLOOR_RATIO * floor
 
