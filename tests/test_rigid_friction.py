@@ -155,3 +155,34 @@ def test_rigid_ports_need_a_rigid_mode_and_a_square_model():
     )  # fmt: skip
     with pytest.raises(InputError, match="square"):
         RigidPorts(tall)
+
+
+def test_a_diagnosis_fits_the_same_rigid_friction_once(monkeypatch):
+    """The rigid-body friction on one model and one record is fitted once per record (the
+    early element test, the final one and a pair rerun ask for the same fit); an equal model
+    built anew hits the kept fit, another record or another model does not."""
+    import sys
+
+    from workbench.io.formats import TimeData
+
+    module = sys.modules["workbench.diagnosis.diagnose"]
+    calls = []
+    monkeypatch.setattr(module, "_RIGID_FITS", {})
+    monkeypatch.setattr(
+        "workbench.diagnosis.nonlinear.fit_port_element",
+        lambda *a, **k: calls.append(1) or fit_port_element(*a, **k),
+    )
+    u = _input()
+    y = _exact(u, FC)
+    data = TimeData(fs=FS, u=u, y=y)
+    first = module._rigid_fit(RigidPorts(_model()), data)
+    again = module._rigid_fit(RigidPorts(_model()), data)
+    assert again is first and len(calls) == 1
+    other_record = TimeData(fs=FS, u=u, y=y.copy())
+    module._rigid_fit(RigidPorts(_model()), other_record)
+    assert len(calls) == 2
+    stiffer = _model()
+    modes = list(stiffer.modes)
+    modes[-1] = modes[-1].moved(45.0, 0.02)
+    module._rigid_fit(RigidPorts(ModalModel(modes=tuple(modes), D=stiffer.D)), data)
+    assert len(calls) == 3
