@@ -6,6 +6,9 @@ import numpy as np
 
 __all__ = ["explain"]
 
+#: a lag whose every cutoff is this many times the band's top leaves no roll-off in it
+FAST_LAG = 100.0
+
 
 def _hz(f) -> str:
     """``12.5 Hz``, or ``12.5, 13.2, 15.1 Hz`` for several frequencies."""
@@ -86,6 +89,15 @@ def explain(effect: str, ev: dict) -> str:
         side = "inputs (columns)" if effect == "actuator_dynamics" else "outputs (rows)"
         cuts = [c for c in p["cutoff_hz"] if c is not None]
         rng = f"{min(cuts):.4g}-{max(cuts):.4g} Hz" if cuts else "n/a"
+        if cuts and min(cuts) > FAST_LAG * hi:
+            # no roll-off in the band: only the phase, about hi / cutoff rad at its top
+            return (
+                f"a phase lag growing with frequency on whole {side}, with no roll-off in the "
+                f"band: first-order lags with cutoffs {rng} on {where}, more than {FAST_LAG:g}x "
+                f"the band's top (a phase of at most {hi / min(cuts):.2g} rad at {hi:.4g} Hz, "
+                "which this record resolves): a sub-sample timing, or a misfit of another term "
+                f"absorbed, rather than an actuator's or a sensor's bandwidth; {fall}{tail}"
+            )
         return (
             f"magnitude roll-off with phase lag that acts on whole {side}, not on single channels: "
             "first-order "
