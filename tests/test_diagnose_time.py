@@ -138,3 +138,22 @@ def test_periods_that_do_not_repeat_are_said_so():
     note = [n for n in res.notes if "do not repeat" in n]
     assert len(note) == 1, res.notes
     assert "x its estimate as white noise" in note[0]
+
+
+def test_weak_distortion_is_noted_where_no_element_can_be_fitted():
+    """Distortion beyond the noise on the unexcited lines at a share of the output power too
+    small for an element (a hardening spring whose linearization a modal mismatch holds) is
+    said; strong distortion (fitted as an element) or noise is not."""
+    from workbench.diagnosis.detect import NonlinearityEvidence
+    from workbench.diagnosis.diagnose import _weak_distortion
+
+    def ev(f_stat, level):
+        return NonlinearityEvidence(
+            level=level, f_stat=f_stat, n_lines=369, band_hz=(3.0, 611.0), stationarity=1.0
+        )
+
+    note = _weak_distortion(ev(7.2, 2.1e-6))
+    assert note is not None and "F 7.2" in note and "2.1e-06" in note
+    assert _weak_distortion(ev(7.2, 0.01)) is None  # an element's evidence
+    assert _weak_distortion(ev(1.1, 2.1e-6)) is None  # noise
+    assert _weak_distortion(None) is None
