@@ -764,14 +764,12 @@ def _diagnose(
         found, current = [nl_early], base
         cur_err = problem.error(base)
     timed = isinstance(data, TimeData) and nl_early is None
-    nl = detect.nonlinearity(data, problem.predict(current)) if timed else None
-    F_end = (
-        detect.periodic_misfit(data, problem.predict(current))
-        if timed and nl_first is None
-        else None
-    )
+    # the final linear model's prediction, once (a whole record's takes ~0.2 s)
+    linear_end, y_end = current, (problem.predict(current) if timed else None)
+    nl = detect.nonlinearity(data, y_end) if timed else None
+    F_end = detect.periodic_misfit(data, y_end) if timed and nl_first is None else None
     # the error the record's noise leaves, from the spread of its periods (periodic records)
-    time_floor = detect.noise_floor(data, problem.predict(current)) if F_end is not None else None
+    time_floor = detect.noise_floor(data, y_end) if F_end is not None else None
     # a nonlinearity is a finding only when a fitted port element (friction, cubic spring,
     # saturation) in the simulation model lowers the error: a linear misfit at low frequency
     # (a suspension, crosstalk) is not reduced by one, and is no false alarm
@@ -803,10 +801,7 @@ def _diagnose(
         nl_ev = _misfit_evidence(cur_err, F_end, problem.band_hz)
         nl_first_rank = [f.effect for f in found] == ["suspension_stiffness"]
     elif (
-        timed
-        and nl_first is None
-        and not data.period
-        and not detect.white_residual(data.y - problem.predict(current))
+        timed and nl_first is None and not data.period and not detect.white_residual(data.y - y_end)
     ):
         # no periods: the residual's colour is the only sign left that the linear search
         # stopped above the noise (an indepgen stage record with subtle friction ended
@@ -844,7 +839,8 @@ def _diagnose(
                 notes.append(weak)
     remaining = _remaining(current, data)
     if time_floor is not None and nl_early is None:
-        note = _unrepeated_periods(data, problem.predict(current), time_floor, cur_err)
+        y_model = y_end if current is linear_end else problem.predict(current)
+        note = _unrepeated_periods(data, y_model, time_floor, cur_err)
         if note is not None:
             notes.append(note)
             if remaining is not None:
