@@ -187,3 +187,100 @@ def test_an_overdamped_rigid_fit_gives_no_coupled_start_instead_of_a_crash():
     with pytest.raises(np.linalg.LinAlgError):
         cs.build(cs.start(theta, base), problem, base)  # the premise: no coupled form
     assert cs.start(theta, base, problem) is None
+
+
+def _two_bodies(zeta_suspension=(0.001, 0.05)):
+    """(nominal StateSpace, FrfData with G_var, true suspension frequencies (2,) Hz, their
+    damping (2,), noise floor error): two free chains side by side (masses 1.0 / 0.5 / 0.8
+    kg and 0.7 / 0.6 kg; springs 40 / 60 and 50 kN/m), each hung on its own spring to the
+    world at its first mass (2 and 3 kN/m), pushed there; every mass measured. The truth's
+    suspension modes are damped differently (a damper on one spring only), its flexible
+    modes 0.02; the nominal model is the two free chains, damped 0.02 in every mode."""
+    masses = np.array([1.0, 0.5, 0.8, 0.7, 0.6])
+    K = np.zeros((5, 5))
+    for i, j, k in ((0, 1, 4.0e4), (1, 2, 6.0e4), (3, 4, 5.0e4)):
+        K[np.ix_([i, j], [i, j])] += k * np.array([[1.0, -1.0], [-1.0, 1.0]])
+    Bf = np.zeros((5, 2))
+    Bf[0, 0] = Bf[3, 1] = 1.0
+    Mm = np.diag(masses)
+
+    def damping(Kx, zetas):
+        lam, phi = scipy.linalg.eigh(Kx, Mm)
+        w = np.sqrt(np.maximum(lam, 0.0))
+        inv = np.linalg.inv(phi)
+        return w / (2 * np.pi), inv.T @ np.diag(2 * np.asarray(zetas) * w) @ inv
+
+    _, D0 = damping(K, np.full(5, ZETA))
+    Minv = np.diag(1 / masses)
+    A = np.block([[np.zeros((5, 5)), np.eye(5)], [-Minv @ K, -Minv @ D0]])
+    nominal = control.ss(
+        A, np.vstack([np.zeros((5, 2)), Minv @ Bf]), np.hstack([np.eye(5), np.zeros((5, 5))]), 0
+    )
+    Ks = K.copy()
+    Ks[0, 0] += 2.0e3
+    Ks[3, 3] += 3.0e3
+    f_all, _ = damping(Ks, np.zeros(5))
+    # the two lowest modes are the suspension's (the bodies' bounce on their springs)
+    zetas = np.concatenate([zeta_suspension, np.full(3, ZETA)])
+    f_true, Ds = damping(Ks, zetas)
+    freq = np.geomspace(0.5, 300.0, 500)
+    G = np.stack([np.linalg.solve(-((2 * np.pi * f) ** 2) * Mm + 2j * np.pi * f * Ds + Ks, Bf)
+                  for f in freq])  # fmt: skip
+    rng = np.random.default_rng(3)
+    sd = NOISE * np.abs(G) + 1e-15
+    Gm = G + sd / np.sqrt(2) * (rng.standard_normal(G.shape) + 1j * rng.standard_normal(G.shape))
+    data = FrfData(freq=freq, G=Gm, G_var=sd**2, fs=5000.0)
+    floor = float(np.mean(np.linalg.norm(Gm - G, axis=(1, 2)) / np.linalg.norm(Gm, axis=(1, 2))))
+    return nominal, data, f_true[:2], np.asarray(zeta_suspension), floor
+
+
+def test_suspension_modes_damped_differently_are_refined_with_their_coupling():
+    """Two suspension modes damped 0.001 and 0.05: one shared damping cannot fit both, so
+    the coupling is fitted from the structure with a damping per mode
+    (``CoupledSuspension(per_mode_damping=True)``): both frequencies and both dampings
+    are the truth's, the misfit the noise."""
+    nominal, data, f_true, z_true, floor = _two_bodies()
+    res = diagnose(nominal, data)
+    top = res.findings[0]
+    assert top.effect == "suspension_stiffness", [f.effect for f in res.findings]
+    assert "coupled_flexible_modes" in top.parameters, top.parameters
+    modes = sorted(top.parameters["modes"], key=lambda m: m["freq_hz"])
+    assert np.allclose([m["freq_hz"] for m in modes], f_true, rtol=1e-3), (modes, f_true)
+    assert np.allclose([m["damping"] for m in modes], z_true, rtol=0.1), (modes, z_true)
+    assert top.error_after <= 2.0 * floor, (top.error_after / floor, res.findings)
+
+
+def test_per_mode_damping_coupling_starts_at_the_uncoupled_model():
+    """CoupledSuspension(per_mode_damping=True) at zero coupling is SuspensionModes' model."""
+    from workbench.diagnosis.effects import SuspensionModes
+
+    nominal, data, _, _, _ = _two_bodies()
+    base = decompose(nominal)
+    problem = FrfProblem(data)
+    sm = fit(SuspensionModes(), problem, base)
+    cs = CoupledSuspension(per_mode_damping=True)
+    assert len(cs.theta_names) == len(SuspensionModes().theta_names) + 3
+    at_zero = cs.build(cs.start(sm.theta, base), problem, base).model
+    # (the mode damped 0.001 makes the cost sensitive to the eigen-solution's rounding)
+    assert np.isclose(problem.cost(at_zero), sm.cost, rtol=1e-5)
+    pairs = refinements(sm, base, problem)
+    assert any(type(s) is CoupledSuspension and s.per_mode_damping for s, _ in pairs)
+
+
+def test_a_growing_coupled_mode_is_infeasible_and_scored_so():
+    """The couplings a and g are fitted apart, so the coupled stiffness need not be
+    symmetric and a trial point may give a growing mode: no passive suspension has one, so
+    the realization refuses it (LinAlgError), and a trial whose growing mode overflows a
+    Python float (a transient basis keyed on |p| ** settle) is scored as infeasible too, not
+    raised out of the diagnosis (an indepgen beam suspension's coupled fit crashed there)."""
+    from workbench.diagnosis.effects import _second_order_modes
+    from workbench.diagnosis.fit import NUMERICAL_FAILURES
+
+    K = np.array([[4.0, 0.0], [0.0, 9.0]])
+    Bm, Cm = np.eye(2), np.eye(2)
+    assert len(_second_order_modes(K, 0.1 * np.eye(2), Bm, Cm)) == 2
+    with pytest.raises(np.linalg.LinAlgError, match="unstable"):
+        _second_order_modes(K, -0.1 * np.eye(2), Bm, Cm)
+    assert issubclass(OverflowError, NUMERICAL_FAILURES)
+    with pytest.raises(NUMERICAL_FAILURES):
+        abs(complex(1.5, 0.0)) ** 2000  # what a growing sampled pole does in a basis key

@@ -57,7 +57,12 @@ __all__ = [
     "candidate_structures",
 ]
 
-_LOG_Z = (np.log(1e-4), np.log(0.7))
+#: the box of every fitted damping ratio (ln). Its floor is far below a structure's usual
+#: 1e-3: a suspension on springs without dampers (flexures, magnetic bearings) is hardly
+#: damped, and a record from rest keeps its free oscillation to the end (an indep3 beam
+#: record, undamped suspension modes at 18 / 31 Hz over 4 s: the true model with its
+#: suspension damped 1e-4 is 2.06x the noise floor, with 1e-5 1.016x)
+_LOG_Z = (np.log(1e-6), np.log(0.7))
 
 
 def _freq_damping(theta) -> tuple[float, float]:
@@ -980,8 +985,8 @@ class SuspensionModes(RigidSuspension):
     58x the floor with one ratio, 1.04x with one each). theta = (ln f_1 .. ln f_R,
     ln z_1 .. ln z_R, P off-diagonal); offered beside the shared-damping structure (BIC
     decides: with equal dampings the shared one wins by its R - 1 fewer parameters).
-    Not refined with the flexible modes' coupling (:class:`CoupledSuspension` reads
-    the shared-damping theta).
+    Refined with the flexible modes' coupling by :class:`CoupledSuspension` with
+    ``per_mode_damping``.
     """
 
     @property
@@ -1031,6 +1036,12 @@ class CoupledSuspension:
     stiffening screened (:meth:`start`; :func:`refinements`), not screened otherwise:
     ``theta`` = (RigidSuspension's theta, ``a``, ``g``, ``d`` row-major). Offered
     where the problem evaluates at frequency lines (an FRF, a periodic record).
+    ``per_mode_damping``: a damping ratio per suspension mode instead of the shared one
+    (``theta`` then starts with :class:`SuspensionModes`' theta, which it refines): a
+    suspension whose modes are damped differently, or hardly at all, fits best with
+    one each, and its coupling must be fitted from there (an indep3 beam record, springs
+    without dampers at 18 / 31 Hz under a first bending mode at 71 Hz it stiffens by 9
+    %: the shared-damping fit had stalled at 17.7 / 18.3 Hz, 95x the noise floor).
     """
 
     effect: str = "suspension_stiffness"
@@ -1043,10 +1054,16 @@ class CoupledSuspension:
     #: between difference quotients (:data:`workbench.diagnosis.fit.TIME_JACOBIAN`; indep3
     #: shaft time record, 17 parameters: 669 -> 366 evaluations)
     secant = True
+    per_mode_damping: bool = False
+
+    @property
+    def _rigid(self) -> RigidSuspension:
+        """The uncoupled structure whose theta this one's starts with."""
+        return SuspensionModes() if self.per_mode_damping else RigidSuspension()
 
     @property
     def theta_names(self) -> tuple[str, ...]:
-        return RigidSuspension().theta_names + ("coupling_rf", "coupling_fr", "flex_stiffening")
+        return self._rigid.theta_names + ("coupling_rf", "coupling_fr", "flex_stiffening")
 
     def flexible(self, base) -> list[int]:
         """Indices in ``base.modes`` of the coupled flexible modes, lowest first."""
@@ -1102,7 +1119,7 @@ class CoupledSuspension:
 
     def bounds(self, problem, base):
         R, nf = self._sizes(base)
-        lo, hi = RigidSuspension().bounds(problem, base)
+        lo, hi = self._rigid.bounds(problem, base)
         # |a g| < 1 keeps a mass-normalized K positive definite; the scale of the model's
         # coordinates may move a and g apart, hence the wider box. d >= 0: a spring stiffens
         return (
@@ -1111,7 +1128,8 @@ class CoupledSuspension:
         )
 
     def _split(self, theta, R, nf):
-        n0 = R + 1 + R * (R - 1)  # RigidSuspension's: R ln f, ln z, R (R - 1) entries of P
+        # the uncoupled structure's: R ln f, its ln z (one or R), R (R - 1) entries of P
+        n0 = R + self._rigid.n_damping(R) + R * (R - 1)
         a = theta[n0 : n0 + R * nf].reshape(R, nf)
         g = theta[n0 + R * nf : n0 + 2 * R * nf].reshape(nf, R)
         return theta[:n0], a, g, theta[n0 + 2 * R * nf :].reshape(nf, nf)
@@ -1122,10 +1140,11 @@ class CoupledSuspension:
         flex = self.flexible(base)
         nf = len(flex)
         th_r, a, g, d = self._split(np.asarray(theta, float), R, nf)
+        nz = self._rigid.n_damping(R)
         w = 2 * np.pi * np.exp(th_r[:R])
-        z = float(np.exp(th_r[R]))
+        z = np.broadcast_to(np.exp(th_r[R : R + nz]), (R,))
         P = np.eye(R)
-        P[~np.eye(R, dtype=bool)] = th_r[R + 1 :]
+        P[~np.eye(R, dtype=bool)] = th_r[R + nz :]
         Q = np.linalg.inv(P)
         wf = np.array([base.modes[j].omega for j in flex])
         zf = np.array([base.modes[j].damping for j in flex])
@@ -1156,10 +1175,14 @@ class CoupledSuspension:
         sus = [m for m in fr.model.modes if m.effect == self.effect]
         sus = sorted(sus, key=lambda m: m.freq_hz)
         R = len(sus)
-        # standard deviations: those of the uncoupled frequencies and the shared damping
-        # (the coupling moves the suspended frequencies by a small fraction of themselves)
-        sf = np.sort(np.exp(fr.theta[:R]) * fr.theta_std[:R])
-        sz = float(np.exp(fr.theta[R]) * fr.theta_std[R])
+        # standard deviations: those of the uncoupled frequencies and dampings, in the
+        # frequencies' order (the coupling moves the suspended frequencies by a small
+        # fraction of themselves)
+        nz = self._rigid.n_damping(R)
+        order = np.argsort(fr.theta[:R])
+        sf = (np.exp(fr.theta[:R]) * fr.theta_std[:R])[order]
+        sz = np.broadcast_to(np.exp(fr.theta[R : R + nz]) * fr.theta_std[R : R + nz], (R,))
+        sz = sz[order]
         return (
             {
                 "freq_hz": float(sus[0].freq_hz),
@@ -1169,8 +1192,8 @@ class CoupledSuspension:
             },
             {
                 "freq_hz": float(sf[0]),
-                "damping": sz,
-                "modes": [{"freq_hz": float(s), "damping": sz} for s in sf],
+                "damping": float(sz[0]),
+                "modes": [{"freq_hz": float(a), "damping": float(b)} for a, b in zip(sf, sz)],
             },
         )
 
@@ -1181,8 +1204,9 @@ def _second_order_modes(K: np.ndarray, Dm: np.ndarray, Bm: np.ndarray, Cm: np.nd
     K, Dm (n, n), Bm (n, n_u), Cm (n_y, n). Each underdamped pole pair ``l, conj(l)``
     with residue ``R = (Cm v)(w^T Bm)`` (v, w^T right and left eigenvectors of the
     first-order system) is the exact mode ``(2 Re(R) s - 2 Re(R conj(l))) / (s^2 -
-    2 Re(l) s + |l|^2)``. An overdamped pair has no (frequency, damping) form: a
-    :class:`numpy.linalg.LinAlgError` (the fit scores the point as infeasible).
+    2 Re(l) s + |l|^2)``. An overdamped pair has no (frequency, damping) form, and a growing
+    one (negative damping) no passive suspension gives: a :class:`numpy.linalg.LinAlgError`
+    (the fit scores the point as infeasible).
     """
     n = K.shape[0]
     A = np.block([[np.zeros((n, n)), np.eye(n)], [-K, -Dm]])
@@ -1191,6 +1215,10 @@ def _second_order_modes(K: np.ndarray, Dm: np.ndarray, Bm: np.ndarray, Cm: np.nd
     up = np.flatnonzero(lam.imag > 1e-9 * np.abs(lam))
     if up.size != n:
         raise np.linalg.LinAlgError("a coupled suspension mode is overdamped")
+    if np.any(lam.real > 1e-12 * np.abs(lam)):
+        # the couplings a and g are fitted apart (the coordinates' scales), so K need not be
+        # symmetric and a mode may come out growing: no passive spring gives one
+        raise np.linalg.LinAlgError("a coupled suspension mode is unstable")
     up = up[np.argsort(np.abs(lam[up]))]
     out = []
     for i in up:
@@ -1539,7 +1567,9 @@ def refinements(fr: FitResult, base: ModalModel, problem) -> list[tuple]:
     # a suspension on a flexible body couples its modes: refined from the rigid fit (one
     # rigid DOF: the shared-frequency structure is the rigid one, theta (ln f, ln z) alike)
     R = RigidSuspension.rank(base) if any(m.kind == "rigid" for m in base.modes) else 0
-    rigid_fit = type(s) is RigidSuspension or (type(s) is SuspensionStiffness and R == 1)
+    rigid_fit = type(s) in (RigidSuspension, SuspensionModes) or (
+        type(s) is SuspensionStiffness and R == 1
+    )
     out: list = []
     theta = fr.theta
     if isinstance(s, RigidSuspension):  # a damping per mode too (SuspensionModes)
@@ -1548,7 +1578,7 @@ def refinements(fr: FitResult, base: ModalModel, problem) -> list[tuple]:
             out.append((s, moved))
             theta = moved
     if rigid_fit and 1 <= R <= 3:
-        cs = CoupledSuspension()
+        cs = CoupledSuspension(per_mode_damping=type(s) is SuspensionModes)
         n_f = len(cs.flexible(base))
         # on lines it costs about as much as on an FRF; on a whole record's lines (rows ~ its
         # samples) only a small coupling is affordable (an indepgen3 shaft, R = 1, n_f = 3: 15)

@@ -130,10 +130,12 @@ class FitResult:
 
 
 #: Exceptions that mean "this parameter point is numerically infeasible" (a singular
-#: projection, an overflow): such a grid point is scored as infinite cost and counted. Any other
-#: exception (an InputError, a shape bug inside an effect's code) propagates: a broken effect
-#: must fail loudly, not silently drop out of the ranking.
-NUMERICAL_FAILURES = (np.linalg.LinAlgError, FloatingPointError)
+#: projection, an overdamped or growing coupled mode, a floating-point trap, a Python float
+#: overflow: a growing mode's ``|p| ** settle`` in a transient basis, an indepgen beam
+#: suspension's coupled fit): such a grid point is scored as infinite cost and counted. Any
+#: other exception (an InputError, a shape bug inside an effect's code) propagates: a broken
+#: effect must fail loudly, not silently drop out of the ranking.
+NUMERICAL_FAILURES = (np.linalg.LinAlgError, FloatingPointError, OverflowError)
 
 
 @dataclass(frozen=True)
