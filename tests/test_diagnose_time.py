@@ -157,3 +157,47 @@ def test_weak_distortion_is_noted_where_no_element_can_be_fitted():
     assert _weak_distortion(ev(7.2, 0.01)) is None  # an element's evidence
     assert _weak_distortion(ev(1.1, 2.1e-6)) is None  # noise
     assert _weak_distortion(None) is None
+
+
+def test_distortion_on_a_record_whose_periods_do_not_repeat_is_a_finding(monkeypatch):
+    """Distortion on the unexcited lines is direct evidence, but an element must still
+    lower the error to make it a finding; a record whose periods do not repeat is the
+    exception (a chaotic Duffing response is followed sample by sample by no simulation,
+    the truth's included): the finding then carries the distortion, the linear model's
+    error, and the element that was tried with its error."""
+    import sys
+
+    from workbench.diagnosis.detect import NonlinearityEvidence
+    from workbench.diagnosis.diagnose import base_model
+    from workbench.diagnosis.nonlinear import ElementFit, PortNonlinearity
+
+    module = sys.modules["workbench.diagnosis.diagnose"]
+    case = time_case(beam(), "none", {}, rel=0.01, rng=np.random.default_rng(4))
+    model = base_model(case.nominal, case.data)
+    cur_err = 0.3
+    tried = ElementFit(
+        element="cubic_stiffness",
+        ports=(),
+        parameters={"cubic_stiffness": [1.0], "mode": 3, "mode_freq_hz": 230.0},
+        nonlinearity=PortNonlinearity(friction_force=np.zeros(case.data.n_u)),
+        error_before=cur_err,
+        error_after=1.05 * cur_err,  # no lower than the linear model
+        candidates={"cubic_stiffness": 1.05 * cur_err},
+        level=0.01,
+    )
+    monkeypatch.setattr(module, "_fit_element", lambda *a, **k: (tried, model, None))
+    ev = NonlinearityEvidence(
+        level=0.04, f_stat=4.8, n_lines=300, band_hz=(3.0, 600.0), stationarity=1.0
+    )
+
+    def finding(unrepeated):
+        return module._nonlinearity_finding(
+            ev, case.data, 0.4, [model], cur_err, direct=True, unrepeated=unrepeated
+        )
+
+    found, alt = finding(False)
+    assert found is None and alt["effect"] == "nonlinearity"
+    found, alt = finding(True)
+    assert alt is None and found.effect == "nonlinearity"
+    assert found.error_after == cur_err and found.parameters["level"] == ev.level
+    assert "do not repeat" in found.explanation and "cubic stiffness" in found.explanation

@@ -186,3 +186,70 @@ def test_a_diagnosis_fits_the_same_rigid_friction_once(monkeypatch):
     modes[-1] = modes[-1].moved(45.0, 0.02)
     module._rigid_fit(RigidPorts(ModalModel(modes=tuple(modes), D=stiffer.D)), data)
     assert len(calls) == 3
+
+
+def _shared_body_record():
+    """A model whose one rigid body both inputs push (no free body per port: the smooth law
+    at RIGID_SUBSTEPS and finer), and a record of that body on a spring (linear: friction
+    explains little of it)."""
+    b = np.array([0.5, 0.5])
+    flex = Mode(kind="flexible", freq_hz=40.0, damping=0.02, b=FLEX_B, c=FLEX_C)
+    free = ModalModel(modes=(Mode(kind="rigid", freq_hz=0.0, damping=0.0, b=b, c=b), flex),
+                      D=np.zeros((2, 2)))  # fmt: skip
+    sprung = ModalModel(modes=(Mode(kind="flexible", freq_hz=4.0, damping=0.05, b=b, c=b), flex),
+                        D=np.zeros((2, 2)))  # fmt: skip
+    u = _input()
+    y = sim.simulate_zoh(sprung.to_lti(), u, FS)
+    y += 1e-3 * np.sqrt(np.mean(y**2)) * np.random.default_rng(1).standard_normal(y.shape)
+    return free, u, y
+
+
+def test_a_friction_fit_far_above_the_need_is_not_converged(monkeypatch):
+    """With ``give_up_above`` far below what the coarse fit reaches, the levels are not
+    refitted at finer substep counts: fewer simulations, the coarse count reported, and no
+    lower error than the whole fit's."""
+    import workbench.diagnosis.nonlinear as nonlinear
+
+    free, u, y = _shared_body_record()
+    runs = []
+    original = nonlinear._simulate
+    monkeypatch.setattr(nonlinear, "_simulate", lambda *a, **k: runs.append(1) or original(*a, **k))
+    whole = fit_port_element(RigidPorts(free), u, y, FS)
+    n_whole = len(runs)
+    runs.clear()
+    coarse = fit_port_element(RigidPorts(free), u, y, FS, give_up_above=1e-3 * whole.error_after)
+    assert coarse.parameters["substeps"] == nonlinear.RIGID_SUBSTEPS
+    assert whole.parameters["substeps"] > nonlinear.RIGID_SUBSTEPS
+    assert len(runs) < n_whole
+    assert whole.error_after <= coarse.error_after
+    # a bound the coarse fit is within COARSE_MARGIN of: the whole fit
+    runs.clear()
+    again = fit_port_element(RigidPorts(free), u, y, FS, give_up_above=whole.error_after)
+    assert again.parameters["substeps"] == whole.parameters["substeps"]
+    assert again.error_after == whole.error_after
+
+
+def test_a_given_up_rigid_fit_serves_only_lower_bounds(monkeypatch):
+    import sys
+
+    from workbench.io.formats import TimeData
+
+    module = sys.modules["workbench.diagnosis.diagnose"]
+    calls = []
+    monkeypatch.setattr(module, "_RIGID_FITS", {})
+    monkeypatch.setattr(
+        "workbench.diagnosis.nonlinear.fit_port_element",
+        lambda *a, **k: calls.append(k.get("give_up_above")) or fit_port_element(*a, **k),
+    )
+    free, u, y = _shared_body_record()
+    data = TimeData(fs=FS, u=u, y=y)
+    tiny = 1e-9
+    gave_up = module._rigid_fit(RigidPorts(free), data, tiny)
+    assert module._rigid_fit(RigidPorts(free), data, tiny / 2) is gave_up
+    assert len(calls) == 1
+    whole = module._rigid_fit(RigidPorts(free), data, None)  # more than the given-up fit
+    assert len(calls) == 2 and whole is not gave_up
+    # the whole fit serves every bound
+    assert module._rigid_fit(RigidPorts(free), data, tiny) is whole
+    assert module._rigid_fit(RigidPorts(free), data, 1.0) is whole
+    assert len(calls) == 2

@@ -773,7 +773,7 @@ def _diagnose(
     # a nonlinearity is a finding only when a fitted port element (friction, cubic spring,
     # saturation) in the simulation model lowers the error: a linear misfit at low frequency
     # (a suspension, crosstalk) is not reduced by one, and is no false alarm
-    nl_ev, nl_first_rank = None, False
+    nl_ev, nl_first_rank, unrepeated = None, False, False
     # distortion on the unexcited lines carrying a measurable share of the output; strong but
     # tiny distortion (a slight clipping: F 89, level 5e-5) leaves the residual test below
     distorted = nl is not None and nl.f_stat > NL_F and nl.level > 1e-4
@@ -789,8 +789,12 @@ def _diagnose(
         nl_first_rank = [f.effect for f in found] == ["suspension_stiffness"]
     elif distorted:
         # periodic power where a linear system has none: distortion. It ranks first when it
-        # carries a share of the output power comparable with the linear misfit.
-        nl_ev, nl_first_rank = nl, nl.level >= 0.5 * error_before**2
+        # carries a share of the output power comparable with the linear misfit, or when the
+        # periods do not repeat (the record's main feature, which no linear finding explains)
+        unrepeated = time_floor is not None and (
+            _unrepeated_periods(data, y_end, time_floor, cur_err) is not None
+        )
+        nl_ev, nl_first_rank = nl, unrepeated or nl.level >= 0.5 * error_before**2
     elif F_end is not None and cur_err > DRIFT_RATIO * (time_floor or np.inf):
         # the steady state is right (its period-synchronous residual within noise, no
         # distortion), the from-rest simulation is not: a drift no linear effect removed. On
@@ -818,7 +822,13 @@ def _diagnose(
         # given explains the record as well with fewer parameters
         linear = [current] + ([base] if current is not base else [])
         finding, alt = _nonlinearity_finding(
-            nl_ev, data, error_before, linear, cur_err, direct=nl_ev.n_lines > 0
+            nl_ev,
+            data,
+            error_before,
+            linear,
+            cur_err,
+            direct=nl_ev.n_lines > 0,
+            unrepeated=unrepeated,
         )
         if finding is None:
             alternatives.append(alt)
@@ -1535,6 +1545,7 @@ def _nonlinearity_finding(
     only_given: bool = False,
     needed: float | None = None,
     mode_hz: float | None = None,
+    unrepeated: bool = False,
 ):
     """The nonlinearity finding with its fitted port element, or (None, alternative).
 
@@ -1560,6 +1571,12 @@ def _nonlinearity_finding(
     ``needed``: the error the element must go below (default: ``cur_err`` with ``direct``
     evidence, ``ERROR_RATIO * cur_err`` without). ``mode_hz``: only a cubic spring on the
     mode of this frequency (Hz) is fitted (:func:`_fit_element`).
+
+    ``unrepeated``: the record's periods do not repeat (:func:`_unrepeated_periods`). With
+    ``direct`` evidence that is a finding even when no element lowers the error: a response
+    sensitive to its own state (a Duffing oscillator driven into chaos: an indepgen beam
+    record, a 1e-12 relative change of the input moved the truth's own output by 30 % after
+    six periods) is followed sample by sample by no simulation model, the truth's included.
     """
     params: dict[str, Any] = {"level": nl.level, "f_stat": nl.f_stat}
     ins, outs = tuple(range(data.n_u)), tuple(range(data.n_y))
@@ -1582,6 +1599,7 @@ def _nonlinearity_finding(
         else None
     )
     portless = False  # only an input saturation was tried (no port located)
+    tried_element = None  # (element, error) fitted without lowering the error
     if fitted is not None:
         ef, _, pair = fitted
         on_mode = "mode" in ef.parameters  # a spring on a mode's coordinate needs no port
@@ -1629,11 +1647,13 @@ def _nonlinearity_finding(
                         f"needs none, does not lower the error towards {needed:.4g} {why}: "
                         "not evidence of a nonlinearity"
                     )
-            if not (portless and direct):
+            if not ((portless or unrepeated) and direct):
                 return None, alt
             # distortion on unexcited lines is evidence on its own: the finding without an
-            # element, as when no element can be fitted at all
+            # element, as when no element can be fitted at all, or when the response does not
+            # repeat (no simulation from the recorded input follows it sample by sample)
             fitted = None
+            tried_element = (ef.element, float(ef.error_after))
     if fitted is not None:
         ef, model, pair = fitted
         params.update(element=ef.element, ports=list(ef.ports), **ef.parameters)
@@ -1703,6 +1723,19 @@ def _nonlinearity_finding(
             ),
         }
         return None, alt
+    elif unrepeated and tried_element is not None:
+        name, e_el = tried_element
+        note = (
+            " The record's periods do not repeat (their spread far beyond the noise): a "
+            "response to a periodic input that is not periodic, which a linear time-invariant "
+            "plant does not give (a time-varying plant does too), and which no model simulated "
+            "from the recorded input follows sample by sample when it is sensitive to its own "
+            "state (a strong spring driven into chaotic or quasi-periodic motion). The best "
+            "element fitted, "
+            f"{name.replace('_', ' ')}, reaches {e_el:.4g}, no lower than the linear model: "
+            "the error cannot measure it, and the linear findings are only the best periodic "
+            "approximation of the record."
+        )
     else:
         note = (
             " No port element fitted: friction and a spring need a time record and a square "
@@ -1824,7 +1857,9 @@ def _fit_element(
     element's signature spans; a record that starts moving, whose start the element's
     simulation from rest does not have). A linear model none of whose hypotheses passes
     gets an ElementFit with no element (``parameters["screened"]`` True, ``error_after``
-    the linear model's own from-rest error; ``candidates`` the first-order errors).
+    the linear model's own from-rest error; ``candidates`` the first-order errors). The
+    port and rigid-body fits get it as ``give_up_above``: a fit far above it at its first
+    substep count is not converged to finer ones.
     """
     from workbench.diagnosis.nonlinear import (
         ElementFit,
@@ -1891,7 +1926,14 @@ def _fit_element(
         if saturation_only:
             return fit_saturation(sys, data.u, data.y, data.fs, refine=refine)
         return fit_port_element(
-            sys, data.u, data.y, data.fs, port_outputs=port_outputs, motion=motion, refine=refine
+            sys,
+            data.u,
+            data.y,
+            data.fs,
+            port_outputs=port_outputs,
+            motion=motion,
+            refine=refine,
+            give_up_above=screen,
         )
 
     several = len(hyps) > 1
@@ -2001,7 +2043,7 @@ def _fit_element(
             # fit, through the flexible modes at up to MAX_SUBSTEPS, 10-30 s), and when it
             # leaves only the noise the ports' elements could only fit the noise
             h_r = (i, rigid, None, None, None)
-            ef_r = _rigid_fit(rigid, data)
+            ef_r = _rigid_fit(rigid, data, screen)
             if at_floor(ef_r, h_r):
                 floor_reached.add(i)
                 return ef_r, h_r
@@ -2080,17 +2122,19 @@ def _fit_element(
 _RIGID_FITS: dict = {}
 
 
-def _rigid_fit(rigid, data: TimeData):
+def _rigid_fit(rigid, data: TimeData, give_up_above: float | None = None):
     """:func:`~workbench.diagnosis.nonlinear.fit_port_element` on ``rigid`` (RigidPorts),
-    kept per record and realization.
+    ``give_up_above`` passed on, kept per record and realization.
 
     A diagnosis fits friction on the model as given's rigid bodies in its early element test,
     again after the search, and again in a pair rerun: the same model and record, the same
     fit (on a smooth law at 256 substeps, 80 s each: an indep3 shaft record with a
     suspension). Keyed by the record's identity (kept alive in the entry) and the
-    realization's matrices and delay; the few entries of the last records only.
+    realization's matrices and delay; the few entries of the last records only. A fit that
+    gave up (its coarse error more than COARSE_MARGIN times ``give_up_above``) serves a call
+    that would give up as well (a bound as low or lower); a whole fit serves every call.
     """
-    from workbench.diagnosis.nonlinear import fit_port_element
+    from workbench.diagnosis.nonlinear import COARSE_MARGIN, fit_port_element
 
     arrays = [np.ascontiguousarray(x, float) for x in (*as_matrices(rigid.lti)[:4], *rigid.maps)]
     key = (
@@ -2101,11 +2145,14 @@ def _rigid_fit(rigid, data: TimeData):
     )
     hit = _RIGID_FITS.get(key)
     if hit is not None and hit[0] is data:
-        return hit[1]
-    ef = fit_port_element(rigid, data.u, data.y, data.fs)
+        _, ef, gave_up_at = hit
+        if gave_up_at is None or (give_up_above is not None and give_up_above <= gave_up_at):
+            return ef
+    ef = fit_port_element(rigid, data.u, data.y, data.fs, give_up_above=give_up_above)
+    gave_up = give_up_above is not None and ef.error_after > COARSE_MARGIN * give_up_above
     if len(_RIGID_FITS) >= 8:
         _RIGID_FITS.clear()
-    _RIGID_FITS[key] = (data, ef)
+    _RIGID_FITS[key] = (data, ef, give_up_above if gave_up else None)
     return ef
 
 
