@@ -286,3 +286,53 @@ def test_a_growing_trial_is_scored_as_infeasible_not_raised():
     assert issubclass(OverflowError, NUMERICAL_FAILURES)
     fr = fit(Overflowing(), problem, base)
     assert np.isfinite(fr.cost) and np.exp(fr.theta[0]) <= 5.0
+
+
+def test_later_candidates_are_compared_with_the_coupling_held_and_refitted_whole(monkeypatch):
+    """On a record fitted as a simulation (``domain`` "time"), a later round refits each
+    candidate jointly with a coupled suspension found earlier, its coupling held (Held:
+    only the suspended frequency and damping free), and the candidate taken is refitted
+    with every parameter free: the findings carry the real structures, and the whole
+    refit is no worse than the held one. On an FRF nothing is held."""
+    import sys
+
+    import workbench.diagnosis.fit as fit_module
+    from workbench.diagnosis.effects import MissingMode
+    from workbench.diagnosis.fit import Held
+
+    module = sys.modules["workbench.diagnosis.diagnose"]
+    data, _ = _periodic_record()
+    base = decompose(_nominal())
+    problem = make_problem(data, domain="time")
+    assert problem.domain == "time"
+    rigid = fit(SuspensionStiffness(), problem, base)
+    cs = CoupledSuspension()
+    coupled = fit(cs, problem, base, starts=[cs.start(rigid.theta, base)], n_starts=1,
+                  max_nfev=200)  # fmt: skip
+    mode = fit(MissingMode(), problem, coupled.model)
+    n_rigid = len(cs._rigid.bounds(problem, base)[0])
+    held = Held(cs, tuple(coupled.theta), tuple(range(n_rigid)))
+    assert len(held.bounds(problem, base)[0]) == n_rigid
+    m_held = held.build(coupled.theta[:n_rigid], problem, base).model
+    assert np.isclose(problem.cost(m_held), coupled.cost, rtol=1e-12)
+    sizes = []
+    original = fit_module.fit_joint
+
+    def spy(parts, thetas, *a, **k):
+        sizes.append([type(p).__name__ for p in parts])
+        return original(parts, thetas, *a, **k)
+
+    monkeypatch.setattr(module, "fit_joint", spy)
+    fits, _ = module._joint_candidates([coupled], [mode], problem, base, problem.n_obs)
+    assert sizes == [["Held", "MissingMode"], ["CoupledSuspension", "MissingMode"]]
+    assert type(fits[0].structure) is CoupledSuspension and type(fits[1].structure) is MissingMode
+    assert fits[0].theta.size == coupled.theta.size
+    held_fits, _ = original([held, MissingMode()], [coupled.theta[:n_rigid], mode.theta],
+                            problem, base)  # fmt: skip
+    assert fits[-1].cost <= held_fits[-1].cost * (1 + 1e-9)
+    # on an FRF the candidates are refitted with every parameter free at once
+    sizes.clear()
+    _, frf_data, _, _ = _case()
+    frf_problem = FrfProblem(frf_data)
+    module._joint_candidates([coupled], [mode], frf_problem, base, frf_problem.n_obs)
+    assert sizes == [["CoupledSuspension", "MissingMode"]]

@@ -757,6 +757,45 @@ def _distinct(points: list[np.ndarray], n: int, span: np.ndarray) -> list[np.nda
 
 
 @dataclass(frozen=True)
+class Held:
+    """``structure`` with its parameters outside ``free`` held at ``theta``'s values.
+
+    A joint refit's cost grows with its parameters (finite differences on a time record):
+    a coupled suspension's coupling (2 R n_f + n_f^2 parameters) held while the candidates
+    of a later round are compared, and refitted with the one taken
+    (:func:`workbench.diagnosis.diagnose._joint_candidates`).
+    """
+
+    structure: Any
+    theta: tuple[float, ...]
+    free: tuple[int, ...]
+
+    @property
+    def effect(self) -> str:
+        return self.structure.effect
+
+    def full(self, theta) -> np.ndarray:
+        """The structure's whole theta from the free parameters' values."""
+        out = np.array(self.theta, float)
+        out[list(self.free)] = theta
+        return out
+
+    def grid(self, problem, base):
+        return []
+
+    def bounds(self, problem, base):
+        lo, hi = self.structure.bounds(problem, base)
+        idx = list(self.free)
+        return np.asarray(lo, float)[idx], np.asarray(hi, float)[idx]
+
+    def build(self, theta, problem, base):
+        return self.structure.build(self.full(theta), problem, base)
+
+    def n_linear(self, base):
+        return self.structure.n_linear(base)
+
+
+@dataclass(frozen=True)
 class Composite:
     """Several structures applied in order, fitted jointly (earlier findings refitted).
 
