@@ -336,3 +336,44 @@ def test_later_candidates_are_compared_with_the_coupling_held_and_refitted_whole
     frf_problem = FrfProblem(frf_data)
     module._joint_candidates([coupled], [mode], frf_problem, base, frf_problem.n_obs)
     assert sizes == [["CoupledSuspension", "MissingMode"]]
+
+
+def test_a_coupled_suspension_is_refitted_on_the_record_with_its_coupling_held(monkeypatch):
+    """A periodic record's candidate is refitted on the whole record where its modes fall
+    between the lines: a coupled suspension there only in its suspended modes (frequency,
+    damping), its coupling held at the lines' values; the result is the whole structure's."""
+    import sys
+
+    from workbench.diagnosis.fit import Held
+
+    module = sys.modules["workbench.diagnosis.diagnose"]
+    data, _ = _periodic_record()
+    base = decompose(_nominal())
+    problem = make_problem(data)
+    assert problem.domain == "frequency"
+    rigid = fit(SuspensionStiffness(), problem, base)
+    ((cs, start),) = refinements(rigid, base, problem)
+    coupled = fit(cs, problem, base, starts=[start], n_starts=1, max_nfev=fit_budget(cs))
+    seen = []
+    original = module.fit
+    monkeypatch.setattr(module, "fit", lambda s, *a, **k: seen.append(s) or original(s, *a, **k))
+    # a start off in the suspended frequency: the record refit has something to move
+    off = coupled.theta.copy()
+    off[0] += 0.01
+    moved = _at_theta(coupled, off, problem, base)
+    out = module._refit_on_record(moved, problem, base)
+    assert len(seen) == 1 and type(seen[0]) is Held
+    n_rigid = len(seen[0].free)
+    assert type(out.structure) is CoupledSuspension and out.theta.size == coupled.theta.size
+    assert out.n_params == coupled.n_params
+    assert out.error < moved.error
+    np.testing.assert_array_equal(out.theta[n_rigid:], off[n_rigid:])  # the coupling held
+
+
+def _at_theta(fr, theta, problem, base):
+    """``fr`` at another theta (its model, cost and error there)."""
+    from dataclasses import replace
+
+    r = fr.structure.build(theta, problem, base)
+    return replace(fr, theta=theta, realized=r, cost=problem.cost(r.model),
+                   error=problem.error(r.model))  # fmt: skip
