@@ -298,7 +298,6 @@ def test_later_candidates_are_compared_with_the_coupling_held_and_refitted_whole
 
     import workbench.diagnosis.fit as fit_module
     from workbench.diagnosis.effects import MissingMode
-    from workbench.diagnosis.fit import Held
 
     module = sys.modules["workbench.diagnosis.diagnose"]
     data, _ = _periodic_record()
@@ -310,9 +309,9 @@ def test_later_candidates_are_compared_with_the_coupling_held_and_refitted_whole
     coupled = fit(cs, problem, base, starts=[cs.start(rigid.theta, base)], n_starts=1,
                   max_nfev=200)  # fmt: skip
     mode = fit(MissingMode(), problem, coupled.model)
-    n_rigid = len(cs._rigid.bounds(problem, base)[0])
-    held = Held(cs, tuple(coupled.theta), tuple(range(n_rigid)))
-    assert len(held.bounds(problem, base)[0]) == n_rigid
+    held = cs.held(coupled.theta, problem, base)
+    n_rigid = len(held.free)
+    assert n_rigid == 2 and len(held.bounds(problem, base)[0]) == n_rigid  # ln f, ln z
     m_held = held.build(coupled.theta[:n_rigid], problem, base).model
     assert np.isclose(problem.cost(m_held), coupled.cost, rtol=1e-12)
     sizes = []

@@ -77,7 +77,6 @@ from workbench.diagnosis.fit import (
     MAX_NFEV,
     NUMERICAL_FAILURES,
     FitResult,
-    Held,
     fit,
     fit_budget,
     fit_joint,
@@ -973,8 +972,7 @@ def _joint_candidates(accepted, chosen, problem, base: ModalModel, n: int):
     for a in accepted:
         h = None
         if problem.domain == "time" and isinstance(a.structure, CoupledSuspension):
-            n_rigid = len(a.structure._rigid.bounds(problem, base)[0])
-            h = Held(a.structure, tuple(float(x) for x in a.theta), tuple(range(n_rigid)))
+            h = a.structure.held(a.theta, problem, base)
         held.append(h)
     parts = [h or a.structure for h, a in zip(held, accepted)]
     thetas = [a.theta if h is None else a.theta[list(h.free)] for h, a in zip(held, accepted)]
@@ -1264,9 +1262,8 @@ def _refit_on_record(fr: FitResult, problem, base) -> FitResult:
     """
     structure, start = fr.structure, fr.theta
     if isinstance(structure, CoupledSuspension):
-        n_rigid = len(structure._rigid.bounds(problem, base)[0])
-        structure = Held(structure, tuple(float(x) for x in fr.theta), tuple(range(n_rigid)))
-        start = fr.theta[:n_rigid]
+        structure = structure.held(fr.theta, problem, base)
+        start = fr.theta[list(structure.free)]
     on_record = fit(
         structure,
         problem.time,

@@ -36,7 +36,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from workbench.diagnosis.fit import NUMERICAL_FAILURES, FitResult, Realized, structure_lines
+from workbench.diagnosis.fit import NUMERICAL_FAILURES, FitResult, Held, Realized, structure_lines
 from workbench.modal.model import ModalModel, Mode, numerators_times
 
 __all__ = [
@@ -1116,6 +1116,13 @@ class CoupledSuspension:
 
     def grid(self, problem, base):
         return []  # fitted from a rigid suspension's optimum (refinements), never screened
+
+    def held(self, theta, problem, base) -> Held:
+        """This structure at ``theta`` with its coupling held (a, g, d): only the suspended
+        modes' frequencies, damping and P free (where evaluations are simulations: the
+        whole record's refit, a later round's joint refits)."""
+        n_rigid = len(self._rigid.bounds(problem, base)[0])
+        return Held(self, tuple(float(x) for x in theta), tuple(range(n_rigid)))
 
     def bounds(self, problem, base):
         R, nf = self._sizes(base)
