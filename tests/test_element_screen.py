@@ -133,3 +133,44 @@ def test_screen_rule():
     # a mode's spring: the start only, not the first order
     assert _screen_passes(0.5, 0.499, 0.42, 0.5, first_order=False)
     assert not _screen_passes(0.5, 0.1, 0.01, 0.01, first_order=False)
+
+
+def test_a_spring_on_a_mode_is_not_fitted_where_the_linear_model_drifts(monkeypatch):
+    """A spring on a flexible mode's coordinate changes only that mode's output: on a linear
+    model whose from-rest simulation drifts far past the record (a free body where the
+    record's is suspended) it cannot come near the error needed, and is not fitted; on the
+    model that does not drift it is."""
+    import workbench.diagnosis.nonlinear as nonlinear
+    from workbench.diagnosis.diagnose import _mode_share
+
+    b, c_rigid = np.array([1.0]), np.array([1.0, 0.2])
+    flex = Mode(kind="flexible", freq_hz=13.0, damping=0.02, b=np.array([0.5]),
+                c=np.array([0.3, -0.8]))  # fmt: skip
+    free = ModalModel(modes=(Mode(kind="rigid", freq_hz=0.0, damping=0.0, b=b, c=c_rigid), flex),
+                      D=np.zeros((2, 1)))  # fmt: skip
+    hung = ModalModel(
+        modes=(Mode(kind="flexible", freq_hz=2.0, damping=0.05, b=b, c=c_rigid), flex),
+        D=np.zeros((2, 1)),
+    )
+    u = _input()[:, :1]
+    y = _noisy(sim.simulate_zoh(hung.to_lti(), u, FS), 4)
+    data = TimeData(fs=FS, u=u, y=y)
+    # the premise: the free model drifts, its flexible mode is a small part of the record
+    e_free = float(np.linalg.norm(y - sim.simulate_zoh(free.to_lti(), u, FS)) / np.linalg.norm(y))
+    port = nonlinear.ModalPort(free, 1)
+    share = _mode_share(port, data)
+    assert e_free > 10 and share < 1
+    y_k = sim.simulate_zoh(replace(free, modes=(flex,)).to_lti(), u, FS)
+    assert share == pytest.approx(np.linalg.norm(y_k) / np.linalg.norm(y), rel=1e-12)
+    fitted = []
+    original = nonlinear.fit_port_element
+    monkeypatch.setattr(
+        nonlinear,
+        "fit_port_element",
+        lambda sys, *a, **k: fitted.append(type(sys).__name__) or original(sys, *a, **k),
+    )
+    _fit_element(data, [free], band_hz=(1.0, 30.0), screen=0.01, errors=[e_free])
+    assert "ModalPort" not in fitted
+    e_hung = float(np.linalg.norm(y - sim.simulate_zoh(hung.to_lti(), u, FS)) / np.linalg.norm(y))
+    _fit_element(data, [hung], band_hz=(1.0, 30.0), screen=0.5 * e_hung, errors=[e_hung])
+    assert "ModalPort" in fitted

@@ -1848,6 +1848,22 @@ def _screen_passes(
     return e_lin**2 - e_first**2 >= SCREEN_SHARE * (e_lin**2 - needed**2)
 
 
+#: a spring on a mode's coordinate changes only that mode's output, from y_k to what the
+#: spring makes of it, about as large (a hardening spring bends the resonance, its peak stays
+#: near the linear one): it lowers the relative error by at most this many times the mode's
+#: share ||y_k|| / ||y|| (y_k: the linear model's mode k alone driven by the record's input)
+MODE_REACH_FACTOR = 3.0
+
+
+def _mode_share(port, data: TimeData) -> float:
+    """||y_k|| / ||y||: the output of ``port``'s mode alone (ModalPort), driven by the record's
+    input, against the record's output."""
+    m = port.model
+    alone = replace(m, modes=(m.modes[port.mode],), D=np.zeros_like(m.D))
+    y_k = simulate_zoh(alone.to_lti(), data.u, data.fs)
+    return float(np.linalg.norm(y_k) / max(np.linalg.norm(data.y), 1e-300))
+
+
 def _fit_element(
     data: TimeData,
     linear: list,
@@ -2006,9 +2022,13 @@ def _fit_element(
             ports=not saturation_only,
         )
         e_model = e_m if errors is None else errors[i]  # (None: at rest, as simulated)
-        # a mode's spring is judged by the record's start only (not by its first order)
+        # a mode's spring is judged by the record's start only (not by its first order), and
+        # on a drifting linear model by what it can move at all: its mode's own output
         modal = isinstance(sys, ModalPort)
-        if _screen_passes(e_m, min(fo.values(), default=e_m), screen, e_model, not modal):
+        passed = _screen_passes(e_m, min(fo.values(), default=e_m), screen, e_model, not modal)
+        if passed and modal and e_m >= 1.0:
+            passed = e_m - MODE_REACH_FACTOR * _mode_share(sys, data) <= screen
+        if passed:
             return True
         e_prev, fo_prev = screened.get(i, (e_m, {}))
         for name, e in fo.items():
