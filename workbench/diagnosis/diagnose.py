@@ -1852,7 +1852,7 @@ def _screen_passes(
 #: spring makes of it, about as large (a hardening spring bends the resonance, its peak stays
 #: near the linear one): it lowers the relative error by at most this many times the mode's
 #: share ||y_k|| / ||y|| (y_k: the linear model's mode k alone driven by the record's input)
-MODE_REACH_FACTOR = 3.0
+SPRING_REACH = 3.0
 
 
 def _mode_share(port, data: TimeData) -> float:
@@ -2027,7 +2027,7 @@ def _fit_element(
         modal = isinstance(sys, ModalPort)
         passed = _screen_passes(e_m, min(fo.values(), default=e_m), screen, e_model, not modal)
         if passed and modal and e_m >= 1.0:
-            passed = e_m - MODE_REACH_FACTOR * _mode_share(sys, data) <= screen
+            passed = e_m - SPRING_REACH * _mode_share(sys, data) <= screen
         if passed:
             return True
         e_prev, fo_prev = screened.get(i, (e_m, {}))
