@@ -154,3 +154,44 @@ def test_two_effects_found_one_after_the_other():
     assert set(effects[:2]) == {"missing_mode", "time_delay"}, effects
     assert result.findings[1].error_after < 2 * floor
     assert result.findings[1].error_after < result.findings[0].error_after
+
+
+def _two_mode_frf(freq, f2):
+    """(n_f, 2, 2) m/N of two modes, 40 Hz and ``f2`` Hz (damping 0.02 each), by the modal sum
+    ``sum_k c_k b_k^T / (w_k^2 - w^2 + 2 j z w_k w)`` (independent of the workbench)."""
+    w = 2 * np.pi * np.asarray(freq)[:, None, None]
+    G = np.zeros((len(freq), 2, 2), complex)
+    for fk, b, c in ((40.0, [1.0, 0.4], [1.0, 0.5]), (f2, [0.6, -1.0], [-0.7, 1.0])):
+        wk = 2 * np.pi * fk
+        G += np.outer(c, b)[None] / (wk**2 - w**2 + 2j * 0.02 * wk * w)
+    return G
+
+
+def test_a_mode_modelled_above_the_band_is_moved_into_it():
+    """The model places its second mode at 150 Hz, 1.5x the band's top (100 Hz); the data
+    show it at 90 Hz. The mismatch's own range (a factor 2) reaches the band, so the mode
+    gets its mismatch candidate (MISMATCH_REACH), and it is the finding: 150 -> 90 Hz."""
+    from workbench.diagnosis.modal import decompose
+    from workbench.io.formats import FrfData
+    from workbench.modal.model import ModalModel, Mode
+
+    freq = np.linspace(2.0, 100.0, 400)
+    G = _two_mode_frf(freq, 90.0)
+    rng = np.random.default_rng(11)
+    sd = 2e-3 * np.abs(G) + 1e-12
+    Gm = G + sd / np.sqrt(2) * (rng.standard_normal(G.shape) + 1j * rng.standard_normal(G.shape))
+    data = FrfData(freq=freq, G=Gm, G_var=sd**2, fs=2000.0)
+    floor = float(np.mean(np.linalg.norm(Gm - G, axis=(1, 2)) / np.linalg.norm(Gm, axis=(1, 2))))
+    modes = tuple(
+        Mode(kind="flexible", freq_hz=fk, damping=0.02, b=np.array(b), c=np.array(c))
+        for fk, b, c in ((40.0, [1.0, 0.4], [1.0, 0.5]), (150.0, [0.6, -1.0], [-0.7, 1.0]))
+    )
+    nominal = ModalModel(modes=modes, D=np.zeros((2, 2))).to_statespace()
+    # the premise: the workbench's model is the modal sum at 150 Hz
+    assert np.allclose(decompose(nominal).frf(freq), _two_mode_frf(freq, 150.0), rtol=1e-9)
+    res = diagnose(nominal, data)
+    top = res.findings[0]
+    assert top.effect == "modal_mismatch", [f.effect for f in res.findings]
+    assert _rel(top.parameters["model_freq_hz"], 150.0) < 1e-6
+    assert _rel(top.parameters["freq_hz"], 90.0) < 0.01
+    assert res.findings[-1].error_after <= 2 * floor
