@@ -764,6 +764,11 @@ def _diagnose(
     F_end = detect.periodic_misfit(data, y_end) if timed and nl_first is None else None
     # the error the record's noise leaves, from the spread of its periods (periodic records)
     time_floor = detect.noise_floor(data, y_end) if F_end is not None else None
+    # whether the periods repeat, judged once on the final linear model (the evidence below
+    # and the note at the end)
+    unrepeated_note = (
+        _unrepeated_periods(data, y_end, time_floor, cur_err) if time_floor is not None else None
+    )
     # a nonlinearity is a finding only when a fitted port element (friction, cubic spring,
     # saturation) in the simulation model lowers the error: a linear misfit at low frequency
     # (a suspension, crosstalk) is not reduced by one, and is no false alarm
@@ -785,9 +790,7 @@ def _diagnose(
         # periodic power where a linear system has none: distortion. It ranks first when it
         # carries a share of the output power comparable with the linear misfit, or when the
         # periods do not repeat (the record's main feature, which no linear finding explains)
-        unrepeated = time_floor is not None and (
-            _unrepeated_periods(data, y_end, time_floor, cur_err) is not None
-        )
+        unrepeated = unrepeated_note is not None
         nl_ev, nl_first_rank = nl, unrepeated or nl.level >= 0.5 * error_before**2
     elif F_end is not None and cur_err > DRIFT_RATIO * (time_floor or np.inf):
         # the steady state is right (its period-synchronous residual within noise, no
@@ -843,8 +846,9 @@ def _diagnose(
                 notes.append(weak)
     remaining = _remaining(current, data)
     if time_floor is not None and nl_early is None:
-        y_model = y_end if current is linear_end else problem.predict(current)
-        note = _unrepeated_periods(data, y_model, time_floor, cur_err)
+        note = unrepeated_note
+        if current is not linear_end:  # the element on the model as given took its place
+            note = _unrepeated_periods(data, problem.predict(current), time_floor, cur_err)
         if note is not None:
             notes.append(note)
             if remaining is not None:
