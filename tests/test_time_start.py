@@ -58,6 +58,18 @@ def test_a_record_cut_mid_motion_is_recognized_and_one_at_rest_is_not():
     assert not moving_start(rest)
 
 
+def test_a_record_cut_as_the_body_passes_near_zero_at_speed_is_recognized():
+    """Its first samples are a few % of the rms (under any rms-fraction bound) but many
+    noise standard deviations: at rest they would be noise. Cut at sample 2037 of the
+    same loop, where both outputs are within 8 % of their rms and moving."""
+    data, sys = record(n_skip=2037, noise=0.01)
+    rms = np.sqrt(np.mean(data.y**2, axis=0))
+    assert np.all(np.abs(data.y[0]) < 0.08 * rms)
+    assert moving_start(data)
+    base = base_model(sys, data)
+    assert TimeProblem(data).error(base) < 0.02  # 1 % noise on each output
+
+
 def test_the_true_model_from_its_estimated_start_shows_only_the_noise():
     data, sys = record(n_skip=3000, noise=0.01)
     base = base_model(sys, data)
