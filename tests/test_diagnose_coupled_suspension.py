@@ -293,7 +293,8 @@ def test_later_candidates_are_compared_with_the_coupling_held_and_refitted_whole
     candidate jointly with a coupled suspension found earlier, its coupling held (Held:
     only the suspended frequency and damping free), and the candidate taken is refitted
     with every parameter free: the findings carry the real structures, and the whole
-    refit is no worse than the held one. On an FRF nothing is held."""
+    refit is no worse than the held one. On an FRF alike; on a periodic record's lines
+    nothing is held."""
     import sys
 
     import workbench.diagnosis.fit as fit_module
@@ -329,11 +330,16 @@ def test_later_candidates_are_compared_with_the_coupling_held_and_refitted_whole
     held_fits, _ = original([held, MissingMode()], [coupled.theta[:n_rigid], mode.theta],
                             problem, base)  # fmt: skip
     assert fits[-1].cost <= held_fits[-1].cost * (1 + 1e-9)
-    # on an FRF the candidates are refitted with every parameter free at once
+    # on an FRF held alike; on the periodic record's lines every parameter free at once
     sizes.clear()
     _, frf_data, _, _ = _case()
     frf_problem = FrfProblem(frf_data)
     module._joint_candidates([coupled], [mode], frf_problem, base, frf_problem.n_obs)
+    assert sizes == [["Held", "MissingMode"], ["CoupledSuspension", "MissingMode"]]
+    sizes.clear()
+    lines = make_problem(data)
+    assert lines.domain == "frequency" and lines.kind != "frf"
+    module._joint_candidates([coupled], [mode], lines, base, lines.n_obs)
     assert sizes == [["CoupledSuspension", "MissingMode"]]
 
 

@@ -965,17 +965,24 @@ def _joint_candidates(accepted, chosen, problem, base: ModalModel, n: int):
     coupled suspension among the findings keeps its coupling to the flexible modes (2 R
     n_f + n_f^2 parameters, :class:`~workbench.diagnosis.effects.CoupledSuspension`) while
     the candidates are compared (:class:`~workbench.diagnosis.fit.Held`), and all its
-    parameters are refitted with the candidate taken, where an evaluation costs a
-    simulation's worth (``problem.domain == "time"``: a record without periods, fitted as a
-    whole): there each joint refit differenced all 17-19 parameters (an indep3 shaft record:
-    7 joint refits, 44 of the diagnosis's 54 s, none taken; 22 s held). Not on lines or an
-    FRF, where evaluations are cheap: an indep3 beam record at its periods' lines took
-    longer held (70 s against 37 s, the same findings), its later rounds going elsewhere.
+    parameters are refitted with the candidate taken:
+    - on an FRF, where every candidate is refitted jointly: each joint refit differenced
+      all 34 parameters of a beam's coupling (indep3 seed 5, 20 joint refits, 44 of the
+      diagnosis's 64 s; held 15 s in all, the same findings; over the 36 suspension FRFs of
+      seeds 0-5 the same findings, the slowest 42 / 21 / 18 s -> 15 / 6 / 5 s);
+    - where an evaluation costs a simulation's worth (``problem.domain == "time"``: a
+      record without periods, fitted as a whole): there each joint refit differenced all
+      17-19 parameters (an indep3 shaft record: 7 joint refits, 44 of the diagnosis's 54 s,
+      none taken; 22 s held).
+    Not on a periodic record's lines, where an indep3 beam record took longer held (70 s
+    against 37 s, the same findings; session 33), its later rounds going elsewhere.
     """
     held = []
     for a in accepted:
         h = None
-        if problem.domain == "time" and isinstance(a.structure, CoupledSuspension):
+        if isinstance(a.structure, CoupledSuspension) and (
+            problem.kind == "frf" or problem.domain == "time"
+        ):
             h = a.structure.held(a.theta, problem, base)
         held.append(h)
     parts = [h or a.structure for h, a in zip(held, accepted)]
