@@ -174,3 +174,61 @@ def test_a_spring_on_a_mode_is_not_fitted_where_the_linear_model_drifts(monkeypa
     e_hung = float(np.linalg.norm(y - sim.simulate_zoh(hung.to_lti(), u, FS)) / np.linalg.norm(y))
     _fit_element(data, [hung], band_hz=(1.0, 30.0), screen=0.5 * e_hung, errors=[e_hung])
     assert "ModalPort" in fitted
+
+
+def test_a_slight_clipping_of_a_free_body_passes_the_screen():
+    """An open-loop record of a free body whose inputs each have one spike, clipped by 10 %
+    and 30 % of its excess over the input's next peak: the clipped impulse drifts the body
+    far above the noise, which no common quantile of |u| follows (one sample's share clips
+    each spike down to the next peak, several times too much), while each input's level at
+    its peaks does. The oracle clips the input and simulates the body's exactly sampled
+    double integrators (scipy)."""
+    import scipy.signal
+
+    from workbench.diagnosis.nonlinear import (
+        _saturation_scan,
+        fit_saturation,
+        saturation_first_order,
+    )
+
+    rng = np.random.default_rng(11)
+    n, fs = 10000, 2000.0
+    t = np.arange(n) / fs
+    u = np.zeros((n, 2))
+    for f in (23.0, 37.0, 53.0, 71.0, 97.0):  # above the body's motion, the drift shows
+        u += np.outer(np.sin(2 * np.pi * f * t + rng.uniform(0, 2 * np.pi)), rng.normal(size=2))
+    second = np.abs(u).max(axis=0)
+    u[2000, 0], u[6000, 1] = 2.0 * second[0], -1.5 * second[1]  # a spike on each input
+    top = np.abs(u).max(axis=0)
+    level = top - np.array([0.1, 0.3]) * (top - second)
+    # two masses (2 and 3 kg) on two inputs, three position outputs (not square: no port)
+    b = np.array([[1 / 2, 0.0], [0.0, 1 / 3]])
+    c = np.array([[1.0, 0.0], [0.0, 1.0], [0.5, -0.5]])
+    A = np.kron(np.eye(2), np.array([[0.0, 1.0], [0.0, 0.0]]))
+    B = np.zeros((4, 2))
+    B[[1, 3]] = b
+    C = np.zeros((3, 4))
+    C[:, [0, 2]] = c
+    Ad, Bd, Cd, Dd, _ = scipy.signal.cont2discrete((A, B, C, np.zeros((3, 2))), 1 / fs)
+    _, y_true, _ = scipy.signal.dlsim((Ad, Bd, Cd, Dd, 1 / fs), np.clip(u, -level, level))
+    y = y_true + 1e-5 * np.std(y_true) * np.random.default_rng(5).standard_normal(y_true.shape)
+    model = ModalModel(
+        modes=tuple(
+            Mode(kind="rigid", freq_hz=0.0, damping=0.0, b=b[k], c=c[:, k]) for k in range(2)
+        ),
+        D=np.zeros((3, 2)),
+    )
+    lin = model.to_lti()
+    meas = np.arange(3)
+    e_model = float(np.linalg.norm(y - sim.simulate_zoh(lin, u, fs)) / np.linalg.norm(y))
+    scan = _saturation_scan(lin, meas, u, y, fs)[1]
+    first = saturation_first_order(lin, meas, u, y, fs)
+    assert scan > 0.9 * e_model  # no common share of clipped samples follows it
+    assert first < 0.5 * e_model  # the peaks of each input do
+    e, fo = first_order_errors(lin, u, y, fs, ports=False)
+    assert fo["saturation"] == pytest.approx(first) and e == pytest.approx(e_model)
+    assert first_order_errors(lin, u, y, fs, ports=False, saturation=0.123)[1] == {
+        "saturation": 0.123
+    }
+    fitted = fit_saturation(lin, u, y, fs)
+    assert fitted.parameters["saturation"] == pytest.approx(level, rel=1e-4)

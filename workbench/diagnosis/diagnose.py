@@ -2016,6 +2016,8 @@ def _fit_element(
     # per linear model: (its from-rest error, the best first-order error per element) of the
     # hypotheses the screen left out
     screened: dict[int, tuple[float, dict[str, float]]] = {}
+    # per linear model: the first-order error of a saturation of its inputs
+    saturation_screened: dict[int, float] = {}
 
     def passes(h) -> bool:
         """Whether hypothesis ``h`` is fitted: no ``screen``, or :func:`_screen_passes` (the
@@ -2031,7 +2033,10 @@ def _fit_element(
             port_outputs=port_outputs,
             motion=motion,
             ports=not saturation_only,
+            saturation=saturation_screened.get(i),
         )
+        if "saturation" in fo:  # the linear model's, whatever the ports (~0.1 s each)
+            saturation_screened[i] = fo["saturation"]
         e_model = e_m if errors is None else errors[i]  # (None: at rest, as simulated)
         # a mode's spring is judged by the record's start only (not by its first order), and
         # on a drifting linear model by what it can move at all: its mode's own output
