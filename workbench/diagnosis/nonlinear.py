@@ -1056,14 +1056,14 @@ def _refine_saturation(lin, meas, u, y, fs, level, err):
 
 
 def _scan_peaks(lin, meas, u, y, fs, level, err, *, sweeps: int = SATURATION_SWEEPS):
-    """(levels, error): each input's level in turn (the others held; SATURATION_SWEEPS
-    sweeps) at the best of its SATURATION_PEAKS largest |u| (the level at a peak clips the
-    peaks above it by their excess over it), then by a bounded 1-D search between that
-    peak's neighbours; kept where it lowers the error. A slight clipping (a few peaks of a
-    closed loop's command) makes the error steep in the level (a from-rest simulation of a
-    rigid body: 0.1 % off the level, 50x the noise) with a kink at every peak: the least
-    squares of :func:`_refine_saturation` stays between the peaks it starts between, which
-    the common quantile's level may not be."""
+    """(levels, error): each input's level in turn (the others held; ``sweeps`` sweeps,
+    SATURATION_SWEEPS by default) at the best of its SATURATION_PEAKS largest |u| (the
+    level at a peak clips the peaks above it by their excess over it), then by a bounded
+    1-D search between that peak's neighbours; kept where it lowers the error. A slight
+    clipping (a few peaks of a closed loop's command) makes the error steep in the level
+    (a from-rest simulation of a rigid body: 0.1 % off the level, 50x the noise) with a
+    kink at every peak: the least squares of :func:`_refine_saturation` stays between the
+    peaks it starts between, which the common quantile's level may not be."""
     level = np.array(level, float)
     amp = np.abs(u)
 
@@ -2023,9 +2023,8 @@ def first_order_errors(
     a lower bound of any one's), relative to ``||y||`` like the spec error. Saturation:
     :func:`saturation_first_order` (it depends on the linear model only: ``saturation``,
     its value from another hypothesis on the same model, is taken as given). The motion is
-    the measured
-    output (square model), ``motion``, or the linear model's simulated ports, as in the
-    fit. ``ports=False``: no port is located (a model that is not square, no
+    the measured output (square model), ``motion``, or the linear model's simulated ports,
+    as in the fit. ``ports=False``: no port is located (a model that is not square, no
     ``port_outputs``), saturation only, as :func:`fit_saturation` fits it.
 
     Returns ``(error, {element: error})``: the linear model's own error and the elements'
