@@ -271,3 +271,37 @@ def test_diagnose_states_the_right_models_z_of_a_periodic_record(delay_case):
     assert rem is not None and not rem["within_noise"]
     assert rem["z_expected"] == pytest.approx(1.5)
     assert "about 1.5 when the model is right" in rem["explanation"]
+
+
+def averaged_frf(rng, G: np.ndarray, n_avg: int, *, rel: float = 0.02) -> FrfData:
+    """G_var estimated from ``n_avg`` averages: the true variance times chi2(d) / d, d = 2
+    (n_avg - 1), so |dG|^2 / G_var ~ F(2, d), not Exp(1)."""
+    var = (rel * np.abs(G)) ** 2 + 1e-30
+    noise = np.sqrt(var / 2) * (rng.standard_normal(G.shape) + 1j * rng.standard_normal(G.shape))
+    d = 2 * (n_avg - 1)
+    return FrfData(freq=FREQ, G=G + noise, G_var=var * rng.chisquare(d, G.shape) / d)
+
+
+@pytest.mark.parametrize("n_avg", [4, 11, 30])
+def test_variance_dof_reads_the_averages_from_the_scatter_of_G_var(rng, n_avg):
+    from workbench.validate.compare import variance_dof
+
+    G = lti.frf(modal_model([MODE_A, MODE_B], 3, 2), FREQ)
+    d = variance_dof(averaged_frf(rng, G, n_avg).G_var)
+    assert d == pytest.approx(2 * (n_avg - 1), rel=0.15)
+    # an exact variance is smooth from line to line, however steep (the resonances)
+    assert variance_dof((0.02 * np.abs(G)) ** 2) is None
+
+
+def test_right_model_with_G_var_from_few_averages_shows_no_band(rng):
+    # the F(2, 10) tail: against the Exp(1) threshold a right model showed a band in 11 of
+    # 40 draws; 12 draws all clean would then happen by chance 2 % of the time
+    true = modal_model([MODE_A, MODE_B], 3, 2)
+    G = lti.frf(true, FREQ)
+    runs = [compare(true, averaged_frf(rng, G, 6)) for _ in range(12)]
+    assert [len(r.failing_bands) for r in runs] == [0] * 12  # 11 of 40 drew a band before
+    assert runs[0].z_expected == pytest.approx(10 / 8, rel=0.1)  # F(2, 10): mean 10 / 8
+    assert "F(2, " in runs[0].criterion
+    # the heavier tail does not hide a missing mode
+    res = compare(modal_model([MODE_A], 3, 2), averaged_frf(rng, G, 6))
+    assert any(b.f_lo_hz <= 420.0 <= b.f_hi_hz for b in res.failing_bands)
