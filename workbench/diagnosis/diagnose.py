@@ -87,6 +87,7 @@ from workbench.diagnosis.problem import make_problem
 from workbench.io.formats import FrfData, TimeData, check_model_matches
 from workbench.modal.model import ModalModel
 from workbench.sim import simulate_zoh
+from workbench.validate.compare import variance_dof
 
 __all__ = ["Finding", "Diagnosis", "diagnose"]
 
@@ -2253,10 +2254,13 @@ def _none_finding(
     """
     if problem.kind == "frf" and problem.has_var:
         chi = problem.cost(model) / problem.n_obs * 2
+        # G_var estimated from few averages: z ~ F(2, d), mean d / (d - 2) (compare's law)
+        dof = variance_dof(problem.data.G_var)
+        right = "about 1" if dof is None or dof <= 2.5 else f"about {dof / (dof - 2):.3g}"
         reason = (
             f"the error {cur_err:.4g} is at the noise floor {floor:.4g} computed from G_var; the "
             "noise-normalized "
-            f"misfit is {chi:.3g} per element (about 1 when the model is right)"
+            f"misfit is {chi:.3g} per element ({right} when the model is right)"
         )
     else:
         reason = (
