@@ -305,3 +305,15 @@ def test_right_model_with_G_var_from_few_averages_shows_no_band(rng):
     # the heavier tail does not hide a missing mode
     res = compare(modal_model([MODE_A], 3, 2), averaged_frf(rng, G, 6))
     assert any(b.f_lo_hz <= 420.0 <= b.f_hi_hz for b in res.failing_bands)
+
+
+def test_cli_compare_states_z_for_a_right_model_under_G_var_from_averages(tmp_path, rng, capsys):
+    true = modal_model([MODE_A, MODE_B], 3, 2)
+    save_measurement(tmp_path / "data.npz", averaged_frf(rng, lti.frf(true, FREQ), 6))
+    save_model(tmp_path / "model.npz", true)
+    argv = ["compare", "--model", str(tmp_path / "model.npz"), "--data", str(tmp_path / "data.npz")]
+    assert main(argv) == 0
+    out = capsys.readouterr().out
+    # F(2, 10): mean 1.25, as the criterion line says, not "about 1"
+    assert "(about 1.2" in out and "F(2, " in out
+    assert "failing bands: none, the model is within noise" in out

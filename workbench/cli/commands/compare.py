@@ -84,7 +84,11 @@ def format_text(res: Comparison, model_src: str, data_src: str) -> str:
         else:
             lines.append(f"error with estimated start: not computed ({res.time.x0_note})")
     if res.z_mean is not None:
-        lines.append(f"mean noise-normalized error z: {res.z_mean:.4g} (about 1 when within noise)")
+        # F(2, d) (G_var from few averages, periods) has mean d / (d - 2), not 1
+        right = "1" if res.z_expected is None else f"{res.z_expected:.3g}"
+        lines.append(
+            f"mean noise-normalized error z: {res.z_mean:.4g} (about {right} when within noise)"
+        )
     if res.kind == "frf":
         lines.append("error per channel (rows: outputs, columns: inputs):")
         lines += ["  " + "  ".join(f"{v:9.3g}" for v in row) for row in res.error_per_channel]
