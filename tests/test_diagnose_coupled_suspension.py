@@ -252,7 +252,7 @@ def test_suspension_modes_damped_differently_are_refined_with_their_coupling():
 
 def test_per_mode_damping_coupling_starts_at_the_uncoupled_model():
     """CoupledSuspension(per_mode_damping=True) at zero coupling is SuspensionModes' model."""
-    from workbench.diagnosis.effects import SuspensionModes
+    from workbench.diagnosis.effects import RigidSuspension, SuspensionModes
 
     nominal, data, _, _, _ = _two_bodies()
     base = decompose(nominal)
@@ -382,3 +382,43 @@ def _at_theta(fr, theta, problem, base):
     r = fr.structure.build(theta, problem, base)
     return replace(fr, theta=theta, realized=r, cost=problem.cost(r.model),
                    error=problem.error(r.model))  # fmt: skip
+
+
+@pytest.mark.parametrize("per_mode", [False, True])
+def test_the_analytic_frf_jacobian_is_the_residual_s_derivative(per_mode):
+    """CoupledSuspension.jacobian (-Cm X (s dDm + dK) X Bm per line) against central
+    differences of the model's residual, at a point with coupling, stiffening and mixing
+    away from zero; held parameters keep their columns; None on a time record."""
+    from workbench.diagnosis.effects import RigidSuspension, SuspensionModes
+
+    nominal, data, _, _, _ = _two_bodies()
+    base = decompose(nominal)
+    problem = FrfProblem(data)
+    cs = CoupledSuspension(per_mode_damping=per_mode)
+    rigid = fit(SuspensionModes() if per_mode else RigidSuspension(), problem, base)
+    lo, hi = cs.bounds(problem, base)
+    rng = np.random.default_rng(1)
+    theta = cs.start(rigid.theta, base)
+    theta = np.clip(theta + 0.05 * rng.standard_normal(theta.size), lo + 0.01, hi - 0.01)
+
+    def residual(t):
+        return problem.residual(cs.build(t, problem, base).model)
+
+    J = cs.jacobian(theta, problem, base)
+    assert J.shape == (problem.n_obs, theta.size)
+    for i in range(theta.size):
+        # the quotient's best step: a mode damped 0.001 (Q 500) needs a small one (its error
+        # ~ (h Q)^2), the eigen-solution's rounding a large one (~ 1e-13 / h)
+        errors = []
+        for h in (1e-4, 1e-5, 1e-6, 1e-7):
+            up, down = theta.copy(), theta.copy()
+            up[i] += h
+            down[i] -= h
+            column = (residual(up) - residual(down)) / (2 * h)
+            errors.append(np.linalg.norm(J[:, i] - column) / np.linalg.norm(column))
+        assert min(errors) <= 1e-6, (i, errors)
+    held = cs.held(theta, problem, base)
+    free = theta[list(held.free)]
+    assert np.allclose(held.jacobian(free, problem, base), J[:, list(held.free)])
+    record = make_problem(_periodic_record()[0], domain="time")
+    assert cs.jacobian(theta, record, base) is None  # differences there

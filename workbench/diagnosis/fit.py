@@ -791,6 +791,12 @@ class Held:
     def build(self, theta, problem, base):
         return self.structure.build(self.full(theta), problem, base)
 
+    def jacobian(self, theta, problem, base):
+        """The structure's analytic columns of the free parameters, or None (it has none)."""
+        fn = getattr(self.structure, "jacobian", None)
+        J = fn(self.full(theta), problem, base) if callable(fn) else None
+        return None if J is None else J[:, list(self.free)]
+
     def n_linear(self, base):
         return self.structure.n_linear(base)
 
