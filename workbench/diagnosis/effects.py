@@ -1141,13 +1141,12 @@ class CoupledSuspension:
         g = theta[n0 + R * nf : n0 + 2 * R * nf].reshape(nf, R)
         return theta[:n0], a, g, theta[n0 + 2 * R * nf :].reshape(nf, nf)
 
-    def _stiffness_damping(self, theta, base):
+    def _stiffness_damping(self, theta, base, block=None):
         """The coupled block's stiffness ``K`` and damping ``Dm`` (n, n) at ``theta``,
-        n = R + n_f, (rad/s)^2 and rad/s (the class docstring's K)."""
-        k, Cr, Br = RigidSuspension._factors(base)
-        R = Cr.shape[1]
-        flex = self.flexible(base)
-        nf = len(flex)
+        n = R + n_f, (rad/s)^2 and rad/s (the class docstring's K). ``block``: what
+        :meth:`_block` gives for ``base``, when the caller has it."""
+        R, wf, zf = self._block(base) if block is None else block
+        nf = wf.size
         th_r, a, g, d = self._split(np.asarray(theta, float), R, nf)
         nz = self._rigid.n_damping(R)
         w = 2 * np.pi * np.exp(th_r[:R])
@@ -1155,8 +1154,6 @@ class CoupledSuspension:
         P = np.eye(R)
         P[~np.eye(R, dtype=bool)] = th_r[R + nz :]
         Q = np.linalg.inv(P)
-        wf = np.array([base.modes[j].omega for j in flex])
-        zf = np.array([base.modes[j].damping for j in flex])
         n = R + nf
         K, Dm = np.zeros((n, n)), np.zeros((n, n))
         K[:R, :R], Dm[:R, :R] = P @ np.diag(w**2) @ Q, P @ np.diag(2 * z * w) @ Q
@@ -1164,6 +1161,13 @@ class CoupledSuspension:
         K[:R, R:] = a * w.max() * wf[None, :]
         K[R:, :R] = g * w.max() * wf[:, None]
         return K, Dm
+
+    def _block(self, base) -> tuple[int, np.ndarray, np.ndarray]:
+        """(R, the coupled flexible modes' natural frequencies (rad/s), their damping)."""
+        flex = self.flexible(base)
+        wf = np.array([base.modes[j].omega for j in flex])
+        zf = np.array([base.modes[j].damping for j in flex])
+        return RigidSuspension.rank(base), wf, zf
 
     def _ports(self, base):
         """The coupled block's input and output maps ``Bm`` (n, n_u), ``Cm`` (n_y, n)."""
@@ -1187,7 +1191,8 @@ class CoupledSuspension:
             return None
         theta = np.asarray(theta, float)
         model = self.build(theta, problem, base).model
-        K, Dm = self._stiffness_damping(theta, base)
+        block = self._block(base)
+        K, Dm = self._stiffness_damping(theta, base, block)
         Bm, Cm = self._ports(base)
         n = K.shape[0]
         s = problem.s[:, None, None]
@@ -1202,14 +1207,13 @@ class CoupledSuspension:
             up, down = theta.copy(), theta.copy()
             up[i] += h
             down[i] -= h
-            (Ku, Du), (Kd, Dd) = (
-                self._stiffness_damping(up, base),
-                self._stiffness_damping(down, base),
-            )
+            (Ku, Du), (Kd, Dd) = (self._stiffness_damping(t, base, block) for t in (up, down))
             dK.append((Ku - Kd) / (2 * h))
             dD.append((Du - Dd) / (2 * h))
-        M = s[None] * np.array(dD)[:, None] + np.array(dK)[:, None]  # (n_theta, n_f, n, n)
-        dG = -np.einsum("fyi,kfij,fju->kfyu", CX, M, XB, optimize=True)
+        # -(s CX dD XB + CX dK XB): the two products apart, no (n_theta, n_f, n, n) array
+        dG = np.einsum("fyi,kij,fju->kfyu", CX, np.array(dD), XB, optimize=True)
+        dG *= -problem.s[None, :, None, None]
+        dG -= np.einsum("fyi,kij,fju->kfyu", CX, np.array(dK), XB, optimize=True)
         return _residual_columns(problem, model, list(dG))
 
     def build(self, theta, problem, base):
