@@ -252,7 +252,7 @@ def test_suspension_modes_damped_differently_are_refined_with_their_coupling():
 
 def test_per_mode_damping_coupling_starts_at_the_uncoupled_model():
     """CoupledSuspension(per_mode_damping=True) at zero coupling is SuspensionModes' model."""
-    from workbench.diagnosis.effects import RigidSuspension, SuspensionModes
+    from workbench.diagnosis.effects import SuspensionModes
 
     nominal, data, _, _, _ = _two_bodies()
     base = decompose(nominal)
