@@ -1522,10 +1522,11 @@ class PeriodicProblem(_FilteredProblem):
         W^T W - (Q_rest^T W)^T (Q_rest^T W): W~ itself is never formed, a pass over the
         rows per column saved, as are its orthonormalization's); ``fine`` (P,) which points'
         columns stay clear of the span, to be evaluated together (the others alone): every
-        column of W~ at least :data:`SCHUR_CLEAR` long (G's difference keeps 16 digits less
-        twice its log10, the costs ~1e-10 where the points evaluated alone agree to 1e-9),
-        and each at least :data:`NEAR_SPAN` of its length from the previous ones (the
-        diagonal of G's Cholesky factor, as :meth:`_basis_near` tests).
+        column of W~ at least :data:`SCHUR_CLEAR` long (the subtraction in G loses up to
+        2 |log10 SCHUR_CLEAR| = 6 of its 16 digits: the costs stay within the 1e-9 the
+        tests ask of them against the points evaluated alone), and each at least
+        :data:`NEAR_SPAN` of its length from the previous ones (the diagonal of G's
+        Cholesky factor, as :meth:`_basis_near` tests).
         """
         zi = self._zi[:, None]
         cols = []
