@@ -383,6 +383,19 @@ _PAIR_TIME_DRAWS = {
         (250188237734444393105731800067311870807, _INC4, 1, 1147119766),
         0.0020147322551703436,
     ),
+    # drawn with --kinds frf,time --effects none --pairs, seed 11: neither member lowers the
+    # error alone (the delay 0.132, the crosstalk 0.391, from 0.128), the pair reaches the
+    # floor; it was rejected as a chain whose first step raises the error, 'none' at 10.9x
+    "seed11_beam_crosstalk_delay": (
+        ("beam", ("crosstalk", "time_delay")),
+        (
+            96835284730910944882184548286817629941,
+            7937318808080196428804369945471644491,
+            0,
+            3524341431,
+        ),
+        0.01179138780980537,
+    ),
     "seed5_beam_delay_mode": (
         ("beam", ("time_delay", "missing_mode")),
         (
@@ -473,3 +486,15 @@ def test_compliance_pseudo_mode_folded_from_twice_the_sampling_rate_is_the_missi
     assert mode["freq_hz"] == pytest.approx(2043.33, rel=1e-3)
     assert mode["damping"] == pytest.approx(0.02634, rel=0.02)
     assert res.findings[-1].error_after <= 1.05 * floor
+
+
+def test_a_chain_of_findings_falls_or_holds_only_between_findings():
+    """_falls: each finding lowers the error; a finding may repeat the previous finding's
+    error exactly (a pair fitted as one step), never the model's own."""
+    from workbench.diagnosis.diagnose import _falls
+
+    assert _falls([0.3, 0.2, 0.1])
+    assert _falls([0.128, 0.0119, 0.0119])  # a pair as one step
+    assert not _falls([0.128, 0.128, 0.01])  # a first finding that changes nothing
+    assert not _falls([0.128, 0.132, 0.0119])  # a first finding that raises the error
+    assert not _falls([0.3, 0.1, 0.2])

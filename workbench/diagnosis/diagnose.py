@@ -554,7 +554,7 @@ def _diagnose(
         head = [_on_the_record(r, problem, current) for r in ranked[:JOINT_CANDIDATES]]
         ranked = sorted(head + ranked[JOINT_CANDIDATES:], key=lambda r: _bic(r.cost, n, r.n_params))
         best = ranked[0]
-        pair = None
+        pair, alone = None, None
         # FRF with G_var: the floor is known in the first round, and a best single effect
         # far above it that explains little (the greedy's first step weakly determined)
         # calls for the pairs there; a pair that reaches the floor is taken
@@ -577,6 +577,8 @@ def _diagnose(
                 best.cost, n, best.n_params
             ):
                 pair = None
+            if pair is not None:
+                pair, alone = pair[:2], pair[2]
             if early_pair and pair is not None and pair[0][-1].error > PAIR_RATIO * floor:
                 pair = None
             if pair is None and pair_first:
@@ -589,6 +591,13 @@ def _diagnose(
                 f"round 1: {best.effect} alone is best (error {best.error:.4g}); "
                 f"{pair[0][0].effect} and {pair[0][1].effect} fitted jointly reach "
                 f"{pair[0][1].error:.4g}: both taken"
+                + (
+                    ""
+                    if alone is None
+                    else f"; neither lowers the error alone ({alone[0]} {alone[1]:.4g}, "
+                    f"{alone[2]} {alone[3]:.4g}, from {cur_err:.4g}): one step, both "
+                    "findings at the pair's error"
+                )
             )
         if round_ == 0:
             alternatives = [
@@ -651,15 +660,15 @@ def _diagnose(
         chain_errs = [cur_err0] + [a.error for a in best_chain]
         if not last.error < cur_err:
             chain_errs.append(np.inf)  # not below the (refined) current model's error
-        if not all(b < a for a, b in zip(chain_errs, chain_errs[1:])) and accepted:
+        if not _falls(chain_errs) and accepted:
             # the joint refit moved an earlier finding so that its step no longer lowers the
             # error: keep the earlier findings as they were and add the new one on top
             seq = accepted + [best]
             seq_errs = [cur_err0] + [a.error for a in seq]
-            if all(b < a for a, b in zip(seq_errs, seq_errs[1:])):
+            if _falls(seq_errs):
                 best_chain, best_bases, last = seq, accepted_bases + [current], best
                 chain_errs = seq_errs
-        if not all(b < a for a, b in zip(chain_errs, chain_errs[1:])):
+        if not _falls(chain_errs):
             # a finding never makes the error worse: the candidate is only an alternative
             alternatives.append(_rejected(last, cur_err, problem, best_bases[-1]))
             break
@@ -1142,16 +1151,27 @@ def _pruned(accepted, bases, problem, base: ModalModel, n: int, cost: float, err
     return out
 
 
+def _falls(errs) -> bool:
+    """Whether a chain's errors (the model's, then after each finding) fall at each finding,
+    or hold where a finding repeats the previous one's error exactly (a pair fitted as one
+    step, :func:`_pair_chain`): a finding never raises the error."""
+    return all(b < a or (k > 0 and b == a) for k, (a, b) in enumerate(zip(errs, errs[1:])))
+
+
 def _pair_chain(ranked, problem, base: ModalModel, n: int, err0: float):
-    """The best pair of distinct effects fitted jointly, as a chain (fits, bases), or None.
+    """The best pair of distinct effects fitted jointly, as a chain (fits, bases, alone), or
+    None.
 
     Each effect's best single fit of ``ranked`` starts the joint fit
     (:func:`~workbench.diagnosis.fit.fit_joint`, :data:`PAIR_NFEV` evaluations); the member
     that explained more alone comes first. A crosstalk's two sides are tried apart: the side
     that explains more alone may not be the one beside the other effect (an input delay
     commutes with crosstalk on the inputs, not on the outputs). The best pair by BIC is
-    refined; None when its chain does not lower the error at each step (``err0`` the
-    model's).
+    refined, in the order whose first member lowers the error alone (``err0`` the model's)
+    and then ``alone`` is None. Where neither member does but the pair does, the pair is one
+    step: the first fit reports the pair's error, and ``alone`` = (effect, its error alone,
+    the other effect, its error alone) says why. None when the pair does not lower the
+    error.
     """
     singles: dict[tuple, FitResult] = {}
     for r in ranked:  # best first: each effect's best fit, a crosstalk's per side
@@ -1177,9 +1197,20 @@ def _pair_chain(ranked, problem, base: ModalModel, n: int, err0: float):
         return None
     # the best pair refined to convergence, from where the short search left it
     fits, bases = fit_joint(out[0], out[1], problem, base)
-    if not err0 > fits[0].error > fits[1].error:
-        return None  # not a chain of findings: each step must lower the error
-    return fits, bases
+    if err0 > fits[0].error > fits[1].error:
+        return fits, bases, None
+    if not fits[1].error < err0:
+        return None
+    # the other order: its first member alone may lower the error
+    rfits, rbases = fit_joint(out[0][::-1], [f.theta for f in fits][::-1], problem, base)
+    if err0 > rfits[0].error > rfits[1].error:
+        return rfits, rbases, None
+    # neither member lowers the error alone, together they do (an indepgen beam record,
+    # input crosstalk 0.24 on one entry and an 8-sample delay: alone 0.132 and 0.391, from
+    # 0.128; together 0.0119, the floor): one step, both findings at the pair's error (a
+    # finding never raises the error; here neither can be reported before the other)
+    alone = (fits[0].effect, fits[0].error, rfits[0].effect, rfits[0].error)
+    return [replace(fits[0], error=fits[1].error), fits[1]], bases, alone
 
 
 def _record_best(ranked, problem, model: ModalModel, accepted) -> tuple[float, FitResult] | None:
