@@ -87,7 +87,7 @@ from workbench.diagnosis.problem import make_problem
 from workbench.io.formats import FrfData, TimeData, check_model_matches
 from workbench.modal.model import ModalModel
 from workbench.sim import simulate_zoh
-from workbench.validate.compare import variance_dof
+from workbench.validate.compare import right_model_z_mean, variance_dof
 
 __all__ = ["Finding", "Diagnosis", "diagnose"]
 
@@ -2317,8 +2317,8 @@ def _none_finding(
     if problem.kind == "frf" and problem.has_var:
         chi = problem.cost(model) / problem.n_obs * 2
         # G_var estimated from few averages: z ~ F(2, d), mean d / (d - 2) (compare's law)
-        dof = variance_dof(problem.data.G_var)
-        right = "about 1" if dof is None or dof <= 2.5 else f"about {dof / (dof - 2):.3g}"
+        mean = right_model_z_mean(variance_dof(problem.data.G_var))
+        right = f"about {mean:.3g}" if mean is not None else "about 1"
         reason = (
             f"the error {cur_err:.4g} is at the noise floor {floor:.4g} computed from G_var; the "
             "noise-normalized "

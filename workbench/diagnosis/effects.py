@@ -1162,16 +1162,17 @@ class CoupledSuspension:
         K[R:, :R] = g * w.max() * wf[:, None]
         return K, Dm
 
-    def _block(self, base) -> tuple[int, np.ndarray, np.ndarray]:
-        """(R, the coupled flexible modes' natural frequencies (rad/s), their damping)."""
+    def _block(self, base, R: int | None = None) -> tuple[int, np.ndarray, np.ndarray]:
+        """(R, the coupled flexible modes' natural frequencies (rad/s), their damping);
+        ``R`` when the caller has it (else from the rigid residue's factors)."""
         flex = self.flexible(base)
         wf = np.array([base.modes[j].omega for j in flex])
         zf = np.array([base.modes[j].damping for j in flex])
-        return RigidSuspension.rank(base), wf, zf
+        return (RigidSuspension.rank(base) if R is None else R), wf, zf
 
-    def _ports(self, base):
-        """The coupled block's input and output maps ``Bm`` (n, n_u), ``Cm`` (n_y, n)."""
-        _, Cr, Br = RigidSuspension._factors(base)
+    def _ports(self, base, Cr: np.ndarray, Br: np.ndarray):
+        """The coupled block's input and output maps ``Bm`` (n, n_u), ``Cm`` (n_y, n), from
+        the rigid residue's factors ``Cr``, ``Br`` (:meth:`RigidSuspension._factors`)."""
         flex = self.flexible(base)
         Bm = np.vstack([Br] + [base.modes[j].b[None, :] for j in flex])
         Cm = np.hstack([Cr] + [base.modes[j].c[:, None] for j in flex])
@@ -1190,10 +1191,10 @@ class CoupledSuspension:
         if getattr(problem, "kind", "") != "frf":
             return None
         theta = np.asarray(theta, float)
-        model = self.build(theta, problem, base).model
-        block = self._block(base)
+        _, Cr, Br = RigidSuspension._factors(base)
+        block = self._block(base, Cr.shape[1])
         K, Dm = self._stiffness_damping(theta, base, block)
-        Bm, Cm = self._ports(base)
+        Bm, Cm = self._ports(base, Cr, Br)
         n = K.shape[0]
         s = problem.s[:, None, None]
         A = s**2 * np.eye(n) + s * Dm + K  # (n_f, n, n)
@@ -1214,14 +1215,15 @@ class CoupledSuspension:
         dG = np.einsum("fyi,kij,fju->kfyu", CX, np.array(dD), XB, optimize=True)
         dG *= -problem.s[None, :, None, None]
         dG -= np.einsum("fyi,kij,fju->kfyu", CX, np.array(dK), XB, optimize=True)
-        return _residual_columns(problem, model, list(dG))
+        # the outer factors (delay, lags, coupling) are the base's: the block moves modes only
+        return _residual_columns(problem, base, list(dG))
 
     def build(self, theta, problem, base):
         k, Cr, Br = RigidSuspension._factors(base)
         R = Cr.shape[1]
         flex = self.flexible(base)
-        K, Dm = self._stiffness_damping(theta, base)
-        Bm, Cm = self._ports(base)
+        K, Dm = self._stiffness_damping(theta, base, self._block(base, R))
+        Bm, Cm = self._ports(base, Cr, Br)
         modes_new = _second_order_modes(K, Dm, Bm, Cm)
         sus = [replace(m, effect=self.effect) for m in modes_new[:R]]
         rigid = base.modes[k]

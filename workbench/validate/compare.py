@@ -360,6 +360,15 @@ def variance_dof(var: np.ndarray) -> float | None:
     return 2 * scipy.optimize.brentq(lambda x: scipy.special.polygamma(1, x) - psi1, lo, half)
 
 
+def right_model_z_mean(dof: float | None) -> float | None:
+    """The mean of z for a right model: 1 under Exp(1) (``dof`` None, an exact G_var), d / (d -
+    2) under F(2, d); None where that mean is not finite (d <= 2.5: G_var from about two
+    averages)."""
+    if dof is None:
+        return 1.0
+    return dof / (dof - 2) if dof > 2.5 else None
+
+
 def _running_median(x: np.ndarray, window: int) -> np.ndarray:
     """Median over ``window`` lines along axis 0; every window lies inside the data
     (near the ends the window is shifted, not padded)."""
@@ -432,15 +441,15 @@ def _compare_frf(model, data: FrfData, *, delay_s, window, false_alarm, gap, rel
         # is far heavier than Exp(1)'s (6 averages: a right model showed a band in 19-27 %
         # of Monte Carlo draws against the Exp(1) threshold)
         dof = variance_dof(var)
+        z_expected = right_model_z_mean(dof)
         if dof is None:
-            law, z_expected = "Exp(1) (G_var as smooth as an exact variance)", 1.0
+            law = "Exp(1) (G_var as smooth as an exact variance)"
             thr = band_threshold(w, false_alarm, n_windows, lambda q: -np.log(q))
         else:
             law = (
                 f"F(2, {dof:.3g}), the degrees of freedom of G_var estimated from its scatter "
                 f"between neighbouring lines (about {dof / 2 + 1:.3g} averages)"
             )
-            z_expected = dof / (dof - 2) if dof > 2.5 else None
             thr = band_threshold(w, false_alarm, n_windows, lambda q: scipy.stats.f.isf(q, 2, dof))
             notes.append(
                 f"G_var scatters as an estimate from about {dof / 2 + 1:.3g} averages: "
