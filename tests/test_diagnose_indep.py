@@ -489,12 +489,13 @@ def test_compliance_pseudo_mode_folded_from_twice_the_sampling_rate_is_the_missi
 
 
 def test_a_chain_of_findings_falls_or_holds_only_between_findings():
-    """_falls: each finding lowers the error; a finding may repeat the previous finding's
-    error exactly (a pair fitted as one step), never the model's own."""
+    """_falls: each finding lowers the error; the second of a pair fitted as one step may
+    repeat the first's error exactly, no other finding, and never the model's own."""
     from workbench.diagnosis.diagnose import _falls
 
     assert _falls([0.3, 0.2, 0.1])
-    assert _falls([0.128, 0.0119, 0.0119])  # a pair as one step
-    assert not _falls([0.128, 0.128, 0.01])  # a first finding that changes nothing
+    assert _falls([0.128, 0.0119, 0.0119], {1})  # a pair as one step
+    assert not _falls([0.128, 0.0119, 0.0119])  # else a second finding that changes nothing
+    assert not _falls([0.128, 0.128, 0.01], {1})  # a first finding that changes nothing
     assert not _falls([0.128, 0.132, 0.0119])  # a first finding that raises the error
     assert not _falls([0.3, 0.1, 0.2])

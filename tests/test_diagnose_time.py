@@ -201,3 +201,33 @@ def test_distortion_on_a_record_whose_periods_do_not_repeat_is_a_finding(monkeyp
     assert alt is None and found.effect == "nonlinearity"
     assert found.error_after == cur_err and found.parameters["level"] == ev.level
     assert "do not repeat" in found.explanation and "cubic stiffness" in found.explanation
+
+
+def test_the_rerun_reuses_the_first_rounds_screens_and_fits(monkeypatch):
+    """diagnose's second pass (the rerun on the pairs) starts from the same model on the same
+    record: sharing the decomposition, the problem and the first round's screens and fits,
+    a pass given what an earlier one computed screens and fits nothing again in its first
+    round and ends as that one did."""
+    import importlib
+
+    D = importlib.import_module("workbench.diagnosis.diagnose")
+    truth = beam_params("time_delay", "clear")
+    case = time_case(beam(), "time_delay", truth, rel=0.01, rng=np.random.default_rng(3))
+    kw = dict(max_effects=1, n_full_fits=None, effects=None, delay_s=0.0, domain="auto")
+    shared: dict = {}
+    first = D._diagnose(case.nominal, case.data, shared=shared, **kw)
+    calls = []
+    for name in ("fit", "screen", "_on_the_record"):
+        orig = getattr(D, name)
+        monkeypatch.setattr(
+            D, name, lambda *a, _o=orig, _n=name, **k: calls.append(_n) or _o(*a, **k)
+        )
+    again = D._diagnose(case.nominal, case.data, shared=shared, **kw)
+    assert calls == []
+    assert (
+        [f.effect for f in again.findings] == [f.effect for f in first.findings] == ["time_delay"]
+    )
+    assert again.findings[0].error_after == first.findings[0].error_after
+    # without what the first pass kept, the same pass screens and fits afresh
+    D._diagnose(case.nominal, case.data, shared={}, **kw)
+    assert "fit" in calls and "screen" in calls
