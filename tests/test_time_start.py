@@ -179,3 +179,21 @@ def test_free_response_columns_are_the_sampled_poles_powers():
         ref += [env * np.cos(w * np.sqrt(1 - z * z) * k), env * np.sin(w * np.sqrt(1 - z * z) * k)]
     assert C.shape == (k.size, 6)
     assert np.abs(C - np.column_stack(ref)).max() < 1e-12
+
+
+def test_a_growing_free_response_is_counted_back_from_the_last_sample():
+    """A trial point's negative damping: lambda^n overflowed over 16 384 samples (NaN in the
+    basis, RuntimeWarnings on the user's terminal); its column is lambda^(n - N + 1), the
+    same span, finite, largest at the end."""
+    data, _ = record(n_skip=3000, n=16384)
+    problem = TimeProblem(data)
+    f, z = 40.0, -0.05
+    with np.errstate(all="raise"):
+        C = problem._pole_columns([(f, z)])
+    N = data.y.shape[0]
+    w = 2 * np.pi * f / FS
+    lam = np.exp(complex(-z * w, w * np.sqrt(1 - z * z)))
+    ref = lam ** (np.arange(N) - (N - 1.0))
+    assert np.all(np.isfinite(C))
+    assert np.abs(C[:, 0] - ref.real).max() < 1e-9
+    assert np.abs(C[:, 1] - ref.imag).max() < 1e-9

@@ -1068,9 +1068,13 @@ class TimeProblem(_FilteredProblem):
         if not logs:
             return np.zeros((N, 0))
         s = np.array(logs)[:, None]
+        # a growing response (a trial point's negative damping) counted back from the last
+        # sample, lambda^(n - N + 1): the same column scaled, where lambda^n overflowed
+        back = np.where(s.real > 0, N - 1, 0)
         B = int(np.ceil(np.sqrt(N)))
         powers = (
-            np.exp(s * (B * np.arange(-(-N // B))))[:, :, None] * np.exp(s * np.arange(B))[:, None]
+            np.exp(s * (B * np.arange(-(-N // B)) - back))[:, :, None]
+            * np.exp(s * np.arange(B))[:, None]
         )
         powers = powers.reshape(len(logs), -1)[:, :N]
         C = np.empty((N, 2 * len(logs)))
