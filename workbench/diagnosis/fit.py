@@ -988,6 +988,14 @@ def stack(parts: list, thetas: list[np.ndarray], problem, base: ModalModel):
     return model, [realized[i] for i in range(len(parts))]
 
 
+def _error_or_inf(problem, model) -> float:
+    """``problem.error(model)``, inf where the model's simulation overflows (a joint fit's
+    trial end with a growing mode: NaN, and RuntimeWarnings on the user's terminal)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        e = float(problem.error(model))
+    return e if np.isfinite(e) else np.inf
+
+
 def fit_joint(
     parts: list, thetas: list[np.ndarray], problem, base: ModalModel, *, max_nfev: int = MAX_NFEV
 ):
@@ -1028,7 +1036,7 @@ def fit_joint(
                 cost=joint.cost if k == len(parts) - 1 else problem.cost(model_k),
                 sigma2=joint.sigma2,
                 n_params=joint.n_params,
-                error=problem.error(model_k),
+                error=_error_or_inf(problem, model_k),
                 status=joint.status,
             )
         )
