@@ -377,9 +377,9 @@ def _first_round(memo: dict | None, key: tuple, compute, *args, **kwargs):
     The rerun on the pairs (:func:`diagnose`) starts from the same model on the same problem
     (the same objects): its first round's screens and fits are the greedy search's (an
     indep3 shaft time record fitted a coupled suspension twice, 9 s each: 52 -> 43 s CPU
-    shared). Keys hold the structures (frozen dataclasses, equal
-    by value) and the start points' bytes; a FitResult refitted on the record by its id,
-    the value (it, the refit): the memo keeps it alive, so no other object takes its id.
+    shared). Keys hold the structures (frozen dataclasses, equal by value) and the start
+    points' bytes; a FitResult refitted on the record is keyed by its id, the value (it,
+    the refit): the memo keeps it alive, so no other object takes its id.
     """
     if memo is None:
         return compute(*args, **kwargs)
