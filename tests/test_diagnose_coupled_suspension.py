@@ -438,6 +438,56 @@ def test_later_candidates_are_compared_with_the_coupling_held_and_refitted_whole
     assert sizes == [["CoupledSuspension", "MissingMode"]]
 
 
+def test_a_held_candidate_far_from_a_finding_is_not_refitted_whole(monkeypatch):
+    """With ``reach`` (the current model's record cost and error, where a finding must lower
+    one of them by a large factor), a held best that stays near the current model (a
+    missing mode fitted to the noise of a record the coupled suspension already explains)
+    is returned unheld at the held coupling: one joint fit, not two. The results carry
+    the coupled structure with its full theta (the coupling's std NaN, not fitted) and
+    count its held parameters. A candidate that lowers the cost enough is refitted whole."""
+    import sys
+
+    import workbench.diagnosis.fit as fit_module
+    from workbench.diagnosis.effects import MissingMode
+
+    module = sys.modules["workbench.diagnosis.diagnose"]
+    data, _ = _periodic_record()
+    base = decompose(_nominal())
+    problem = make_problem(data, domain="time")
+    rigid = fit(SuspensionStiffness(), problem, base)
+    cs = CoupledSuspension()
+    coupled = fit(cs, problem, base, starts=[cs.start(rigid.theta, base)], n_starts=1,
+                  max_nfev=200)  # fmt: skip
+    mode = fit(MissingMode(), problem, coupled.model)
+    sizes = []
+    original = fit_module.fit_joint
+
+    def spy(parts, thetas, *a, **k):
+        sizes.append([type(p).__name__ for p in parts])
+        return original(parts, thetas, *a, **k)
+
+    monkeypatch.setattr(module, "fit_joint", spy)
+    reach = (problem.record_cost(coupled.model), coupled.error)
+    fits, _ = module._joint_candidates([coupled], [mode], problem, base, problem.n_obs,
+                                       reach=reach)  # fmt: skip
+    assert sizes == [["Held", "MissingMode"]]
+    assert problem.record_cost(fits[-1].model) > module.HELD_NEAR * reach[0]  # the premise
+    assert type(fits[0].structure) is CoupledSuspension
+    assert fits[0].theta.size == coupled.theta.size
+    n_held = coupled.theta.size - 2  # the coupling: all but ln f, ln z
+    assert np.all(np.isnan(fits[0].theta_std[2:])) and np.all(np.isfinite(fits[0].theta_std[:2]))
+    assert np.allclose(fits[0].theta[2:], coupled.theta[2:])
+    held_fit, _ = original([cs.held(coupled.theta, problem, base), MissingMode()],
+                           [coupled.theta[:2], mode.theta], problem, base)  # fmt: skip
+    assert fits[-1].n_params == held_fit[-1].n_params + n_held
+    assert np.isclose(fits[-1].cost, held_fit[-1].cost, rtol=1e-9)
+    # a current model far above: the held best is a large drop, refitted with all free
+    sizes.clear()
+    far = (problem.record_cost(coupled.model) * 100, coupled.error * 100)
+    module._joint_candidates([coupled], [mode], problem, base, problem.n_obs, reach=far)
+    assert sizes == [["Held", "MissingMode"], ["CoupledSuspension", "MissingMode"]]
+
+
 def test_a_coupled_suspension_is_refitted_on_the_record_with_its_coupling_held(monkeypatch):
     """A periodic record's candidate is refitted on the whole record where its modes fall
     between the lines: a coupled suspension there only in its suspended modes (frequency,

@@ -99,6 +99,12 @@ IMAGE_TIE = 1.01
 IMAGE_MIN_DAMPING = 2e-3
 #: ... or the weighted misfit by at least this factor
 COST_RATIO = 0.7
+#: a later round's held joint fit (a coupled suspension's coupling held) is refitted with
+#: every parameter free only where it lowers the record cost below this factor of the
+#: current model's, or the error below HELD_NEAR_ERROR of it (:func:`_joint_candidates`):
+#: well short of COST_RATIO and ERROR_RATIO, what the freed coupling adds
+HELD_NEAR = 0.9
+HELD_NEAR_ERROR = 0.95
 #: the error counts as at the noise floor below this multiple of it
 FLOOR_RATIO = 1.1
 #: periodic time data: the period-synchronous residual within this multiple of its noise is noise
@@ -705,7 +711,13 @@ def _diagnose(
             # an effect fitted alone is biased by the one not yet found
             n_joint = len(ranked) if problem.kind == "frf" else JOINT_CANDIDATES
             chosen = [r for i, r in enumerate(ranked) if i < n_joint or r.theta.size <= 1]
-            fits, bases = _joint_candidates(accepted, chosen, problem, base, n)
+            # where only a large drop makes a finding, the held comparison may show none near
+            reach = (
+                None
+                if per_round_verdict or _periodic_record(data)
+                else (problem.record_cost(current), cur_err)
+            )
+            fits, bases = _joint_candidates(accepted, chosen, problem, base, n, reach=reach)
             cand = fits[-1]
             if _bic(cand.cost, n, cand.n_params) < _bic(
                 best.cost, n, sum(a.n_params for a in accepted) + best.n_params
@@ -1053,7 +1065,7 @@ def _ambiguous_spring(spring: Finding, mismatch: Finding, err, err_before, floor
     return replace(spring, explanation=spring.explanation + why), alt
 
 
-def _joint_candidates(accepted, chosen, problem, base: ModalModel, n: int):
+def _joint_candidates(accepted, chosen, problem, base: ModalModel, n: int, *, reach=None):
     """(fits, bases) of the earlier findings refitted jointly with the best of ``chosen``.
 
     Each candidate is refitted with the earlier findings, and the best (BIC) is taken. A
@@ -1071,6 +1083,15 @@ def _joint_candidates(accepted, chosen, problem, base: ModalModel, n: int):
       none taken; 22 s held).
     Not on a periodic record's lines, where an indep3 beam record took longer held (70 s
     against 37 s, the same findings; session 33), its later rounds going elsewhere.
+
+    ``reach``: (record cost, error) of the current model, where a finding must lower one
+    of them by a large factor (:data:`COST_RATIO`, :data:`ERROR_RATIO`; no within-noise
+    verdict for small ones). A held best whose record cost stays above
+    :data:`HELD_NEAR` of the current one and whose error above :data:`HELD_NEAR_ERROR`
+    of it is returned as it is (its structures unheld at the held coupling): freeing the
+    coupling re-optimizes what was already optimal without the candidate, and the
+    refit of every parameter cost most of the round (an indep3 planar record from rest,
+    seed 5, 28 parameters: 15.6 of the diagnosis's 59 s, then not taken).
     """
     held = []
     for a in accepted:
@@ -1086,10 +1107,33 @@ def _joint_candidates(accepted, chosen, problem, base: ModalModel, n: int):
     fits, bases = min(joint, key=lambda t: _bic(t[0][-1].cost, n, t[0][-1].n_params))
     if not any(held):
         return fits, bases
+    if reach is not None:
+        cand = fits[-1]
+        if (
+            problem.record_cost(cand.model) > HELD_NEAR * reach[0]
+            and cand.error > HELD_NEAR_ERROR * reach[1]
+        ):
+            return _unheld(fits, held, accepted), bases
     # the one taken, with every parameter free, from where the held fit ended
     full = [a.structure for a in accepted] + [fits[-1].structure]
     start = [f.theta if h is None else h.full(f.theta) for h, f in zip(held, fits[:-1])]
     return fit_joint(full, start + [fits[-1].theta], problem, base)
+
+
+def _unheld(fits, held, accepted) -> list:
+    """A joint fit's results with each held part (:class:`~workbench.diagnosis.fit.Held`)
+    back as its structure at the held values: theta full, the held entries' std NaN (not
+    fitted), every result's n_params counting the held parameters."""
+    extra = sum(len(a.theta) - len(h.free) for h, a in zip(held, accepted) if h is not None)
+    out = []
+    for k, f in enumerate(fits):
+        h = held[k] if k < len(held) else None
+        if h is not None:
+            std = np.full(len(accepted[k].theta), np.nan)
+            std[list(h.free)] = f.theta_std
+            f = replace(f, structure=accepted[k].structure, theta=h.full(f.theta), theta_std=std)
+        out.append(replace(f, n_params=f.n_params + extra))
+    return out
 
 
 def _simplified(chain, runners, problem, base: ModalModel, data, err0: float, floor, notes):
