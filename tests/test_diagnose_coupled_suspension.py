@@ -383,6 +383,36 @@ def test_a_growing_trial_is_scored_as_infeasible_not_raised():
     assert np.isfinite(fr.cost) and np.exp(fr.theta[0]) <= 5.0
 
 
+def _coupled_on_the_record():
+    """(data, base, problem, CoupledSuspension, its fit, a missing mode fitted on top): the
+    periodic record fitted as a simulation (``domain`` "time")."""
+    from workbench.diagnosis.effects import MissingMode
+
+    data, _ = _periodic_record()
+    base = decompose(_nominal())
+    problem = make_problem(data, domain="time")
+    rigid = fit(SuspensionStiffness(), problem, base)
+    cs = CoupledSuspension()
+    coupled = fit(cs, problem, base, starts=[cs.start(rigid.theta, base)], n_starts=1,
+                  max_nfev=200)  # fmt: skip
+    return data, base, problem, cs, coupled, fit(MissingMode(), problem, coupled.model)
+
+
+def _spy_fit_joint(monkeypatch, module):
+    """(the structure names of every fit_joint call in ``module``, the original)."""
+    import workbench.diagnosis.fit as fit_module
+
+    sizes = []
+    original = fit_module.fit_joint
+
+    def spy(parts, thetas, *a, **k):
+        sizes.append([type(p).__name__ for p in parts])
+        return original(parts, thetas, *a, **k)
+
+    monkeypatch.setattr(module, "fit_joint", spy)
+    return sizes, original
+
+
 def test_later_candidates_are_compared_with_the_coupling_held_and_refitted_whole(monkeypatch):
     """On a record fitted as a simulation (``domain`` "time"), a later round refits each
     candidate jointly with a coupled suspension found earlier, its coupling held (Held:
@@ -392,32 +422,17 @@ def test_later_candidates_are_compared_with_the_coupling_held_and_refitted_whole
     nothing is held."""
     import sys
 
-    import workbench.diagnosis.fit as fit_module
     from workbench.diagnosis.effects import MissingMode
 
     module = sys.modules["workbench.diagnosis.diagnose"]
-    data, _ = _periodic_record()
-    base = decompose(_nominal())
-    problem = make_problem(data, domain="time")
+    data, base, problem, cs, coupled, mode = _coupled_on_the_record()
     assert problem.domain == "time"
-    rigid = fit(SuspensionStiffness(), problem, base)
-    cs = CoupledSuspension()
-    coupled = fit(cs, problem, base, starts=[cs.start(rigid.theta, base)], n_starts=1,
-                  max_nfev=200)  # fmt: skip
-    mode = fit(MissingMode(), problem, coupled.model)
     held = cs.held(coupled.theta, problem, base)
     n_rigid = len(held.free)
     assert n_rigid == 2 and len(held.bounds(problem, base)[0]) == n_rigid  # ln f, ln z
     m_held = held.build(coupled.theta[:n_rigid], problem, base).model
     assert np.isclose(problem.cost(m_held), coupled.cost, rtol=1e-12)
-    sizes = []
-    original = fit_module.fit_joint
-
-    def spy(parts, thetas, *a, **k):
-        sizes.append([type(p).__name__ for p in parts])
-        return original(parts, thetas, *a, **k)
-
-    monkeypatch.setattr(module, "fit_joint", spy)
+    sizes, original = _spy_fit_joint(monkeypatch, module)
     fits, _ = module._joint_candidates([coupled], [mode], problem, base, problem.n_obs)
     assert sizes == [["Held", "MissingMode"], ["CoupledSuspension", "MissingMode"]]
     assert type(fits[0].structure) is CoupledSuspension and type(fits[1].structure) is MissingMode
@@ -447,26 +462,11 @@ def test_a_held_candidate_far_from_a_finding_is_not_refitted_whole(monkeypatch):
     count its held parameters. A candidate that lowers the cost enough is refitted whole."""
     import sys
 
-    import workbench.diagnosis.fit as fit_module
     from workbench.diagnosis.effects import MissingMode
 
     module = sys.modules["workbench.diagnosis.diagnose"]
-    data, _ = _periodic_record()
-    base = decompose(_nominal())
-    problem = make_problem(data, domain="time")
-    rigid = fit(SuspensionStiffness(), problem, base)
-    cs = CoupledSuspension()
-    coupled = fit(cs, problem, base, starts=[cs.start(rigid.theta, base)], n_starts=1,
-                  max_nfev=200)  # fmt: skip
-    mode = fit(MissingMode(), problem, coupled.model)
-    sizes = []
-    original = fit_module.fit_joint
-
-    def spy(parts, thetas, *a, **k):
-        sizes.append([type(p).__name__ for p in parts])
-        return original(parts, thetas, *a, **k)
-
-    monkeypatch.setattr(module, "fit_joint", spy)
+    _, base, problem, cs, coupled, mode = _coupled_on_the_record()
+    sizes, original = _spy_fit_joint(monkeypatch, module)
     reach = (problem.record_cost(coupled.model), coupled.error)
     fits, _ = module._joint_candidates([coupled], [mode], problem, base, problem.n_obs,
                                        reach=reach)  # fmt: skip
