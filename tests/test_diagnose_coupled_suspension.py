@@ -146,15 +146,8 @@ def _periodic_record(seed: int = 0, n_periods: int = 4):
     """(TimeData, noise floor error): the suspended chain driven from rest by a multisine.
 
     Both inputs on every line from 1 to 200 Hz with random phases, ``n_periods`` periods
-    (the first one the transient), the response by scipy's exact ZOH discretization of
-    ``M q'' + D q' + K q = B u`` and ``dlsim``; sensor noise 1e-3 of each output's rms.
+    (the first one the transient), the response by :func:`_simulated`.
     """
-    K = _stiffness(K_SPRING)
-    _, D = _modal_damping(K)
-    Minv = np.diag(1 / MASS)
-    A = np.block([[np.zeros((3, 3)), np.eye(3)], [-Minv @ K, -Minv @ D]])
-    Bs = np.vstack([np.zeros((3, 2)), Minv @ B])
-    sysd = scipy.signal.cont2discrete((A, Bs, np.hstack([C, 0 * C]), np.zeros((3, 2))), 1 / FS)
     rng = np.random.default_rng(seed)
     lines = np.arange(1, int(200 * PERIOD / FS))
     one = np.zeros((PERIOD, 2))
@@ -163,53 +156,48 @@ def _periodic_record(seed: int = 0, n_periods: int = 4):
         X[lines] = np.exp(2j * np.pi * rng.random(lines.size))
         one[:, j] = np.fft.irfft(X, PERIOD)
     u = np.tile(one / one.std(axis=0), (n_periods, 1))
-    _, y, _ = scipy.signal.dlsim(sysd[:4] + (1 / FS,), u)
-    v = NOISE * y.std(axis=0) * rng.standard_normal(y.shape)
-    data = TimeData(fs=FS, u=u, y=y + v, period=PERIOD)
-    return data, float(np.linalg.norm(v) / np.linalg.norm(y + v))
+    y, floor = _simulated(u, rng)
+    return TimeData(fs=FS, u=u, y=y, period=PERIOD), floor
 
 
-def test_suspension_of_a_flexible_body_on_a_periodic_record():
-    """A periodic record is fitted at its lines (PeriodicProblem), where the coupling is
-    affordable: without it the suspended chain stays far above the noise floor."""
-    data, floor = _periodic_record()
-    assert make_problem(data).domain == "frequency"
-    _, _, f_true, _ = _case()
-    res = diagnose(_nominal(), data)
-    top = res.findings[0]
-    assert top.effect == "suspension_stiffness", [f.effect for f in res.findings]
-    assert top.parameters.get("coupled_flexible_modes") == 2, top.parameters
-    assert abs(top.parameters["freq_hz"] / f_true[0] - 1) < 1e-3, (top.parameters, f_true)
-    err = min(f.error_after for f in res.findings)
-    assert err <= 2.0 * floor, (err / floor, [(f.effect, f.error_after) for f in res.findings])
-
-
-def _record_from_rest(seed: int = 0, n_samples: int = 4096):
-    """(TimeData, noise floor error): the suspended chain driven from rest by random
-    noise (no period: fitted as a simulation, TimeProblem), exact ZOH by scipy, sensor
-    noise 1e-3 of each output's rms."""
+def _simulated(u: np.ndarray, rng) -> tuple[np.ndarray, float]:
+    """(y (N, 3) m with sensor noise, noise floor error): the suspended chain from rest
+    driven by ``u`` (N, 2) N, by scipy's exact ZOH discretization of ``M q'' + D q' + K q =
+    B u`` and ``dlsim``; sensor noise 1e-3 of each output's rms."""
     K = _stiffness(K_SPRING)
     _, D = _modal_damping(K)
     Minv = np.diag(1 / MASS)
     A = np.block([[np.zeros((3, 3)), np.eye(3)], [-Minv @ K, -Minv @ D]])
     Bs = np.vstack([np.zeros((3, 2)), Minv @ B])
     sysd = scipy.signal.cont2discrete((A, Bs, np.hstack([C, 0 * C]), np.zeros((3, 2))), 1 / FS)
-    rng = np.random.default_rng(seed)
-    u = rng.standard_normal((n_samples, 2))
     _, y, _ = scipy.signal.dlsim(sysd[:4] + (1 / FS,), u)
     v = NOISE * y.std(axis=0) * rng.standard_normal(y.shape)
-    data = TimeData(fs=FS, u=u, y=y + v)
-    return data, float(np.linalg.norm(v) / np.linalg.norm(y + v))
+    return y + v, float(np.linalg.norm(v) / np.linalg.norm(y + v))
 
 
-def test_suspension_of_a_flexible_body_on_a_record_from_rest():
-    """A record from rest without periods is fitted as a simulation (TimeProblem); the
-    coupled suspension is offered there too (its coupling within RECORD_COUPLING): one
-    finding at the noise floor, the suspended frequency the truth's."""
-    from workbench.diagnosis.problem import TimeProblem
+def _record_from_rest(seed: int = 0, n_samples: int = 4096):
+    """(TimeData, noise floor error): the suspended chain driven from rest by random
+    noise (no period: fitted as a simulation, TimeProblem), the response by
+    :func:`_simulated`."""
+    rng = np.random.default_rng(seed)
+    u = rng.standard_normal((n_samples, 2))
+    y, floor = _simulated(u, rng)
+    return TimeData(fs=FS, u=u, y=y), floor
 
-    data, floor = _record_from_rest()
-    assert isinstance(make_problem(data), TimeProblem)
+
+@pytest.mark.parametrize("record", ["periodic", "from_rest"])
+def test_suspension_of_a_flexible_body_on_a_time_record(record):
+    """A periodic record is fitted at its lines (PeriodicProblem), a record from rest
+    without periods as a simulation (TimeProblem); the coupled suspension is offered on
+    both (on the simulation its coupling within RECORD_COUPLING): one finding at the
+    noise floor, the suspended frequency the truth's."""
+    from workbench.diagnosis.problem import PeriodicProblem, TimeProblem
+
+    data, floor = _periodic_record() if record == "periodic" else _record_from_rest()
+    kind = PeriodicProblem if record == "periodic" else TimeProblem
+    assert type(make_problem(data)) is kind and (
+        kind is TimeProblem or make_problem(data).domain == "frequency"
+    )
     _, _, f_true, _ = _case()
     res = diagnose(_nominal(), data)
     top = res.findings[0]
