@@ -442,8 +442,8 @@ def test_later_candidates_are_compared_with_the_coupling_held_and_refitted_whole
 
 
 def test_a_held_candidate_far_from_a_finding_is_not_refitted_whole(monkeypatch):
-    """With ``reach`` (the current model's record cost and error, where a finding must lower
-    one of them by a large factor), a held best that stays near the current model (a
+    """With ``reach`` (the current model and its error, where a finding must lower its record
+    cost or its error by a large factor), a held best that stays near the current model (a
     missing mode fitted to the noise of a record the coupled suspension already explains)
     is returned unheld at the held coupling: one joint fit, not two. The results carry
     the coupled structure with its full theta (the coupling's std NaN, not fitted) and
@@ -455,11 +455,12 @@ def test_a_held_candidate_far_from_a_finding_is_not_refitted_whole(monkeypatch):
     module = sys.modules["workbench.diagnosis.diagnose"]
     _, base, problem, cs, coupled, mode = _coupled_on_the_record()
     sizes, original = _spy_fit_joint(monkeypatch, module)
-    reach = (problem.record_cost(coupled.model), coupled.error)
+    reach = (coupled.model, coupled.error)
     fits, _ = module._joint_candidates([coupled], [mode], problem, base, problem.n_obs,
                                        reach=reach)  # fmt: skip
     assert sizes == [["Held", "MissingMode"]]
-    assert problem.record_cost(fits[-1].model) > module.HELD_NEAR * reach[0]  # the premise
+    premise = module.HELD_NEAR * problem.record_cost(coupled.model)
+    assert problem.record_cost(fits[-1].model) > premise
     assert type(fits[0].structure) is CoupledSuspension
     assert fits[0].theta.size == coupled.theta.size
     n_held = coupled.theta.size - 2  # the coupling: all but ln f, ln z
@@ -469,9 +470,9 @@ def test_a_held_candidate_far_from_a_finding_is_not_refitted_whole(monkeypatch):
                            [coupled.theta[:2], mode.theta], problem, base)  # fmt: skip
     assert fits[-1].n_params == held_fit[-1].n_params + n_held
     assert np.isclose(fits[-1].cost, held_fit[-1].cost, rtol=1e-9)
-    # a current model far above: the held best is a large drop, refitted with all free
+    # a current model far above (the free body): the held best is a large drop, refitted
     sizes.clear()
-    far = (problem.record_cost(coupled.model) * 100, coupled.error * 100)
+    far = (base, problem.error(base))
     module._joint_candidates([coupled], [mode], problem, base, problem.n_obs, reach=far)
     assert sizes == [["Held", "MissingMode"], ["CoupledSuspension", "MissingMode"]]
 

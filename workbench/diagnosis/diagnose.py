@@ -720,11 +720,7 @@ def _diagnose(
             n_joint = len(ranked) if problem.kind == "frf" else JOINT_CANDIDATES
             chosen = [r for i, r in enumerate(ranked) if i < n_joint or r.theta.size <= 1]
             # where only a large drop makes a finding, the held comparison may show none near
-            reach = (
-                None
-                if per_round_verdict or _periodic_record(data)
-                else (problem.record_cost(current), cur_err)
-            )
+            reach = None if per_round_verdict or _periodic_record(data) else (current, cur_err)
             fits, bases = _joint_candidates(accepted, chosen, problem, base, n, reach=reach)
             cand = fits[-1]
             if _bic(cand.cost, n, cand.n_params) < _bic(
@@ -1092,8 +1088,8 @@ def _joint_candidates(accepted, chosen, problem, base: ModalModel, n: int, *, re
     Not on a periodic record's lines, where an indep3 beam record took longer held (70 s
     against 37 s, the same findings; session 33), its later rounds going elsewhere.
 
-    ``reach``: (record cost, error) of the current model, where a finding must lower one
-    of them by a large factor (:data:`COST_RATIO`, :data:`ERROR_RATIO`; no within-noise
+    ``reach``: (the current model, its error), where a finding must lower its record cost
+    or its error by a large factor (:data:`COST_RATIO`, :data:`ERROR_RATIO`; no within-noise
     verdict for small ones). A held best whose record cost stays above
     :data:`HELD_NEAR` of the current one and whose error above :data:`HELD_NEAR_ERROR`
     of it is returned as it is (its structures unheld at the held coupling): freeing the
@@ -1117,10 +1113,10 @@ def _joint_candidates(accepted, chosen, problem, base: ModalModel, n: int, *, re
         return fits, bases
     if reach is not None:
         cand = fits[-1]
-        if (
-            problem.record_cost(cand.model) > HELD_NEAR * reach[0]
-            and cand.error > HELD_NEAR_ERROR * reach[1]
-        ):
+        # (the current model's record cost only here: a simulation on a record from rest)
+        if cand.error > HELD_NEAR_ERROR * reach[1] and problem.record_cost(
+            cand.model
+        ) > HELD_NEAR * problem.record_cost(reach[0]):
             return _unheld(fits, held, accepted), bases
     # the one taken, with every parameter free, from where the held fit ended
     full = [a.structure for a in accepted] + [fits[-1].structure]
