@@ -60,3 +60,69 @@ def test_a_mode_above_nyquist_is_reported_with_its_image():
     assert abs(p["image_damping"] / z_true - 1) < 0.05, p["image_damping"]
     assert top.error_after < 1.05 * floor and p["image_error_after"] < 1.05 * floor
     assert "above Nyquist" in top.explanation
+
+
+def _static(modes) -> np.ndarray:
+    """Static compliance (2, 2) of flexible modes: sum of c b^T / w^2."""
+    return sum(np.outer(c, b) / (2 * np.pi * f) ** 2 for f, _, b, c in modes)
+
+
+def _truncated_case(extra, seed: int = 1, n: int = 8192, noise: float = 1e-3):
+    """As :func:`_case`, the truth with the modes ``extra`` (f, z, b, c) added."""
+    rng = np.random.default_rng(seed)
+    truth = _ss(MODEL_MODES + list(extra))
+    sysd = scipy.signal.cont2discrete((truth.A, truth.B, truth.C, truth.D), 1 / FS, "zoh")
+    hp = scipy.signal.butter(2, 100 / (FS / 2), "high")
+    u = scipy.signal.lfilter(*hp, rng.standard_normal((n, 2)), axis=0)
+    _, y, _ = scipy.signal.dlsim(sysd[:4] + (1 / FS,), u)
+    v = noise * y.std(axis=0) * rng.standard_normal(y.shape)
+    floor = float(np.linalg.norm(v) / np.linalg.norm(y + v))
+    return _ss(MODEL_MODES), TimeData(fs=FS, u=u, y=y + v), floor
+
+
+FAR = (7300.0, 0.2, np.array([9.0, -6.0]), np.array([8.0, 5.0]))  # settles within a sample
+FOLDED = [  # ring in the band: at 500 Hz damped 0.06, at 600 Hz damped 0.043
+    (1500.0, 0.02, np.array([2.4, 1.5]), np.array([-1.8, 2.7])),
+    (2600.0, 0.01, np.array([1.0, -2.0]), np.array([1.5, 1.2])),
+]
+
+
+def _one_compliance(extra, floor, result) -> dict:
+    """The single residual compliance finding's parameters, checked against the truth."""
+    assert [f.effect for f in result.findings] == ["residual_compliance"], result.findings
+    rc = result.findings[0]
+    M, M_true = np.asarray(rc.parameters["matrix"]), _static(extra)
+    assert np.linalg.norm(M - M_true) / np.linalg.norm(M_true) < 0.02, (M, M_true)
+    assert rc.error_after < 1.1 * floor
+    return rc
+
+
+def test_a_compliance_sampled_one_sample_late_is_no_time_delay():
+    # the far mode's static part answers u[k-1] on the record, a feedthrough D u[k]: a
+    # sub-sample "delay" moved D by one sample and was named beside the compliance
+    extra = [FAR, FOLDED[0]]
+    nominal, data, floor = _truncated_case(extra)
+    rc = _one_compliance(extra, floor, diagnose(nominal, data))
+    assert abs(rc.parameters["upper_freq_hz"] / 1500.0 - 1) < 0.01
+
+
+def test_truncated_modes_that_fold_into_the_band_are_one_residual_compliance():
+    # the pseudo-mode takes one folded mode; the other is found as a resonance at 500 Hz
+    # damped 0.06 (3x the model's mode), whose image at 1500 Hz is damped 0.02: a truncated
+    # mode, its static part in the one compliance finding
+    extra = [FAR] + FOLDED
+    nominal, data, floor = _truncated_case(extra)
+    rc = _one_compliance(extra, floor, diagnose(nominal, data))
+    (image,) = rc.parameters["modes_above_nyquist"]
+    assert abs(image["band_freq_hz"] / 500.0 - 1) < 0.01
+    assert abs(image["freq_hz"] / 1500.0 - 1) < 0.01
+    assert "truncated mode above Nyquist" in rc.explanation
+
+
+def test_folded_modes_without_a_compliance_stay_missing_modes():
+    # nothing shows a compliance: each resonance is reported in the band, with its image
+    nominal, data, _ = _truncated_case(FOLDED)
+    found = diagnose(nominal, data).findings
+    assert sorted(f.effect for f in found) == ["missing_mode", "missing_mode"]
+    images = sorted(f.parameters["image_freq_hz"] for f in found)
+    assert np.allclose(images, [1400.0, 1500.0], rtol=0.01), images

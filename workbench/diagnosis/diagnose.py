@@ -97,6 +97,12 @@ ERROR_RATIO = 0.85
 IMAGE_TIE = 1.01
 #: lighter images are not tried: no structure is that lightly damped
 IMAGE_MIN_DAMPING = 2e-3
+#: a resonance in the band damped more than this many times the model's most damped flexible
+#: mode, whose image above Nyquist is damped no more than that, is a truncated mode above
+#: Nyquist where the record also shows residual compliance (:func:`_truncated_images`)
+IMAGE_DAMPING_RATIO = 2.0
+#: the structure's damping ratio where the model has no flexible mode to tell it
+Z_STRUCTURAL = 0.02
 #: ... or the weighted misfit by at least this factor
 COST_RATIO = 0.7
 #: a later round's held joint fit (a coupled suspension's coupling held) is refitted with
@@ -951,6 +957,7 @@ def _diagnose(
             found.append(finding)
     if isinstance(data, TimeData):
         found = [_with_image(f, current, problem) for f in found]
+        found = _merge_compliance(_truncated_images(found, current, base))
         if not any(f.effect == "nonlinearity" for f in found):
             weak = _weak_distortion(nl)
             if weak is not None:
@@ -1673,27 +1680,46 @@ def _refresh_added(found: list[Finding], model: ModalModel, base: ModalModel) ->
         elif f.effect == "residual_compliance" and upper and "upper_freq_hz" in p:
             m = upper[0]
             static = model.D - base.D + m.numerator()[0] / m.omega**2
+            static = static + sum(
+                (
+                    x.numerator()[0] / x.omega**2
+                    for x in model.modes
+                    if x.effect == "late_compliance"
+                ),
+                np.zeros_like(static),
+            )
             p.update(matrix=static.tolist(), upper_freq_hz=m.freq_hz, upper_damping=m.damping)
         out.append(replace(f, parameters=p))
     return out
 
 
 def _merge_compliance(found: list[Finding]) -> list[Finding]:
-    """One residual_compliance finding: the static parts of modes above the band add up."""
+    """One residual_compliance finding: the static parts of modes above the band add up (and
+    the truncated modes the record shows above Nyquist, :func:`_truncated_images`, list)."""
     rc = [f for f in found if f.effect == "residual_compliance"]
     if len(rc) < 2:
         return found
     M = sum(np.asarray(f.parameters["matrix"], float) for f in rc)
+    params: dict[str, Any] = {"matrix": M.tolist()}
+    # the pseudo-mode of the first compliance that has one (the others are static parts)
+    upper = next((f.parameters for f in rc if "upper_freq_hz" in f.parameters), {})
+    params.update({k: upper[k] for k in ("upper_freq_hz", "upper_damping") if k in upper})
+    above = [m for f in rc for m in f.parameters.get("modes_above_nyquist", [])]
+    if above:
+        params["modes_above_nyquist"] = above
+    explanation = rc[0].explanation + "".join(
+        f.explanation for f in rc[1:] if f.parameters.get("modes_above_nyquist")
+    )
     last = rc[-1]
     merged = Finding(
         effect="residual_compliance",
         inputs=tuple(sorted(set().union(*(f.inputs for f in rc)))),
         outputs=tuple(sorted(set().union(*(f.outputs for f in rc)))),
         band_hz=(min(f.band_hz[0] for f in rc), max(f.band_hz[1] for f in rc)),
-        parameters={"matrix": M.tolist()},
+        parameters=params,
         parameters_std={},
         error_after=last.error_after,
-        explanation=rc[0].explanation,
+        explanation=explanation,
         model=last.model,
     )
     out, done = [], False
@@ -1703,6 +1729,78 @@ def _merge_compliance(found: list[Finding]) -> list[Finding]:
         elif not done:
             out.append(merged)
             done = True
+    return out
+
+
+def _truncated_images(found: list[Finding], model: ModalModel, base: ModalModel) -> list[Finding]:
+    """The missing modes of a sampled record that are truncated modes above Nyquist, named
+    residual compliance where the record shows that too.
+
+    Sampled, a resonance in the band and its image above Nyquist fit alike
+    (:func:`_with_image`); the damping tells them apart physically. A truncated mode at
+    ``f_up`` folds to ``f = |f_up - k fs|`` with its damping scaled by ``f_up / f``: an
+    indep3 beam record at 4800 Hz showed modes at 4307 and 5088 Hz (damping 0.017, 0.006)
+    as resonances at 493 and 288 Hz damped 0.14 and 0.075, named missing modes beside the
+    compliance, and the compliance's matrix lost their static parts (88 % off; 1.6 % with
+    them). A missing mode is taken for a truncated one where its damping in the band
+    exceeds :data:`IMAGE_DAMPING_RATIO` times the most damped flexible mode of ``base``
+    (the model as given; :data:`Z_STRUCTURAL` without one) and its image's does not: damped
+    like the structure's modes above Nyquist, unlike them in the band. Only the missing
+    modes next to a residual compliance finding (no other effect between them: the merged
+    finding has one error after it) are taken. Their static parts (the added mode's
+    ``N0 / w^2``, what the sampled record shows at DC either way) join the compliance's
+    matrix (:func:`_merge_compliance`); ``modes_above_nyquist`` lists them.
+    """
+    z_ref = max(
+        (m.damping for m in base.modes if m.kind == "flexible" and m.freq_hz > 0),
+        default=Z_STRUCTURAL,
+    )
+    added = [m for m in model.modes if m.effect == "missing_mode"]
+    if not added:
+        return found
+    folded = [
+        f.effect == "missing_mode"
+        and "image_damping" in f.parameters
+        and f.parameters["damping"] > IMAGE_DAMPING_RATIO * z_ref >= f.parameters["image_damping"]
+        for f in found
+    ]
+    # runs of findings next to each other that are compliance or such modes, with a compliance
+    keep = np.zeros(len(found), bool)
+    i = 0
+    while i < len(found):
+        j = i
+        while j < len(found) and (folded[j] or found[j].effect == "residual_compliance"):
+            j += 1
+        if any(found[k].effect == "residual_compliance" for k in range(i, j)):
+            keep[i:j] = folded[i:j]
+        i = max(j, i + 1)
+    out = []
+    for f, take in zip(found, keep):
+        if take:
+            p = f.parameters
+            mode = min(added, key=lambda m: abs(math.log(m.freq_hz / p["freq_hz"])))
+            static = mode.numerator()[0] / mode.omega**2
+            image = {
+                "freq_hz": p["image_freq_hz"],
+                "damping": p["image_damping"],
+                "band_freq_hz": p["freq_hz"],
+                "band_damping": p["damping"],
+            }
+            why = (
+                f" The resonance at {p['freq_hz']:.4g} Hz (damping {p['damping']:.3g}) is a "
+                f"truncated mode above Nyquist: in the band it is damped more than "
+                f"{IMAGE_DAMPING_RATIO:g}x the model's most damped mode ({z_ref:.3g}), its image "
+                f"at {p['image_freq_hz']:.5g} Hz (damping {p['image_damping']:.3g}) is not; its "
+                "static part is in the matrix."
+            )
+            f = replace(
+                f,
+                effect="residual_compliance",
+                parameters={"matrix": static.tolist(), "modes_above_nyquist": [image]},
+                parameters_std={},
+                explanation=why,
+            )
+        out.append(f)
     return out
 
 

@@ -1358,6 +1358,33 @@ class ResidualCompliance(_LinearOnly):
 
 #: the upper pseudo-mode lies between these multiples of the top line
 _UPPER_RANGE = (1.02, 10.0)
+#: the late static part (:func:`late_mode`): a mode at this multiple of the sampling
+#: frequency, damped this much: its sampled response settles within one sample (e^-88)
+LATE_FS, LATE_DAMPING = 20.0, 0.7
+
+
+def late_mode(fs: float, base: ModalModel) -> Mode:
+    """A mode far above Nyquist (:data:`LATE_FS` x ``fs`` Hz), its residue zero: the static
+    part of truncated modes as a sampled record sees it.
+
+    Sampled (ZOH), a compliance of modes far above Nyquist answers the held input of the
+    previous sample, ``L u[k-1]``; a feedthrough ``D u[k]`` answers the sample's own. A
+    record simulated from continuous modes (an indep3 planar stage, modes at 10 and 18.5
+    kHz, 7600 Hz sampling) showed the difference as a "time delay" of 1.5e-10 s: any
+    fraction of a sample moves the feedthrough by one sample (:func:`workbench.sim.c2d_zoh`),
+    a finding with a delay its own standard deviation could not tell from zero. This mode
+    settles within a sample (its poles ``e^-88`` there) and in the band differs from a
+    constant by a phase lag of at most 0.035 rad at Nyquist.
+    """
+    f = LATE_FS * fs
+    return Mode(
+        "flexible",
+        f,
+        LATE_DAMPING,
+        np.zeros(base.n_u),
+        np.zeros(base.n_y),
+        effect="late_compliance",
+    )
 
 
 @dataclass(frozen=True)
@@ -1371,10 +1398,16 @@ class UpperResidual:
     sampled data, the images of the modes and of the rigid body about the
     sampling frequency, which a constant ``D`` cannot follow near Nyquist).
     ``N0``, ``N1`` are full matrices (several modes above the band add up).
+
+    With :attr:`late` (offered on sampled records) the static matrix is carried by
+    :func:`late_mode` instead of ``D``: the samples see it one sample late, as they see
+    modes far above Nyquist.
     """
 
     effect: str = "residual_compliance"
     theta_names: tuple[str, ...] = ("log_upper_freq_hz", "log_upper_damping")
+    #: on a sampled record: the static part one sample late (:func:`late_mode`), not D
+    late: bool = False
 
     def grid(self, problem, base):
         f_hi = problem.band_hz[1]
@@ -1390,11 +1423,18 @@ class UpperResidual:
         )
 
     def _term(self, theta, problem, base):
-        """The pseudo-mode (its residue solved) and dD at theta, their std (unit noise)."""
+        """The pseudo-mode (its residue solved), the static matrix (dD, or the late mode's
+        static gain) and the late mode (None unless :attr:`late`) at theta, the std (unit
+        noise)."""
         f, z = _freq_damping(theta)
         mode = Mode("flexible", f, z, np.zeros(base.n_u), np.zeros(base.n_y))
-        dD, N0, N1, sD, s0, s1 = problem.fit_upper_residual(base, mode.denominator())
-        return replace(mode, N0=N0, N1=N1, effect="upper_residual"), dD, sD, s0, s1
+        far = late_mode(problem.data.fs, base) if self.late else None
+        dD, N0, N1, sD, s0, s1 = problem.fit_upper_residual(
+            base, mode.denominator(), **({"late": far.denominator()} if far else {})
+        )
+        if far is not None:
+            far = replace(far, N0=dD * far.omega**2)
+        return replace(mode, N0=N0, N1=N1, effect="upper_residual"), dD, far, sD, s0, s1
 
     def lines(self, problem, base):
         """:class:`_Lines` on FRF data without coupling (else None): the residual as the
@@ -1410,10 +1450,13 @@ class UpperResidual:
         return _Lines(residual=residual)
 
     def build(self, theta, problem, base):
-        mode, dD, sD, s0, s1 = self._term(theta, problem, base)
+        mode, dD, far, sD, s0, s1 = self._term(theta, problem, base)
         N0, N1 = mode.N0, mode.N1
         static = dD + N0 / mode.omega**2
-        new = replace(base, D=base.D + dD, modes=base.modes + (mode,))
+        if far is None:
+            new = replace(base, D=base.D + dD, modes=base.modes + (mode,))
+        else:
+            new = replace(base, modes=base.modes + (mode, far))
         return Realized(
             new,
             {"matrix": static, "D": dD, "N0": N0, "N1": N1},
@@ -1703,6 +1746,8 @@ def candidate_structures(base: ModalModel, problem, *, exclude=()) -> list:
     """
     f_lo, f_hi = problem.band_hz
     out: list = [TimeDelay(), MissingMode(), ResidualCompliance(), UpperResidual()]
+    if problem.kind == "time":
+        out.append(UpperResidual(late=True))
     out += [ActuatorDynamics(), SensorDynamics()]
     for k, m in enumerate(base.modes):
         if _model_flexible(m) and f_lo / MISMATCH_REACH <= m.freq_hz <= f_hi * MISMATCH_REACH:
@@ -1749,8 +1794,11 @@ def backfit(model: ModalModel, problem, *, d0: np.ndarray, sweeps: int = 4) -> M
                 mm = MissingMode(rank_one_iterations=8)
                 cur = mm.build(theta, problem, replace(cur, modes=rest_modes)).model
             else:
+                # the late static part is the pseudo-mode's: refitted with it
+                late = any(m.effect == "late_compliance" for m in rest_modes)
+                rest_modes = tuple(m for m in rest_modes if m.effect != "late_compliance")
                 rest = replace(cur, modes=rest_modes, D=np.asarray(d0, float))
-                cur = UpperResidual().build(theta, problem, rest).model
+                cur = UpperResidual(late=late).build(theta, problem, rest).model
         cost = problem.cost(cur)
         if not cost < best_cost * (1 - 1e-6):
             break

@@ -919,10 +919,18 @@ class _FilteredProblem:
         coef, std = self._regress(model, X[..., 0], groups)
         return coef, std
 
-    def fit_upper_residual(self, model: ModalModel, den: np.ndarray):
-        """As :meth:`FrfProblem.fit_upper_residual`, on the record's rows."""
+    def fit_upper_residual(self, model: ModalModel, den: np.ndarray, late=None):
+        """As :meth:`FrfProblem.fit_upper_residual`, on the record's rows.
+
+        ``late``: the denominator (a1, a0) of a mode far above Nyquist that carries the
+        static part instead of ``D`` (what the samples see of it: ``L u[k-1]``, not
+        ``D u[k]``); the first matrix returned is then ``L`` (its static gain)."""
         u_in = self._u_in(model)
-        X0, groups = self._filtered(model, None, u_in)
+        if late is None:
+            X0, groups = self._filtered(model, None, u_in)
+        else:
+            X0, groups = self._filtered(model, late, u_in)
+            X0 = X0 * late[1]  # 1/den has the static gain 1/a0
         X, _ = self._filtered(model, den, u_in)
         n_u = model.n_u
         Xc = np.concatenate([X0[..., 0], X[..., 0], X[..., 1]], axis=-1)
