@@ -102,8 +102,11 @@ def test_a_compliance_sampled_one_sample_late_is_no_time_delay():
     # sub-sample "delay" moved D by one sample and was named beside the compliance
     extra = [FAR, FOLDED[0]]
     nominal, data, floor = _truncated_case(extra)
-    rc = _one_compliance(extra, floor, diagnose(nominal, data))
+    result = diagnose(nominal, data)
+    rc = _one_compliance(extra, floor, result)
     assert abs(rc.parameters["upper_freq_hz"] / 1500.0 - 1) < 0.01
+    assert any(m.effect == "late_compliance" for m in result.model.modes)
+    assert result.model.delay_s == 0.0
 
 
 def test_truncated_modes_that_fold_into_the_band_are_one_residual_compliance():
@@ -126,3 +129,23 @@ def test_folded_modes_without_a_compliance_stay_missing_modes():
     assert sorted(f.effect for f in found) == ["missing_mode", "missing_mode"]
     images = sorted(f.parameters["image_freq_hz"] for f in found)
     assert np.allclose(images, [1400.0, 1500.0], rtol=0.01), images
+
+
+def test_a_feedthrough_of_the_sample_itself_stays_a_feedthrough():
+    # the record's D u[k] (the simulation convention of a model with D): the compliance
+    # is the model's D, not the late mode
+    rng = np.random.default_rng(3)
+    truth = _ss(MODEL_MODES)
+    M = np.array([[2e-6, -1e-6], [0.5e-6, 3e-6]])
+    sysd = scipy.signal.cont2discrete((truth.A, truth.B, truth.C, M), 1 / FS, "zoh")
+    hp = scipy.signal.butter(2, 100 / (FS / 2), "high")
+    u = scipy.signal.lfilter(*hp, rng.standard_normal((8192, 2)), axis=0)
+    _, y, _ = scipy.signal.dlsim(sysd[:4] + (1 / FS,), u)
+    v = 1e-3 * y.std(axis=0) * rng.standard_normal(y.shape)
+    floor = float(np.linalg.norm(v) / np.linalg.norm(y + v))
+    result = diagnose(_ss(MODEL_MODES), TimeData(fs=FS, u=u, y=y + v))
+    (rc,) = result.findings
+    assert rc.effect == "residual_compliance" and rc.error_after < 1.05 * floor
+    assert np.allclose(rc.parameters["matrix"], M, rtol=0.01, atol=1e-8)
+    assert np.allclose(result.model.D, M, rtol=0.01)
+    assert not any(m.effect == "late_compliance" for m in result.model.modes)
