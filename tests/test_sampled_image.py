@@ -107,6 +107,7 @@ def test_a_compliance_sampled_one_sample_late_is_no_time_delay():
     assert abs(rc.parameters["upper_freq_hz"] / 1500.0 - 1) < 0.01
     assert any(m.effect == "late_compliance" for m in result.model.modes)
     assert result.model.delay_s == 0.0
+    assert "one sample late" in rc.explanation
 
 
 def test_truncated_modes_that_fold_into_the_band_are_one_residual_compliance():
@@ -120,6 +121,7 @@ def test_truncated_modes_that_fold_into_the_band_are_one_residual_compliance():
     assert abs(image["band_freq_hz"] / 500.0 - 1) < 0.01
     assert abs(image["freq_hz"] / 1500.0 - 1) < 0.01
     assert "truncated mode above Nyquist" in rc.explanation
+    assert f"the error falls to {rc.error_after:.4g}." in rc.explanation
 
 
 def test_folded_modes_without_a_compliance_stay_missing_modes():

@@ -1617,6 +1617,7 @@ def _finding(fr: FitResult, runner, problem, base, data, err_before, floor) -> F
         kind=problem.kind,
         alternative=(runner.effect, runner.error) if runner is not None else None,
         fs=getattr(data, "fs", None),
+        late=bool(getattr(fr.structure, "late", False)),
     )
     if fr.effect == "time_delay" and problem.kind == "frf":
         lo, hi = where.band_hz
@@ -1707,10 +1708,12 @@ def _merge_compliance(found: list[Finding]) -> list[Finding]:
     above = [m for f in rc for m in f.parameters.get("modes_above_nyquist", [])]
     if above:
         params["modes_above_nyquist"] = above
-    explanation = rc[0].explanation + "".join(
-        f.explanation for f in rc[1:] if f.parameters.get("modes_above_nyquist")
-    )
     last = rc[-1]
+    explanation = (
+        rc[0].explanation
+        + "".join(f.explanation for f in rc[1:] if f.parameters.get("modes_above_nyquist"))
+        + f" With its {len(rc) - 1} other part(s), the error falls to {last.error_after:.4g}."
+    )
     merged = Finding(
         effect="residual_compliance",
         inputs=tuple(sorted(set().union(*(f.inputs for f in rc)))),

@@ -28,7 +28,8 @@ def explain(effect: str, ev: dict) -> str:
 
     ``ev`` holds at least error_before, error_after, band_hz, inputs, outputs,
     n_u, n_y, parameters, kind ('frf' or 'time') and optionally noise_floor,
-    alternative (the runner-up effect and its error).
+    alternative (the runner-up effect and its error), late (a residual compliance whose
+    static part answers the previous sample's input).
     """
     p = ev["parameters"]
     lo, hi = ev["band_hz"]
@@ -79,11 +80,18 @@ def explain(effect: str, ev: dict) -> str:
         )
     if effect == "residual_compliance":
         M = np.asarray(p["matrix"])
+        # on a sampled record the static part may answer the previous sample's input
+        how = (
+            "a constant compliance matrix, one sample late as modes far above Nyquist answer "
+            "the held input, fits it"
+            if ev.get("late")
+            else "a constant compliance matrix added to D fits it"
+        )
         return (
             f"frequency-independent offset of the response, largest {np.max(np.abs(M)):.3g} m/N, "
             "strongest "
             f"below the first truncated mode and moving the anti-resonances, on {where} "
-            f"({lo:.4g}-{hi:.4g} Hz); a constant compliance matrix added to D fits it; {fall}{tail}"
+            f"({lo:.4g}-{hi:.4g} Hz); {how}; {fall}{tail}"
         )
     if effect in ("actuator_dynamics", "sensor_dynamics"):
         side = "inputs (columns)" if effect == "actuator_dynamics" else "outputs (rows)"

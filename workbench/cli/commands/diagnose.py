@@ -65,6 +65,8 @@ def _short(v) -> str:
         return f"{v:.5g}"
     if isinstance(v, list):
         return "[" + ", ".join(_short(x) if x is not None else "-" for x in v) + "]"
+    if isinstance(v, dict):  # a mode in a list (modes, modes_above_nyquist)
+        return "{" + ", ".join(f"{k}={_short(x)}" for k, x in v.items()) + "}"
     return str(v)
 
 
