@@ -33,11 +33,11 @@ def _ss(modes) -> control.StateSpace:
     return control.ss(scipy.linalg.block_diag(*A), np.vstack(B), np.hstack(C), np.zeros((2, 2)))
 
 
-def _case(f_hz: float, z: float, seed: int = 0, n: int = 8192, noise: float = 1e-3):
-    """(nominal, TimeData, noise floor error): the truth has one more mode at ``f_hz``."""
+def _case(extra, seed: int = 0, n: int = 8192, noise: float = 1e-3):
+    """(nominal, TimeData, noise floor error): the truth has the modes ``extra`` (f Hz, z, b,
+    c) added to the model's."""
     rng = np.random.default_rng(seed)
-    extra = (f_hz, z, np.array([2.4, 1.5]), np.array([-1.8, 2.7]))
-    truth = _ss(MODEL_MODES + [extra])
+    truth = _ss(MODEL_MODES + list(extra))
     sysd = scipy.signal.cont2discrete((truth.A, truth.B, truth.C, truth.D), 1 / FS, "zoh")
     # high-passed noise: the rigid body's drift does not swamp the record
     hp = scipy.signal.butter(2, 100 / (FS / 2), "high")
@@ -50,7 +50,7 @@ def _case(f_hz: float, z: float, seed: int = 0, n: int = 8192, noise: float = 1e
 
 def test_a_mode_above_nyquist_is_reported_with_its_image():
     f_true, z_true = 1.5 * FS / 2, 0.02
-    nominal, data, floor = _case(f_true, z_true)
+    nominal, data, floor = _case([(f_true, z_true, np.array([2.4, 1.5]), np.array([-1.8, 2.7]))])
     top = diagnose(nominal, data).findings[0]
     assert top.effect == "missing_mode"
     p = top.parameters
@@ -65,19 +65,6 @@ def test_a_mode_above_nyquist_is_reported_with_its_image():
 def _static(modes) -> np.ndarray:
     """Static compliance (2, 2) of flexible modes: sum of c b^T / w^2."""
     return sum(np.outer(c, b) / (2 * np.pi * f) ** 2 for f, _, b, c in modes)
-
-
-def _truncated_case(extra, seed: int = 1, n: int = 8192, noise: float = 1e-3):
-    """As :func:`_case`, the truth with the modes ``extra`` (f, z, b, c) added."""
-    rng = np.random.default_rng(seed)
-    truth = _ss(MODEL_MODES + list(extra))
-    sysd = scipy.signal.cont2discrete((truth.A, truth.B, truth.C, truth.D), 1 / FS, "zoh")
-    hp = scipy.signal.butter(2, 100 / (FS / 2), "high")
-    u = scipy.signal.lfilter(*hp, rng.standard_normal((n, 2)), axis=0)
-    _, y, _ = scipy.signal.dlsim(sysd[:4] + (1 / FS,), u)
-    v = noise * y.std(axis=0) * rng.standard_normal(y.shape)
-    floor = float(np.linalg.norm(v) / np.linalg.norm(y + v))
-    return _ss(MODEL_MODES), TimeData(fs=FS, u=u, y=y + v), floor
 
 
 FAR = (7300.0, 0.2, np.array([9.0, -6.0]), np.array([8.0, 5.0]))  # settles within a sample
@@ -101,7 +88,7 @@ def test_a_compliance_sampled_one_sample_late_is_no_time_delay():
     # the far mode's static part answers u[k-1] on the record, a feedthrough D u[k]: a
     # sub-sample "delay" moved D by one sample and was named beside the compliance
     extra = [FAR, FOLDED[0]]
-    nominal, data, floor = _truncated_case(extra)
+    nominal, data, floor = _case(extra, seed=1)
     result = diagnose(nominal, data)
     rc = _one_compliance(extra, floor, result)
     assert abs(rc.parameters["upper_freq_hz"] / 1500.0 - 1) < 0.01
@@ -115,7 +102,7 @@ def test_truncated_modes_that_fold_into_the_band_are_one_residual_compliance():
     # damped 0.06 (3x the model's mode), whose image at 1500 Hz is damped 0.02: a truncated
     # mode, its static part in the one compliance finding
     extra = [FAR] + FOLDED
-    nominal, data, floor = _truncated_case(extra)
+    nominal, data, floor = _case(extra, seed=1)
     rc = _one_compliance(extra, floor, diagnose(nominal, data))
     (image,) = rc.parameters["modes_above_nyquist"]
     assert abs(image["band_freq_hz"] / 500.0 - 1) < 0.01
@@ -126,7 +113,7 @@ def test_truncated_modes_that_fold_into_the_band_are_one_residual_compliance():
 
 def test_folded_modes_without_a_compliance_stay_missing_modes():
     # nothing shows a compliance: each resonance is reported in the band, with its image
-    nominal, data, _ = _truncated_case(FOLDED)
+    nominal, data, _ = _case(FOLDED, seed=1)
     found = diagnose(nominal, data).findings
     assert sorted(f.effect for f in found) == ["missing_mode", "missing_mode"]
     images = sorted(f.parameters["image_freq_hz"] for f in found)
