@@ -34,12 +34,13 @@ def _ss(modes) -> control.StateSpace:
     return control.ss(scipy.linalg.block_diag(*A), np.vstack(B), np.hstack(C), np.zeros((2, 2)))
 
 
-def _case(extra, seed: int = 0, n: int = 8192, noise: float = 1e-3):
+def _case(extra, seed: int = 0, n: int = 8192, noise: float = 1e-3, D=None):
     """(nominal, TimeData, noise floor error): the truth has the modes ``extra`` (f Hz, z, b,
-    c) added to the model's."""
+    c) added to the model's, and the feedthrough ``D`` (2, 2) where given (``D u[k]``)."""
     rng = np.random.default_rng(seed)
     truth = _ss(MODEL_MODES + list(extra))
-    sysd = scipy.signal.cont2discrete((truth.A, truth.B, truth.C, truth.D), 1 / FS, "zoh")
+    D = truth.D if D is None else D
+    sysd = scipy.signal.cont2discrete((truth.A, truth.B, truth.C, D), 1 / FS, "zoh")
     # high-passed noise: the rigid body's drift does not swamp the record
     hp = scipy.signal.butter(2, 100 / (FS / 2), "high")
     u = scipy.signal.lfilter(*hp, rng.standard_normal((n, 2)), axis=0)
@@ -124,16 +125,9 @@ def test_folded_modes_without_a_compliance_stay_missing_modes():
 def test_a_feedthrough_of_the_sample_itself_stays_a_feedthrough():
     # the record's D u[k] (the simulation convention of a model with D): the compliance
     # is the model's D, not the late mode
-    rng = np.random.default_rng(3)
-    truth = _ss(MODEL_MODES)
     M = np.array([[2e-6, -1e-6], [0.5e-6, 3e-6]])
-    sysd = scipy.signal.cont2discrete((truth.A, truth.B, truth.C, M), 1 / FS, "zoh")
-    hp = scipy.signal.butter(2, 100 / (FS / 2), "high")
-    u = scipy.signal.lfilter(*hp, rng.standard_normal((8192, 2)), axis=0)
-    _, y, _ = scipy.signal.dlsim(sysd[:4] + (1 / FS,), u)
-    v = 1e-3 * y.std(axis=0) * rng.standard_normal(y.shape)
-    floor = float(np.linalg.norm(v) / np.linalg.norm(y + v))
-    result = diagnose(_ss(MODEL_MODES), TimeData(fs=FS, u=u, y=y + v))
+    nominal, data, floor = _case([], seed=3, D=M)
+    result = diagnose(nominal, data)
     (rc,) = result.findings
     assert rc.effect == "residual_compliance" and rc.error_after < 1.05 * floor
     assert np.allclose(rc.parameters["matrix"], M, rtol=0.01, atol=1e-8)

@@ -50,6 +50,7 @@ finding when it explains the record better by the factor a finding must.
 from __future__ import annotations
 
 import hashlib
+import itertools
 import math
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -1707,15 +1708,8 @@ def _refresh_added(found: list[Finding], model: ModalModel, base: ModalModel) ->
             p.update(freq_hz=m.freq_hz, damping=m.damping, b=b, c=c, residue_matrix=N0.tolist())
         elif f.effect == "residual_compliance" and upper and "upper_freq_hz" in p:
             m = upper[0]
-            static = model.D - base.D + m.numerator()[0] / m.omega**2
-            static = static + sum(
-                (
-                    x.numerator()[0] / x.omega**2
-                    for x in model.modes
-                    if x.effect == "late_compliance"
-                ),
-                np.zeros_like(static),
-            )
+            late = [x for x in model.modes if x.effect == "late_compliance"]
+            static = model.D - base.D + sum(_static_part(x) for x in [m] + late)
             p.update(matrix=static.tolist(), upper_freq_hz=m.freq_hz, upper_damping=m.damping)
         out.append(replace(f, parameters=p))
     return out
@@ -1762,6 +1756,11 @@ def _merge_compliance(found: list[Finding]) -> list[Finding]:
     return out
 
 
+def _static_part(mode) -> np.ndarray:
+    """A mode's static compliance ``N0 / w^2`` (n_y, n_u)."""
+    return mode.numerator()[0] / mode.omega**2
+
+
 def _truncated_images(found: list[Finding], model: ModalModel, base: ModalModel) -> list[Finding]:
     """The missing modes of a sampled record that are truncated modes above Nyquist, named
     residual compliance where the record shows that too.
@@ -1795,21 +1794,20 @@ def _truncated_images(found: list[Finding], model: ModalModel, base: ModalModel)
         for f in found
     ]
     # runs of findings next to each other that are compliance or such modes, with a compliance
-    keep = np.zeros(len(found), bool)
-    i = 0
-    while i < len(found):
-        j = i
-        while j < len(found) and (folded[j] or found[j].effect == "residual_compliance"):
-            j += 1
-        if any(found[k].effect == "residual_compliance" for k in range(i, j)):
-            keep[i:j] = folded[i:j]
-        i = max(j, i + 1)
+    keep: list[bool] = []
+    runs = itertools.groupby(
+        zip(found, folded), key=lambda t: t[1] or t[0].effect == "residual_compliance"
+    )
+    for in_run, group in runs:
+        group = list(group)
+        with_rc = in_run and any(f.effect == "residual_compliance" for f, _ in group)
+        keep += [with_rc and fold for _, fold in group]
     out = []
     for f, take in zip(found, keep):
         if take:
             p = f.parameters
             mode = min(added, key=lambda m: abs(math.log(m.freq_hz / p["freq_hz"])))
-            static = mode.numerator()[0] / mode.omega**2
+            static = _static_part(mode)
             image = {
                 "freq_hz": p["image_freq_hz"],
                 "damping": p["image_damping"],
