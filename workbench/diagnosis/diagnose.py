@@ -52,6 +52,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 import math
+import re
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -632,6 +633,7 @@ def _diagnose(
                         max_nfev=fit_budget(s),
                     )
                 )
+        results = [r for r in results if not _on_frequency_bound(r, problem, current)]
         bic0 = _bic(cur_cost, n, sum(a.n_params for a in accepted))
         ranked = sorted(results, key=lambda r: _bic(r.cost, n, r.n_params))
         # the best few refitted on the record where the lines cannot resolve what they add,
@@ -732,9 +734,9 @@ def _diagnose(
             fits, bases = _joint_candidates(accepted, chosen, problem, base, n, reach=reach)
             fits = _backfitted(fits, problem, base)
             cand = fits[-1]
-            if _bic(cand.cost, n, cand.n_params) < _bic(
-                best.cost, n, sum(a.n_params for a in accepted) + best.n_params
-            ):
+            if not _on_frequency_bound(cand, problem, bases[-1]) and _bic(
+                cand.cost, n, cand.n_params
+            ) < _bic(best.cost, n, sum(a.n_params for a in accepted) + best.n_params):
                 best_chain, best_bases = fits, bases
             else:
                 best_chain, best_bases = accepted + [best], accepted_bases + [current]
@@ -969,7 +971,7 @@ def _diagnose(
             found.append(finding)
     if isinstance(data, TimeData):
         found = [_with_image(f, current, problem) for f in found]
-        found = _merge_compliance(_truncated_images(found, current, base))
+        found = _merge_compliance(_truncated_images(found, current, base, problem))
         if not any(f.effect == "nonlinearity" for f in found):
             weak = _weak_distortion(nl)
             if weak is not None:
@@ -1776,7 +1778,9 @@ def _static_part(mode) -> np.ndarray:
     return mode.numerator()[0] / mode.omega**2
 
 
-def _truncated_images(found: list[Finding], model: ModalModel, base: ModalModel) -> list[Finding]:
+def _truncated_images(
+    found: list[Finding], model: ModalModel, base: ModalModel, problem=None
+) -> list[Finding]:
     """The missing modes of a sampled record that are truncated modes above Nyquist, named
     residual compliance where the record shows that too.
 
@@ -1793,7 +1797,9 @@ def _truncated_images(found: list[Finding], model: ModalModel, base: ModalModel)
     modes next to a residual compliance finding (no other effect between them: the merged
     finding has one error after it) are taken. Their static parts (the added mode's
     ``N0 / w^2``, what the sampled record shows at DC either way) join the compliance's
-    matrix (:func:`_merge_compliance`); ``modes_above_nyquist`` lists them.
+    matrix (:func:`_merge_compliance`); ``modes_above_nyquist`` lists them. With ``problem``,
+    such modes found after other missing modes are first moved next to the compliance
+    (:func:`_folded_first`).
     """
     z_ref = max(
         (m.damping for m in base.modes if m.kind == "flexible" and m.freq_hz > 0),
@@ -1808,6 +1814,8 @@ def _truncated_images(found: list[Finding], model: ModalModel, base: ModalModel)
         and f.parameters["damping"] > IMAGE_DAMPING_RATIO * z_ref >= f.parameters["image_damping"]
         for f in found
     ]
+    if problem is not None:
+        found, folded = _folded_first(found, folded, model, problem)
     # runs of findings next to each other that are compliance or such modes, with a compliance
     keep: list[bool] = []
     runs = itertools.groupby(
@@ -1845,6 +1853,68 @@ def _truncated_images(found: list[Finding], model: ModalModel, base: ModalModel)
             )
         out.append(f)
     return out
+
+
+def _folded_first(found: list[Finding], folded: list[bool], model: ModalModel, problem):
+    """(found, folded) with the folded modes after a residual compliance moved next to it,
+    where only missing modes follow the compliance and the errors fall in the new order.
+
+    The search adds modes in the order they lower the error: a resonance the model lacks may
+    come between the compliance and a truncated mode folded into the band (an indep3 beam
+    record at 5700 Hz: compliance, a mode at 3181 Hz, then the image of the truncated mode
+    at 6503 Hz, damped 0.099 at 809 Hz). The errors after each finding in the new order are
+    those of the final ``model`` without the modes of the findings after it (no refit), and
+    each finding's explanation states them.
+    """
+    rc = [k for k, f in enumerate(found) if f.effect == "residual_compliance"]
+    if not rc:
+        return found, folded
+    i = rc[-1]
+    tail = list(range(i + 1, len(found)))
+    fold = [k for k in tail if folded[k]]
+    kept = [k for k in tail if not folded[k]]
+    if (
+        not fold
+        or not kept
+        or max(fold) < min(kept)
+        or not all(
+            found[k].effect == "missing_mode" and "freq_hz" in found[k].parameters for k in tail
+        )
+    ):
+        return found, folded
+    added = [m for m in model.modes if m.effect == "missing_mode"]
+    mode_of = {
+        k: min(added, key=lambda m: abs(math.log(m.freq_hz / found[k].parameters["freq_hz"])))
+        for k in tail
+    }
+    if len({id(m) for m in mode_of.values()}) < len(tail):
+        return found, folded
+    order = fold + kept
+    models, errs = [], []
+    for j in range(len(order) + 1):
+        drop = {id(mode_of[k]) for k in order[j:]}
+        m = replace(model, modes=tuple(x for x in model.modes if id(x) not in drop))
+        models.append(m)
+        errs.append(problem.error(m))
+    if not _falls(errs):
+        return found, folded
+    moved = [
+        _restated(found[k], before, after, m)
+        for k, before, after, m in zip(order, errs, errs[1:], models[1:])
+    ]
+    return found[: i + 1] + moved, folded[: i + 1] + [folded[k] for k in order]
+
+
+def _restated(f: Finding, before: float, after: float, model: ModalModel) -> Finding:
+    """``f`` with the errors before and after it (and the model after it) replaced, in its
+    explanation too (:func:`~workbench.diagnosis.explain.explain` states them once)."""
+    text = _FALLS.sub(f"the error falls from {before:.4g} to {after:.4g}", f.explanation, count=1)
+    return replace(f, error_after=after, model=model, explanation=text)
+
+
+#: the errors a finding's explanation states (:func:`~workbench.diagnosis.explain.explain`)
+_NUMBER = r"(?:\d+(?:\.\d+)?(?:e[-+]\d+)?|inf|nan)"
+_FALLS = re.compile(rf"the error falls from {_NUMBER} to {_NUMBER}")
 
 
 def _with_image(finding: Finding, model: ModalModel, problem) -> Finding:
@@ -1887,6 +1957,23 @@ def _with_image(finding: Finding, model: ModalModel, problem) -> Finding:
         "sampled faster tells them apart."
     )
     return replace(finding, parameters=p, explanation=finding.explanation + note)
+
+
+def _on_frequency_bound(fr: FitResult, problem, base: ModalModel) -> bool:
+    """Whether ``fr`` is a missing mode fitted on an end of the frequency range searched.
+
+    The data do not place such a resonance: the fit went as far as it was let, standing in
+    for what lies beyond (an indep3 planar record at 7600 Hz, its compliance's second
+    truncated mode: a "mode" at 1.3x the band's top, damped 0.5, was named before the
+    image of the first, and the compliance's matrix came out 1.7x off)."""
+    if type(fr.structure) is not MissingMode:
+        return False
+    lo, hi = fr.structure.bounds(problem, base)
+    return not lo[0] + BOUND_TOL < fr.theta[0] < hi[0] - BOUND_TOL
+
+
+#: a fitted log-frequency this close to an end of its range is on it
+BOUND_TOL = 1e-4
 
 
 def _above_band(params: dict, problem) -> bool:
