@@ -164,3 +164,23 @@ def test_truncated_modes_on_a_sampled_record_are_one_residual_compliance(plant):
     row = score(case, res)
     assert row["top"] == "residual_compliance" and row["param_ok"], row
     assert "time_delay" not in row["findings"] and row["ratio"] <= 1.3, row
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [4, 9])
+def test_a_beams_truncated_modes_add_up_to_its_compliance(seed):
+    """Held-out seeds 4 and 9, periodic beam records at 6400 and 4800 Hz, six modes left out
+    from 1.2x Nyquist up, most of them folded into or near the band. Seed 9: the third
+    image lowered the error only 0.86x near the floor (F 11.8 -> 7.1) and the search
+    stopped at 1.6x it, the matrix 55 % off. Seed 4: a mode above the band named by its
+    static part kept the value of the round that found it (45 % off)."""
+    from indepgen3 import make_suite
+
+    ((plant, effect, kind, rng),) = make_suite(
+        seed, kinds=("time",), plants=("beam",), effects=("residual_compliance",)
+    )
+    case = make_case(effect, plant, kind, rng)
+    res = diagnose(case.nominal, to_measurement(case))
+    row = score(case, res)
+    assert row["top"] == "residual_compliance" and row["param_ok"], row
+    assert row["ratio"] <= 1.3, row

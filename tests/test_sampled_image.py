@@ -155,3 +155,135 @@ def test_a_joint_fit_of_added_terms_is_backfitted_before_it_is_compared():
     assert done[:-1] == fits[:-1]
     one, _ = fit_joint([UpperResidual(late=True)], starts[:1], problem, base)
     assert _backfitted(one, problem, base) is one
+
+
+IN_BAND = (250.0, 0.01, np.array([2.4, 1.4]), np.array([1.8, -2.2]))  # a mode the model lacks
+
+
+def test_a_missing_mode_beside_a_compliance_is_not_a_pseudo_mode_above_nyquist():
+    # the compliance's pseudo-mode took the resonance at 250 Hz as its image (1750 Hz,
+    # damped 0.0014) and the error stayed at 2.7x the floor: the resonance is named in the
+    # band, the compliance added on top holds the far mode and the folded one
+    extra = [FAR, FOLDED[0], IN_BAND]
+    nominal, data, floor = _case(extra, seed=2)
+    result = diagnose(nominal, data)
+    effects = [f.effect for f in result.findings]
+    assert effects == ["missing_mode", "residual_compliance"], effects
+    mm, rc = result.findings
+    assert abs(mm.parameters["freq_hz"] / IN_BAND[0] - 1) < 0.002
+    assert abs(mm.parameters["damping"] / IN_BAND[1] - 1) < 0.05
+    M, M_true = np.asarray(rc.parameters["matrix"]), _static([FAR, FOLDED[0]])
+    assert np.linalg.norm(M - M_true) / np.linalg.norm(M_true) < 0.05, (M, M_true)
+    assert rc.error_after < 1.1 * floor < mm.error_after < result.error_before
+    assert any("a compliance of its own is added" in n for n in result.notes)
+
+
+def test_folded_modes_move_next_to_the_compliance_with_the_errors_of_the_new_order():
+    # the search's order: compliance, a missing mode, then a folded mode; the folded mode
+    # is moved up, each finding's error re-read from the final model without the modes
+    # found after it (a stand-in problem: the error counts the modes still missing)
+    from dataclasses import replace
+
+    from workbench.diagnosis.diagnose import Finding, _folded_first
+    from workbench.modal.model import ModalModel, Mode
+
+    def mode(f):
+        return Mode("flexible", f, 0.01, np.ones(2), np.ones(2), effect="missing_mode")
+
+    kept, folded = mode(350.0), mode(500.0)
+    model = ModalModel(modes=(kept, folded), D=np.zeros((2, 2)))
+
+    class Problem:
+        def error(self, m):  # 4 with neither mode, 2 with the folded one alone
+            return 1.0 + _lacks(m, kept) * 1.0 + _lacks(m, folded) * 2.0
+
+    def finding(effect, f, before, after):
+        return Finding(
+            effect=effect,
+            inputs=(0, 1),
+            outputs=(0, 1),
+            band_hz=(1.0, 600.0),
+            parameters={"freq_hz": f} if f else {"matrix": [[0.0, 0.0], [0.0, 0.0]]},
+            parameters_std={},
+            error_after=after,
+            explanation=f"a reason; the error falls from {before:.4g} to {after:.4g}.",
+        )
+
+    found = [
+        finding("residual_compliance", None, 5.0, 4.0),
+        finding("missing_mode", 350.0, 4.0, 2.0),
+        finding("missing_mode", 500.0, 2.0, 1.0),
+    ]
+
+    def _lacks(m, x) -> bool:
+        return all(y is not x for y in m.modes)
+
+    out, flags = _folded_first(found, [False, False, True], model, Problem())
+    assert [f.parameters.get("freq_hz") for f in out] == [None, 500.0, 350.0]
+    assert flags == [False, True, False]
+    assert [f.error_after for f in out] == [4.0, 2.0, 1.0]
+    assert "the error falls from 4 to 2." in out[1].explanation
+    assert "the error falls from 2 to 1." in out[2].explanation
+    assert len(out[1].model.modes) == 1 and out[1].model.modes[0] is folded
+
+    # where the new order's errors do not fall (the folded mode alone explains nothing),
+    # the findings stay as they are
+    class Flat(Problem):
+        def error(self, m):
+            return 1.0 + _lacks(m, kept) * 2.0
+
+    assert _folded_first(found, [False, False, True], model, Flat()) == (
+        found,
+        [False, False, True],
+    )
+    # only missing modes after the compliance are moved
+    other = [found[0], replace(found[1], effect="time_delay"), found[2]]
+    assert _folded_first(other, [False, False, True], model, Problem())[0] is other
+
+
+def test_a_mode_above_the_band_named_by_its_static_part_reads_it_from_the_final_model():
+    # the finding is made when the mode is found; later rounds refit it (backfit, polish):
+    # its static part N0 / w^2 is read back from the model the diagnosis ends with
+    from workbench.diagnosis.diagnose import Finding, _refresh_added
+    from workbench.modal.model import ModalModel, Mode
+
+    b, c = np.array([2.0, -1.0]), np.array([0.5, 3.0])
+    moved = Mode("flexible", 1416.8, 0.036, b, c, effect="missing_mode")
+    model = ModalModel(modes=(moved,), D=np.zeros((2, 2)))
+    stale = Finding(
+        effect="residual_compliance",
+        inputs=(0, 1),
+        outputs=(0, 1),
+        band_hz=(1.0, 1090.0),
+        parameters={"matrix": [[1.0, 0.0], [0.0, 1.0]], "freq_hz_fitted": 1388.5},
+        parameters_std={},
+        error_after=1.0,
+        explanation="",
+    )
+    (fresh,) = _refresh_added([stale], model, ModalModel(modes=(), D=np.zeros((2, 2))))
+    w = 2 * np.pi * 1416.8
+    assert np.allclose(fresh.parameters["matrix"], np.outer(c, b) / w**2, rtol=1e-12)
+    assert fresh.parameters["freq_hz_fitted"] == 1416.8
+    assert fresh.parameters["damping_fitted"] == 0.036
+
+
+def test_a_missing_mode_on_an_end_of_its_frequency_range_is_no_candidate():
+    # the fit went as far as it was let: the data do not place that resonance
+    from types import SimpleNamespace
+
+    from workbench.diagnosis.diagnose import _on_frequency_bound
+    from workbench.diagnosis.effects import MissingMode, UpperResidual
+
+    problem = SimpleNamespace(band_hz=(10.0, 1000.0))
+    lo, hi = MissingMode().bounds(problem, None)
+
+    def fitted(structure, log_f):
+        return SimpleNamespace(structure=structure, theta=np.array([log_f, np.log(0.5)]))
+
+    assert _on_frequency_bound(fitted(MissingMode(), hi[0]), problem, None)
+    # a lightly damped one there lies above the band: its static part, a compliance
+    light = SimpleNamespace(structure=MissingMode(), theta=np.array([hi[0], np.log(0.05)]))
+    assert not _on_frequency_bound(light, problem, None)
+    assert _on_frequency_bound(fitted(MissingMode(), lo[0] + 1e-6), problem, None)
+    assert not _on_frequency_bound(fitted(MissingMode(), np.log(900.0)), problem, None)
+    assert not _on_frequency_bound(fitted(UpperResidual(), hi[0]), problem, None)
