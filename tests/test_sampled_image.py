@@ -160,11 +160,13 @@ def test_a_joint_fit_of_added_terms_is_backfitted_before_it_is_compared():
 IN_BAND = (250.0, 0.01, np.array([2.4, 1.4]), np.array([1.8, -2.2]))  # a mode the model lacks
 
 
-def test_a_missing_mode_beside_a_compliance_is_not_a_pseudo_mode_above_nyquist():
+@pytest.mark.parametrize("folded", [1, 2])
+def test_a_missing_mode_beside_a_compliance_is_not_a_pseudo_mode_above_nyquist(folded):
     # the compliance's pseudo-mode took the resonance at 250 Hz as its image (1750 Hz,
-    # damped 0.0014) and the error stayed at 2.7x the floor: the resonance is named in the
-    # band, the compliance added on top holds the far mode and the folded one
-    extra = [FAR, FOLDED[0], IN_BAND]
+    # damped 0.0014) and the error stayed at 2.7x the floor; with two folded modes the
+    # mode named in its place left the far mode out (2.2x): the resonance is named in the
+    # band, the compliance added on top holds the far mode and the folded ones
+    extra = [FAR] + FOLDED[:folded] + [IN_BAND]
     nominal, data, floor = _case(extra, seed=2)
     result = diagnose(nominal, data)
     effects = [f.effect for f in result.findings]
@@ -172,8 +174,9 @@ def test_a_missing_mode_beside_a_compliance_is_not_a_pseudo_mode_above_nyquist()
     mm, rc = result.findings
     assert abs(mm.parameters["freq_hz"] / IN_BAND[0] - 1) < 0.002
     assert abs(mm.parameters["damping"] / IN_BAND[1] - 1) < 0.05
-    M, M_true = np.asarray(rc.parameters["matrix"]), _static([FAR, FOLDED[0]])
+    M, M_true = np.asarray(rc.parameters["matrix"]), _static(extra[:-1])
     assert np.linalg.norm(M - M_true) / np.linalg.norm(M_true) < 0.05, (M, M_true)
+    assert len(rc.parameters["modes_above_nyquist"]) == folded
     assert rc.error_after < 1.1 * floor < mm.error_after < result.error_before
     assert any("a compliance of its own is added" in n for n in result.notes)
 

@@ -760,13 +760,21 @@ def _diagnose(
         large = last.error <= ERROR_RATIO * cur_err or problem.record_cost(
             last.model
         ) <= COST_RATIO * problem.record_cost(current)
-        if not large and d_bic > 0 and F is not None:
+        if (
+            not large
+            and d_bic > 0
+            and F is not None
+            and not _distorted(detect.nonlinearity(data, predicted))
+        ):
             # a periodic record measures the misfit above its noise: the period-synchronous
             # residual's power over the noise's, F - 1. A finding that removes as large a share
             # of that is large, however little it moves the error, which the noise holds up
             # near the floor (an indep3 beam record, six truncated modes above Nyquist ringing
             # at their images: the third image lowered the error 7.72e-6 -> 6.61e-6, 0.86x,
-            # with F 11.8 -> 7.1 over a floor of 4.84e-6, and the search stopped at 1.6x it)
+            # with F 11.8 -> 7.1 over a floor of 4.84e-6, and the search stopped at 1.6x it).
+            # Not where the residual shows distortion on the unexcited lines: a linear effect
+            # then takes part of a nonlinearity's periodic residual (a cubic output on a
+            # closed-loop stage record: crosstalk, in place of the nonlinearity)
             F_last = detect.periodic_misfit(data, problem.predict(last.model))
             large = F_last is not None and F_last - 1 <= COST_RATIO * (F - 1)
         if not large and d_bic > 0 and (per_round_verdict or _periodic_record(data)):
@@ -906,7 +914,7 @@ def _diagnose(
     nl_ev, nl_first_rank, unrepeated = None, False, False
     # distortion on the unexcited lines carrying a measurable share of the output; strong but
     # tiny distortion (a slight clipping: F 89, level 5e-5) leaves the residual test below
-    distorted = nl is not None and nl.f_stat > NL_F and nl.level > 1e-4
+    distorted = _distorted(nl)
     if nl_first is not None:
         nl_ev, nl_first_rank = nl_first, True
     elif F_end is not None and F_end > PERIODIC_NL and not distorted:
@@ -1291,27 +1299,35 @@ def _in_band_image(accepted, problem, base: ModalModel, err: float, err0: float)
             fits, fb = fit_joint(parts, thetas, problem, base)
         except NUMERICAL_FAILURES:
             continue
-        if _image_holds(fits, i, err, err0, top):
-            return i, fits, fb
-        if z_img > IMAGE_DAMPING_RATIO * _structural_damping(base):
-            continue  # damped in the band as a truncated mode is (:func:`_truncated_images`)
-        # the pseudo-mode's static part held a compliance of its own (modes far above the
-        # band beside the resonance whose image it took: an oracle record at 2000 Hz, a mode
-        # at 250 Hz fitted as a pseudo-mode at 1750 Hz, damped 0.0014, the error stuck at
-        # 2.7x the floor): the resonance in the band and a compliance added on top, where
-        # that lowers the error
-        late = bool(getattr(a.structure, "late", False))
-        try:
-            upper = fit(UpperResidual(late=late), problem, fits[-1].model)
-            fits, fb = fit_joint(
-                parts + [upper.structure],
-                [x.theta for x in fits] + [upper.theta],
-                problem,
-                base,
-            )
-        except NUMERICAL_FAILURES:
-            continue
-        if _image_holds(fits, i, err, err0, top, tie=1.0) and fits[-1].error < err:
+        found = [(fits, fb)] if _image_holds(fits, i, err, err0, top) else []
+        if z_img <= IMAGE_DAMPING_RATIO * _structural_damping(base):
+            # a structural resonance (not damped in the band as a truncated mode is,
+            # :func:`_truncated_images`): the pseudo-mode's static part may hold a compliance
+            # of its own, modes far above the band beside the resonance whose image it took
+            # (an oracle record at 2000 Hz, a mode at 250 Hz fitted as a pseudo-mode at 1750
+            # Hz, damped 0.0014: 2.7x the floor; the mode in its place without a compliance
+            # 2.2x with a second folded mode): the mode and a compliance added on top, the
+            # better of the two by BIC
+            late = bool(getattr(a.structure, "late", False))
+            try:
+                upper = fit(UpperResidual(late=late), problem, fits[-1].model)
+                more = fit_joint(
+                    parts + [upper.structure],
+                    [x.theta for x in fits] + [upper.theta],
+                    problem,
+                    base,
+                )
+            except NUMERICAL_FAILURES:
+                more = None
+            if (
+                more is not None
+                and _image_holds(more[0], i, err, err0, top, tie=1.0)
+                and more[0][-1].error < err
+            ):
+                found.append(more)
+        if found:
+            n = problem.n_obs
+            fits, fb = min(found, key=lambda t: _bic(t[0][-1].cost, n, t[0][-1].n_params))
             return i, fits, fb
     return None
 
@@ -1993,6 +2009,13 @@ def _with_image(finding: Finding, model: ModalModel, problem) -> Finding:
         "sampled faster tells them apart."
     )
     return replace(finding, parameters=p, explanation=finding.explanation + note)
+
+
+def _distorted(nl) -> bool:
+    """Whether :func:`detect.nonlinearity`'s result ``nl`` (or None) shows distortion on
+    the unexcited lines carrying a measurable share of the output (:data:`NL_F`; strong but
+    tiny distortion, a slight clipping at F 89 and level 5e-5, is not)."""
+    return nl is not None and nl.f_stat > NL_F and nl.level > 1e-4
 
 
 def _on_frequency_bound(fr: FitResult, problem, base: ModalModel) -> bool:
