@@ -154,16 +154,8 @@ def test_truncated_modes_on_a_sampled_record_are_one_residual_compliance(plant):
     Beam: eight modes from 7507 Hz up, the lowest folded to 93 Hz (damping 0.40 there,
     0.005 at its image), named a missing mode beside the compliance (matrix 72 % off).
     Now no delay, and the folded mode's static part is the compliance's."""
-    from indepgen3 import make_suite
-
-    ((plant, effect, kind, rng),) = make_suite(
-        10, kinds=("time",), plants=(plant,), effects=("residual_compliance",)
-    )
-    case = make_case(effect, plant, kind, rng)
-    res = diagnose(case.nominal, to_measurement(case))
-    row = score(case, res)
-    assert row["top"] == "residual_compliance" and row["param_ok"], row
-    assert "time_delay" not in row["findings"] and row["ratio"] <= 1.3, row
+    row = _compliance_record(10, plant)
+    assert "time_delay" not in row["findings"], row
 
 
 @pytest.mark.slow
@@ -174,13 +166,19 @@ def test_a_beams_truncated_modes_add_up_to_its_compliance(seed):
     image lowered the error only 0.86x near the floor (F 11.8 -> 7.1) and the search
     stopped at 1.6x it, the matrix 55 % off. Seed 4: a mode above the band named by its
     static part kept the value of the round that found it (45 % off)."""
+    _compliance_record(seed, "beam")
+
+
+def _compliance_record(seed: int, plant: str) -> dict:
+    """The held-out residual compliance time record of ``seed`` and ``plant``, diagnosed and
+    scored: the compliance on top, its matrix in tolerance, within 1.3x the floor."""
     from indepgen3 import make_suite
 
     ((plant, effect, kind, rng),) = make_suite(
-        seed, kinds=("time",), plants=("beam",), effects=("residual_compliance",)
+        seed, kinds=("time",), plants=(plant,), effects=("residual_compliance",)
     )
     case = make_case(effect, plant, kind, rng)
-    res = diagnose(case.nominal, to_measurement(case))
-    row = score(case, res)
+    row = score(case, diagnose(case.nominal, to_measurement(case)))
     assert row["top"] == "residual_compliance" and row["param_ok"], row
     assert row["ratio"] <= 1.3, row
+    return row

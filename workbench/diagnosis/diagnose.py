@@ -1760,13 +1760,13 @@ def _refresh_added(found: list[Finding], model: ModalModel, base: ModalModel) ->
     for f in found:
         p = dict(f.parameters)
         if f.effect == "missing_mode" and added and "freq_hz" in p:
-            m = min(added, key=lambda m: abs(np.log(m.freq_hz / p["freq_hz"])))
+            m = _nearest(added, p["freq_hz"])
             N0 = m.numerator()[0]
             b, c = _rank_one(N0)
             p.update(freq_hz=m.freq_hz, damping=m.damping, b=b, c=c, residue_matrix=N0.tolist())
         elif f.effect == "residual_compliance" and added and "freq_hz_fitted" in p:
             # a mode above the band named by its static part (:func:`_finding`)
-            m = min(added, key=lambda m: abs(np.log(m.freq_hz / p["freq_hz_fitted"])))
+            m = _nearest(added, p["freq_hz_fitted"])
             p.update(matrix=_static_part(m).tolist(), freq_hz_fitted=m.freq_hz)
             p.update(damping_fitted=m.damping)
         elif f.effect == "residual_compliance" and upper and "upper_freq_hz" in p:
@@ -1819,13 +1819,19 @@ def _merge_compliance(found: list[Finding]) -> list[Finding]:
     return out
 
 
+def _nearest(modes, freq_hz: float):
+    """The mode of ``modes`` nearest ``freq_hz`` on a log scale: an added mode a finding
+    names, after later rounds moved it."""
+    return min(modes, key=lambda m: abs(math.log(m.freq_hz / freq_hz)))
+
+
 def _static_part(mode) -> np.ndarray:
     """A mode's static compliance ``N0 / w^2`` (n_y, n_u)."""
     return mode.numerator()[0] / mode.omega**2
 
 
 def _truncated_images(
-    found: list[Finding], model: ModalModel, base: ModalModel, problem=None
+    found: list[Finding], model: ModalModel, base: ModalModel, problem
 ) -> list[Finding]:
     """The missing modes of a sampled record that are truncated modes above Nyquist, named
     residual compliance where the record shows that too.
@@ -1843,9 +1849,9 @@ def _truncated_images(
     modes next to a residual compliance finding (no other effect between them: the merged
     finding has one error after it) are taken. Their static parts (the added mode's
     ``N0 / w^2``, what the sampled record shows at DC either way) join the compliance's
-    matrix (:func:`_merge_compliance`); ``modes_above_nyquist`` lists them. With ``problem``,
-    such modes found after other missing modes are first moved next to the compliance
-    (:func:`_folded_first`).
+    matrix (:func:`_merge_compliance`); ``modes_above_nyquist`` lists them. Such modes found
+    after other missing modes are first moved next to the compliance (:func:`_folded_first`,
+    its errors from ``problem``).
     """
     z_ref = _structural_damping(base)
     added = [m for m in model.modes if m.effect == "missing_mode"]
@@ -1857,8 +1863,7 @@ def _truncated_images(
         and f.parameters["damping"] > IMAGE_DAMPING_RATIO * z_ref >= f.parameters["image_damping"]
         for f in found
     ]
-    if problem is not None:
-        found, folded = _folded_first(found, folded, model, problem)
+    found, folded = _folded_first(found, folded, model, problem)
     # runs of findings next to each other that are compliance or such modes, with a compliance
     keep: list[bool] = []
     runs = itertools.groupby(
@@ -1872,7 +1877,7 @@ def _truncated_images(
     for f, take in zip(found, keep):
         if take:
             p = f.parameters
-            mode = min(added, key=lambda m: abs(math.log(m.freq_hz / p["freq_hz"])))
+            mode = _nearest(added, p["freq_hz"])
             static = _static_part(mode)
             image = {
                 "freq_hz": p["image_freq_hz"],
@@ -1936,10 +1941,7 @@ def _folded_first(found: list[Finding], folded: list[bool], model: ModalModel, p
     ):
         return found, folded
     added = [m for m in model.modes if m.effect == "missing_mode"]
-    mode_of = {
-        k: min(added, key=lambda m: abs(math.log(m.freq_hz / found[k].parameters["freq_hz"])))
-        for k in tail
-    }
+    mode_of = {k: _nearest(added, found[k].parameters["freq_hz"]) for k in tail}
     if len({id(m) for m in mode_of.values()}) < len(tail):
         return found, folded
     order = fold + kept
@@ -1986,7 +1988,7 @@ def _with_image(finding: Finding, model: ModalModel, problem) -> Finding:
     added = [m for m in model.modes if m.effect == "missing_mode"]
     if not added:
         return finding
-    mode = min(added, key=lambda m: abs(math.log(m.freq_hz / f0)))
+    mode = _nearest(added, f0)
     fs = problem.data.fs
     if not 0.01 * fs < mode.freq_hz < 0.5 * fs:
         return finding  # above Nyquist it is itself an image; near 0 its image would be at fs

@@ -926,10 +926,8 @@ class _FilteredProblem:
         static part instead of ``D`` (what the samples see of it: ``L u[k-1]``, not
         ``D u[k]``); the first matrix returned is then ``L`` (its static gain)."""
         u_in = self._u_in(model)
-        if late is None:
-            X0, groups = self._filtered(model, None, u_in)
-        else:
-            X0, groups = self._filtered(model, late, u_in)
+        X0, groups = self._filtered(model, late, u_in)
+        if late is not None:
             X0 = X0 * late[1]  # 1/den has the static gain 1/a0
         X, _ = self._filtered(model, den, u_in)
         n_u = model.n_u
