@@ -803,8 +803,10 @@ def _diagnose(
             large = F_last is not None and F_last - 1 <= COST_RATIO * (F - 1)
         elif not large and d_bic > 0 and isinstance(data, TimeData) and not data.period:
             # a record without periods: the same rule, the noise read from the residuals'
-            # spectra (no distortion test there: a nonlinearity's misfit is broadband, its
-            # spectrum's floor its own, F near 1)
+            # spectra. No distortion test is possible there (no unexcited lines): a linear
+            # effect on a nonlinear record must still remove 30 % of the misfit above the
+            # noise (an indepgen beam record with a clear nonlinearity: F 8.3, a missing
+            # mode took it to 7.3, not large)
             large = _large_above_white(data, problem, predicted, last, cur_err)
         if not large and d_bic > 0 and (per_round_verdict or _periodic_record(data)):
             # a small but significant effect that brings the model within noise by compare's
