@@ -171,7 +171,7 @@ def test_a_beams_truncated_modes_add_up_to_its_compliance(seed):
 
 @pytest.mark.slow
 def test_a_compliance_on_a_record_without_periods_is_found_near_the_floor():
-    """Held-out seed 9, a planar record from a moving start without periods, its modes above
+    """Held-out seed 9, a planar record without periods, its modes above
     Nyquist left out: the compliance lowered the error only 0.87x (7.97e-6 -> 6.92e-6), no
     large finding by the error, and the diagnosis was 'none' at 1.16x the floor. Over the
     noise read from the residuals' spectra it removes the misfit (F 1.32 -> 0.99)."""

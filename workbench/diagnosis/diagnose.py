@@ -445,9 +445,9 @@ def _large_above_white(data: TimeData, problem, predicted, last: FitResult, err:
     period-synchronous misfit (:func:`~workbench.diagnosis.detect.periodic_misfit`), and the
     same rule applies: ``F_last - 1 <= COST_RATIO (F - 1)``, with ``F`` at least PERIODIC_F
     (below, what is left is too close to the noise to share out). An indep3 planar record
-    from a moving start, its modes above Nyquist truncated: the compliance lowered the error
-    7.97e-6 -> 6.92e-6 (0.87x, F 1.32 -> 0.99 over a floor of 6.9e-6) and was not taken, the
-    diagnosis 'none' at 1.16x the floor.
+    without periods, its modes above Nyquist truncated (the effect 0.63x the noise): the
+    compliance lowered the error 7.97e-6 -> 6.92e-6 (0.87x, F 1.32 -> 0.99 over a floor of
+    6.9e-6) and was not taken, the diagnosis 'none' at 1.16x the floor.
     """
     floors = [
         detect.residual_floor(data, data.y - y) for y in (predicted, problem.predict(last.model))
