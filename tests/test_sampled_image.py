@@ -290,3 +290,69 @@ def test_a_missing_mode_on_an_end_of_its_frequency_range_is_no_candidate():
     assert _on_frequency_bound(fitted(MissingMode(), lo[0] + 1e-6), problem, None)
     assert not _on_frequency_bound(fitted(MissingMode(), np.log(900.0)), problem, None)
     assert not _on_frequency_bound(fitted(UpperResidual(), hi[0]), problem, None)
+
+
+#: a mode at 2 fs + 300 Hz: it rings at 300 Hz damped 0.43 (0.22 as the search fits it),
+#: and its image at fs - f is damped 0.044, more than 2x the model's mode (0.02)
+TWICE_FOLDED = (2 * FS + 300.0, 0.03, np.array([1.0, -2.0]), np.array([1.5, 1.2]))
+
+
+def test_a_mode_folded_from_beyond_the_sampling_frequency_is_the_compliances_too():
+    # the pseudo-mode takes the 1500 Hz mode; the resonance near 300 Hz has no structural
+    # image at fs - f, one at fs + f: its static part belongs in the compliance (2.3 % off
+    # without it, beside a missing mode), the image's damping the resonance's decay rate
+    # (fitted, the image took 0.042 to tie the resonance's error)
+    extra = [FAR, FOLDED[0], TWICE_FOLDED]
+    nominal, data, floor = _case(extra, seed=1)
+    rc = _one_compliance(extra, floor, diagnose(nominal, data))
+    (image,) = rc.parameters["modes_above_nyquist"]
+    assert image["freq_hz"] > FS  # not at fs - f
+    assert abs(image["freq_hz"] - round(image["freq_hz"] / FS) * FS) == pytest.approx(
+        image["band_freq_hz"], rel=0.01
+    )
+    assert image["damping"] <= 2 * MODEL_MODES[1][1]
+    assert image["damping"] == pytest.approx(
+        image["band_damping"] * image["band_freq_hz"] / image["freq_hz"]
+    )
+
+
+def _base(*dampings):
+    from types import SimpleNamespace
+
+    return SimpleNamespace(
+        modes=[
+            SimpleNamespace(kind="flexible", freq_hz=100.0 * (k + 1), damping=z)
+            for k, z in enumerate(dampings)
+        ]
+    )
+
+
+def test_the_image_taken_is_the_lowest_that_a_structural_mode_would_be():
+    from types import SimpleNamespace
+
+    from workbench.diagnosis.diagnose import _image
+
+    fs, reach = 7700.0, 38_500.0
+    # an indep3 planar record: a resonance at 1293.4 Hz damped 0.342, the model's modes
+    # damped up to 0.0233: fs -+ f are damped 0.069 and 0.049, 2 fs - f 0.031
+    far = SimpleNamespace(freq_hz=1293.4, damping=0.342)
+    fold, side, f_img, z_img = _image(far, fs, reach, _base(0.0074, 0.0233))
+    assert (fold, side) == (2, -1)
+    assert f_img == pytest.approx(2 * fs - 1293.4)
+    assert z_img == pytest.approx(0.342 * 1293.4 / f_img)
+    # structural at fs - f already: that one, as before
+    light = SimpleNamespace(freq_hz=1293.4, damping=0.05)
+    assert _image(light, fs, reach, _base(0.0233))[:2] == (1, -1)
+    # none within reach: fs - f, for the image test to refuse
+    assert _image(far, fs, 10_000.0, _base(0.0233))[:3] == (1, -1, fs - 1293.4)
+
+
+def test_an_aliased_modes_frequency_stays_in_its_half_of_the_fs_interval():
+    from types import SimpleNamespace
+
+    from workbench.diagnosis.effects import AliasedMode
+
+    problem = SimpleNamespace(data=SimpleNamespace(fs=FS))
+    for fold, side, (lo, hi) in [(1, -1, (0.5, 1.0)), (1, 1, (1.0, 1.5)), (3, -1, (2.5, 3.0))]:
+        bounds = AliasedMode(fold=fold, side=side).bounds(problem, None)
+        assert np.exp([bounds[0][0], bounds[1][0]]) == pytest.approx([lo * FS, hi * FS])

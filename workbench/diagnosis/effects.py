@@ -382,21 +382,27 @@ class MissingMode:
 
 @dataclass(frozen=True)
 class AliasedMode(MissingMode):
-    """A mode between Nyquist and the sampling frequency of a sampled record.
+    """A mode above Nyquist of a sampled record, near ``fold * fs`` on the side ``side``.
 
-    Sampled (ZOH), a mode at ``f`` and its image at ``fs - f`` with the damping scaled by
-    ``f / (fs - f)`` have the same discrete poles, and with the free numerator of
+    Sampled (ZOH), a mode at ``f`` and its images at ``k fs -+ f`` with the damping scaled
+    by ``f / (k fs -+ f)`` have the same discrete poles, and with the free numerator of
     :class:`MissingMode` (``N0``, ``N1``) their responses on the record agree to the
     noise: a resonance found in the band may be a truncated mode above Nyquist. Fitted
-    only from the image of a found mode (no grid of its own).
+    only from an image of a found mode (no grid of its own), within the half of the
+    ``fs`` interval about ``fold * fs`` the image lies in: below it for ``side`` -1
+    (``fs - f`` for the default), above it for +1.
     """
+
+    fold: int = 1
+    side: int = -1
 
     def grid(self, problem, base):
         return []
 
     def bounds(self, problem, base):
         fs = problem.data.fs
-        return np.array([np.log(0.5 * fs), _LOG_Z[0]]), np.array([np.log(fs), _LOG_Z[1]])
+        lo, hi = sorted((self.fold * fs, (self.fold + 0.5 * self.side) * fs))
+        return np.array([np.log(lo), _LOG_Z[0]]), np.array([np.log(hi), _LOG_Z[1]])
 
 
 @dataclass(frozen=True)
