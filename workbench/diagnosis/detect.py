@@ -12,7 +12,7 @@
 - :func:`white_residual`: whether a residual is white noise (Ljung-Box), where a
   record without periods gives no floor;
 - :func:`residual_floor`: the floor a record without periods gives after all, taking
-  its noise as white: the median level of a residual's spectrum.
+  its noise as white: the low quantile of a residual's spectrum.
 """
 
 from __future__ import annotations
@@ -401,7 +401,7 @@ def residual_floor(
 
     What a record without periods offers in place of their spread: a model's misfit through
     the plant's dynamics (a mode it lacks, the images of modes above Nyquist) sits in part
-    of the bins, and a low quantile reads the noise under it (a resonance with 10x the
+    of the bins, and a low quantile reads the noise under it (a resonance with 100x the
     noise's power: 1.06x the floor at ``q`` 0.1, 1.5x at the median), so the estimate is
     the noise or a little more. More where the misfit is broadband (a static compliance on
     a broadband input: 1.2x on an indep3 beam record given its nominal model, 5x at the

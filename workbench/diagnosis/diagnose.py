@@ -2086,8 +2086,9 @@ def _image(mode, fs: float, f_max: float, base: ModalModel) -> tuple[int, int, f
         if k * fs + side * f <= f_max or (k, side) == (1, -1)
     ]
     for k, side, f_img in images:
-        if IMAGE_MIN_DAMPING <= z * f / f_img <= z_ref:
-            return k, side, f_img, z * f / f_img
+        z_img = z * f / f_img
+        if IMAGE_MIN_DAMPING <= z_img <= z_ref:
+            return k, side, f_img, z_img
     return 1, -1, fs - f, z * f / (fs - f)
 
 
