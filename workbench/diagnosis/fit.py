@@ -33,7 +33,7 @@ Data flow::
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 import numpy as np
@@ -842,12 +842,19 @@ class Composite:
         The parts up to the first whose theta differs from the last chain's are reused
         (same input model, same values: the same Realized): a finite-difference column of
         a later part rebuilds only from it, and the rebuilt part sees the same model object
-        (the problem's caches of that model's misfit then hold).
+        (the problem's caches of that model's misfit then hold). A crosstalk after parts
+        with linear parameters has them solved again seeing its coupling
+        (:func:`_recoupled`).
         """
+        thetas = self.split(theta, problem)
+        first = self._first_pass(thetas, problem, base)
+        return _recoupled(self.parts, thetas, problem, base, first)
+
+    def _first_pass(self, thetas, problem, base) -> list[Realized]:
         out = []
         model = base
         last = self._last  # [(part's theta bytes, its input model, Realized)]
-        for i, (part, th) in enumerate(zip(self.parts, self.split(theta, problem))):
+        for i, (part, th) in enumerate(zip(self.parts, thetas)):
             key = th.tobytes()
             if i < len(last) and last[i][0] == key and last[i][1] is model:
                 r = last[i][2]
@@ -976,16 +983,68 @@ _STACK_ORDER = {
 
 
 def stack(parts: list, thetas: list[np.ndarray], problem, base: ModalModel):
-    """Build parts on base in stacking order; returns (model, realized per part in the given "
-    "order)."""
+    """Build parts on base in stacking order; returns (model, realized per part in the given
+    order). A crosstalk after parts with linear parameters: :func:`_recoupled`."""
     order = sorted(range(len(parts)), key=lambda i: _STACK_ORDER.get(parts[i].effect, 9))
-    realized: dict[int, Realized] = {}
-    model = base
-    for i in order:
-        r = parts[i].build(np.asarray(thetas[i], float), problem, model)
-        realized[i] = r
-        model = r.model
-    return model, [realized[i] for i in range(len(parts))]
+    sorted_parts = [parts[i] for i in order]
+    sorted_thetas = [np.asarray(thetas[i], float) for i in order]
+    built = _recoupled(
+        sorted_parts,
+        sorted_thetas,
+        problem,
+        base,
+        _built(sorted_parts, sorted_thetas, problem, base),
+    )
+    realized = {i: r for i, r in zip(order, built)}
+    return built[-1].model, [realized[i] for i in range(len(parts))]
+
+
+def _built(parts, thetas, problem, base: ModalModel) -> list[Realized]:
+    """Each part built on the model the parts before it give, from ``base``."""
+    out, model = [], base
+    for part, th in zip(parts, thetas):
+        out.append(part.build(th, problem, model))
+        model = out[-1].model
+    return out
+
+
+#: passes of the parts under a crosstalk that solve their linear parameters seeing it
+#: (:func:`_recoupled`): the first without it, then with the coupling the pass before found
+COUPLING_PASSES = 3
+
+
+def _recoupled(parts, thetas, problem, base: ModalModel, first: list[Realized]) -> list[Realized]:
+    """``first`` (the parts built in turn on ``base``), built again under the coupling a
+    last crosstalk found where parts before it solve linear parameters; else ``first``.
+
+    A crosstalk is stacked last (its matrix solved seeing every other part), so a part
+    before it (a mode's numerators, a compliance) is solved on the misfit without the
+    coupling and takes the coupling's share as its own; the crosstalk is then solved on
+    that. Alternated (:data:`COUPLING_PASSES`): the parts again on ``base`` with the
+    coupling of the pass before (which they see unmixed, see
+    :func:`workbench.diagnosis.problem._unmixed_misfit`), the crosstalk again on them. Its
+    reported matrix is the coupling it adds to ``base`` in all. A scipy-ZOH oracle, an
+    output crosstalk of 8 % beside a compliance: 1.47x the noise floor in one pass, the
+    compliance's pseudo-mode standing in for the bias at the image of the model's own mode.
+    """
+    if not (
+        len(first) > 1 and parts[-1].effect == "crosstalk" and any(r.linear for r in first[:-1])
+    ):
+        return first
+    out = first
+    for _ in range(COUPLING_PASSES - 1):
+        coupled = out[-1].model
+        under = replace(base, T_out=coupled.T_out, T_in=coupled.T_in)
+        out = _built(parts, thetas, problem, under)
+    r = out[-1]
+    model = r.model
+    linear = dict(r.linear)
+    if parts[-1].side == "out":
+        T = model.T_out if base.T_out is None else model.T_out @ np.linalg.inv(base.T_out)
+    else:
+        T = model.T_in if base.T_in is None else np.linalg.inv(base.T_in) @ model.T_in
+    linear["matrix"] = T
+    return out[:-1] + [Realized(model, linear, r.linear_std)]
 
 
 def _error_or_inf(problem, model) -> float:
