@@ -1,0 +1,91 @@
+"""A crosstalk beside an effect with linear parameters (a compliance, a missing mode).
+
+A term added to a coupled model reaches the outputs through the coupling; its numerators
+are solved on the misfit unmixed, and a joint fit alternates them with the crosstalk's
+matrix. Oracle: the scipy ZOH records of tests/test_sampled_image.py (independent of the
+workbench's simulator), their outputs mixed by a static matrix.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import scipy.signal
+from test_sampled_image import FAR, FOLDED, FS, MODEL_MODES, _ss, _static
+
+from workbench.diagnosis import diagnose
+from workbench.diagnosis.diagnose import base_model
+from workbench.diagnosis.problem import FrfProblem, make_problem
+from workbench.io.formats import FrfData, TimeData
+
+T_OUT = np.array([[1.0, 0.08], [-0.05, 1.0]])  # output crosstalk: 8 % and -5 %
+T_IN = np.array([[1.0, -0.06], [0.04, 1.0]])
+
+
+def _record(extra, *, seed=0, n=8192, noise=1e-3, D=None):
+    """(nominal, TimeData, noise floor error): the model's modes plus ``extra``, a
+    feedthrough ``D`` where given, the outputs mixed by T_OUT."""
+    rng = np.random.default_rng(seed)
+    truth = _ss(MODEL_MODES + list(extra))
+    D = truth.D if D is None else D
+    sysd = scipy.signal.cont2discrete((truth.A, truth.B, truth.C, D), 1 / FS, "zoh")
+    hp = scipy.signal.butter(2, 100 / (FS / 2), "high")
+    u = scipy.signal.lfilter(*hp, rng.standard_normal((n, 2)), axis=0)
+    _, y, _ = scipy.signal.dlsim(sysd[:4] + (1 / FS,), u)
+    y = y @ T_OUT.T
+    v = noise * y.std(axis=0) * rng.standard_normal(y.shape)
+    floor = float(np.linalg.norm(v) / np.linalg.norm(y + v))
+    return _ss(MODEL_MODES), TimeData(fs=FS, u=u, y=y + v), floor
+
+
+def test_a_feedthrough_under_an_output_coupling_is_solved_unmixed_on_a_record():
+    # noise-free: the model with the true coupling misses only D, which the regression
+    # must return exactly (on the mixed misfit it returned T_OUT D, 8 % off)
+    D = np.array([[2e-3, -1e-3], [5e-4, 3e-3]])
+    nominal, data, _ = _record([], noise=0.0, D=D)
+    problem = make_problem(data)
+    model = replace(base_model(nominal, data), T_out=T_OUT)
+    M, _ = problem.fit_feedthrough(model)
+    assert np.allclose(M, D, rtol=1e-6, atol=1e-12), (M, D)
+
+
+def test_a_feedthrough_under_both_couplings_is_solved_unmixed_on_an_frf():
+    freq = np.geomspace(5.0, 900.0, 200)
+    D = np.array([[2e-3, -1e-3], [5e-4, 3e-3]])
+    nominal = _ss(MODEL_MODES)
+    data0 = FrfData(freq=freq, G=np.ones((freq.size, 2, 2), complex))
+    base = base_model(nominal, data0)
+    core = base.core_frf(freq) + D
+    G = np.einsum("ab,fbu->fau", T_OUT, core) @ T_IN
+    problem = FrfProblem(FrfData(freq=freq, G=G))
+    model = replace(base, T_out=T_OUT, T_in=T_IN)
+    M, _ = problem.fit_feedthrough(model)
+    assert np.allclose(M, D, rtol=1e-9, atol=1e-14), (M, D)
+
+
+def test_crosstalk_beside_a_compliance_are_two_findings_at_the_floor():
+    # before: crosstalk, a modal mismatch, the compliance 2.5x off and a stand-in mode at
+    # 1162 Hz damped 0.64, at 1.43x the noise floor
+    nominal, data, floor = _record([FAR])
+    result = diagnose(nominal, data)
+    effects = sorted(f.effect for f in result.findings)
+    assert effects == ["crosstalk", "residual_compliance"], result.findings
+    assert result.findings[-1].error_after < 1.05 * floor
+    xt = next(f for f in result.findings if f.effect == "crosstalk")
+    # the final model's coupling, not the crosstalk's own round's (7.90 %, -5.09 %)
+    assert np.allclose(np.asarray(xt.parameters["matrix"]), T_OUT, atol=1e-3), xt.parameters
+    rc = next(f for f in result.findings if f.effect == "residual_compliance")
+    M, M_true = np.asarray(rc.parameters["matrix"]), _static([FAR])
+    assert np.linalg.norm(M - M_true) / np.linalg.norm(M_true) < 0.03, (M, M_true)
+
+
+def test_crosstalk_beside_a_folded_mode_are_two_findings_at_the_floor():
+    # before: the mode, crosstalk, a compliance and the model's own 180 Hz mode again,
+    # at 1.13x the noise floor
+    nominal, data, floor = _record([FOLDED[0]])
+    result = diagnose(nominal, data)
+    assert sorted(f.effect for f in result.findings) == ["crosstalk", "missing_mode"]
+    assert result.findings[-1].error_after < 1.02 * floor
+    mode = next(f for f in result.findings if f.effect == "missing_mode")
+    assert abs(mode.parameters["image_freq_hz"] / FOLDED[0][0] - 1) < 0.002
