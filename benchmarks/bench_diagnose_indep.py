@@ -171,6 +171,8 @@ def main(argv=None) -> int:
                         ("modal_mismatch", "time_delay"),
                         ("actuator_dynamics", "missing_mode"),
                         ("crosstalk", "time_delay"),
+                        # a crosstalk beside a term with linear parameters (its residues)
+                        ("crosstalk", "missing_mode"),
                     ]
                     for pr in pairs:
                         specs.append((plant, kind, pr, "clear"))
