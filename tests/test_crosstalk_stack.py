@@ -11,32 +11,21 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-import scipy.signal
-from test_sampled_image import FAR, FOLDED, FS, MODEL_MODES, _ss, _static
+from test_sampled_image import FAR, FOLDED, MODEL_MODES, _case, _ss, _static
 
 from workbench.diagnosis import diagnose
 from workbench.diagnosis.diagnose import base_model
 from workbench.diagnosis.problem import FrfProblem, make_problem
-from workbench.io.formats import FrfData, TimeData
+from workbench.io.formats import FrfData
 
 T_OUT = np.array([[1.0, 0.08], [-0.05, 1.0]])  # output crosstalk: 8 % and -5 %
 T_IN = np.array([[1.0, -0.06], [0.04, 1.0]])
 
 
-def _record(extra, *, seed=0, n=8192, noise=1e-3, D=None):
+def _record(extra, *, noise=1e-3, D=None):
     """(nominal, TimeData, noise floor error): the model's modes plus ``extra``, a
     feedthrough ``D`` where given, the outputs mixed by T_OUT."""
-    rng = np.random.default_rng(seed)
-    truth = _ss(MODEL_MODES + list(extra))
-    D = truth.D if D is None else D
-    sysd = scipy.signal.cont2discrete((truth.A, truth.B, truth.C, D), 1 / FS, "zoh")
-    hp = scipy.signal.butter(2, 100 / (FS / 2), "high")
-    u = scipy.signal.lfilter(*hp, rng.standard_normal((n, 2)), axis=0)
-    _, y, _ = scipy.signal.dlsim(sysd[:4] + (1 / FS,), u)
-    y = y @ T_OUT.T
-    v = noise * y.std(axis=0) * rng.standard_normal(y.shape)
-    floor = float(np.linalg.norm(v) / np.linalg.norm(y + v))
-    return _ss(MODEL_MODES), TimeData(fs=FS, u=u, y=y + v), floor
+    return _case(extra, noise=noise, D=D, T_out=T_OUT)
 
 
 def test_a_feedthrough_under_an_output_coupling_is_solved_unmixed_on_a_record():

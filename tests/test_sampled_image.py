@@ -34,9 +34,10 @@ def _ss(modes) -> control.StateSpace:
     return control.ss(scipy.linalg.block_diag(*A), np.vstack(B), np.hstack(C), np.zeros((2, 2)))
 
 
-def _case(extra, seed: int = 0, n: int = 8192, noise: float = 1e-3, D=None):
+def _case(extra, seed: int = 0, n: int = 8192, noise: float = 1e-3, D=None, T_out=None):
     """(nominal, TimeData, noise floor error): the truth has the modes ``extra`` (f Hz, z, b,
-    c) added to the model's, and the feedthrough ``D`` (2, 2) where given (``D u[k]``)."""
+    c) added to the model's, the feedthrough ``D`` (2, 2) where given (``D u[k]``), and its
+    outputs mixed by ``T_out`` (2, 2) where given (crosstalk)."""
     rng = np.random.default_rng(seed)
     truth = _ss(MODEL_MODES + list(extra))
     D = truth.D if D is None else D
@@ -45,6 +46,8 @@ def _case(extra, seed: int = 0, n: int = 8192, noise: float = 1e-3, D=None):
     hp = scipy.signal.butter(2, 100 / (FS / 2), "high")
     u = scipy.signal.lfilter(*hp, rng.standard_normal((n, 2)), axis=0)
     _, y, _ = scipy.signal.dlsim(sysd[:4] + (1 / FS,), u)
+    if T_out is not None:
+        y = y @ T_out.T
     v = noise * y.std(axis=0) * rng.standard_normal(y.shape)
     floor = float(np.linalg.norm(v) / np.linalg.norm(y + v))
     return _ss(MODEL_MODES), TimeData(fs=FS, u=u, y=y + v), floor
