@@ -54,6 +54,7 @@ __all__ = [
     "SuspensionModes",
     "CoupledSuspension",
     "Crosstalk",
+    "CrosstalkMatrix",
     "candidate_structures",
 ]
 
@@ -1659,6 +1660,62 @@ class Crosstalk(_LinearOnly):
             },
             {"matrix": fr.realized.linear_std["matrix"].tolist()},
         )
+
+
+@dataclass(frozen=True)
+class CrosstalkMatrix:
+    """A crosstalk whose off-diagonal entries are nonlinear parameters (row by row), stacked
+    before every other part of a joint fit (:func:`~workbench.diagnosis.fit.fit_joint`):
+    the terms with linear parameters are solved under it, and the search moves the matrix
+    and them together (a :class:`Crosstalk` solved last alternates with them)."""
+
+    side: str = "out"
+    n: int = 2
+    effect: str = "crosstalk"
+    theta_names: tuple[str, ...] = ()
+    stack_order = -1
+    held = True
+
+    def grid(self, problem, base):
+        return []
+
+    def bounds(self, problem, base):
+        k = self.n * (self.n - 1)
+        return np.full(k, -CROSSTALK_BOUND), np.full(k, CROSSTALK_BOUND)
+
+    def matrix(self, theta) -> np.ndarray:
+        T = np.eye(self.n)
+        T[~np.eye(self.n, dtype=bool)] = np.asarray(theta, float)
+        return T
+
+    def theta_of(self, T) -> np.ndarray:
+        T = np.asarray(T, float)
+        return T[~np.eye(self.n, dtype=bool)] / np.repeat(np.diag(T), self.n - 1)
+
+    def build(self, theta, problem, base):
+        T = self.matrix(theta)
+        if self.side == "out":
+            new = replace(base, T_out=T if base.T_out is None else T @ base.T_out)
+        else:
+            new = replace(base, T_in=T if base.T_in is None else base.T_in @ T)
+        return Realized(new, {"matrix": T}, {})
+
+    def n_linear(self, base):
+        return 0
+
+    def report(self, fr, problem, base):
+        T = self.matrix(fr.theta)
+        S = np.zeros_like(T)
+        if fr.theta_std is not None and np.size(fr.theta_std) == self.n * (self.n - 1):
+            S[~np.eye(self.n, dtype=bool)] = fr.theta_std
+        return (
+            {"matrix": T.tolist(), "side": "outputs" if self.side == "out" else "inputs"},
+            {"matrix": S.tolist()},
+        )
+
+
+#: largest off-diagonal entry of a CrosstalkMatrix
+CROSSTALK_BOUND = 0.5
 
 
 def _model_flexible(m: Mode) -> bool:

@@ -982,10 +982,48 @@ _STACK_ORDER = {
 }
 
 
+def _stack_order(part) -> int:
+    order = getattr(part, "stack_order", None)
+    return _STACK_ORDER.get(part.effect, 9) if order is None else order
+
+
+def _matrix_crosstalk(parts: list, thetas: list, problem, base: ModalModel):
+    """(parts, thetas) with each :class:`~workbench.diagnosis.effects.Crosstalk` as a
+    :class:`~workbench.diagnosis.effects.CrosstalkMatrix` started at the matrix the stack
+    gives it (:func:`_recoupled`), where another part solves linear parameters; else as
+    given.
+
+    The matrix and those parameters are then one least-squares problem: the search moves
+    the matrix, the parts solve theirs under it (variable projection), where alternating
+    the two converges slowly when a crosstalk entry and a mode's residue are nearly
+    collinear (an indepgen stage record, input crosstalk beside a mode at 814 Hz, fitted
+    from the truth on the record: 3.0x, 1.9x and 1.4x the noise floor after 3, 10 and 20
+    alternations; the matrix searched, 1.008x, the mode at 813.73 Hz damped 0.00527
+    against the truth's 813.74 Hz and 0.00537).
+    """
+    xt = [
+        i for i, p in enumerate(parts) if p.effect == "crosstalk" and not getattr(p, "held", False)
+    ]
+    if not xt:
+        return parts, thetas
+    _, realized = stack(parts, thetas, problem, base)
+    if not any(r.linear for i, r in enumerate(realized) if parts[i].effect != "crosstalk"):
+        return parts, thetas
+    from workbench.diagnosis.effects import CrosstalkMatrix
+
+    parts, thetas = list(parts), list(thetas)
+    for i in xt:
+        T = np.asarray(realized[i].linear["matrix"], float)
+        cm = CrosstalkMatrix(side=parts[i].side, n=T.shape[0])
+        lo, hi = cm.bounds(problem, base)
+        parts[i], thetas[i] = cm, np.clip(cm.theta_of(T), lo, hi)
+    return parts, thetas
+
+
 def stack(parts: list, thetas: list[np.ndarray], problem, base: ModalModel):
     """Build parts on base in stacking order; returns (model, realized per part in the given
     order). A crosstalk after parts with linear parameters: :func:`_recoupled`."""
-    order = sorted(range(len(parts)), key=lambda i: _STACK_ORDER.get(parts[i].effect, 9))
+    order = sorted(range(len(parts)), key=lambda i: _stack_order(parts[i]))
     sorted_parts = [parts[i] for i in order]
     sorted_thetas = [np.asarray(thetas[i], float) for i in order]
     built = _recoupled(
@@ -1026,9 +1064,15 @@ def _recoupled(parts, thetas, problem, base: ModalModel, first: list[Realized]) 
     reported matrix is the coupling it adds to ``base`` in all. A scipy-ZOH oracle, an
     output crosstalk of 8 % beside a compliance: 1.47x the noise floor in one pass, the
     compliance's pseudo-mode standing in for the bias at the image of the model's own mode.
+    A joint fit then searches the matrix with the other parameters from there
+    (:func:`_matrix_crosstalk`): alternation alone converges slowly where a crosstalk entry
+    and a residue are nearly collinear.
     """
     if not (
-        len(first) > 1 and parts[-1].effect == "crosstalk" and any(r.linear for r in first[:-1])
+        len(first) > 1
+        and parts[-1].effect == "crosstalk"
+        and not getattr(parts[-1], "held", False)
+        and any(r.linear for r in first[:-1])
     ):
         return first
     out = first
@@ -1064,7 +1108,8 @@ def fit_joint(
     FitResult of part k holds the model with parts 0..k (in the given order,
     stacked) and its error; its cost and parameter count are the joint ones.
     """
-    order = sorted(range(len(parts)), key=lambda i: _STACK_ORDER.get(parts[i].effect, 9))
+    parts, thetas = _matrix_crosstalk(parts, thetas, problem, base)
+    order = sorted(range(len(parts)), key=lambda i: _stack_order(parts[i]))
     bases = []
     model = base
     for i in order:
