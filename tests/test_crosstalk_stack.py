@@ -78,3 +78,20 @@ def test_crosstalk_beside_a_folded_mode_are_two_findings_at_the_floor():
     assert result.findings[-1].error_after < 1.02 * floor
     mode = next(f for f in result.findings if f.effect == "missing_mode")
     assert abs(mode.parameters["image_freq_hz"] / FOLDED[0][0] - 1) < 0.002
+
+
+def test_a_crosstalk_entry_collinear_with_a_modes_residue_is_searched_with_it():
+    # the mode shows on output 1 only; T_OUT[0, 1] carries it into output 0, where a residue
+    # c_0 would look the same: only the model's other content of output 1 tells them apart.
+    # Alternating the residues and the matrix stalled there (crosstalk 0.0285 of 0.06, a
+    # compliance standing in, 4.5x the floor); searched together, the two at the floor
+    T = np.array([[1.0, 0.06], [-0.04, 1.0]])
+    mode = (420.0, 0.004, np.array([1.5, -1.0]), np.array([0.0, 2.0]))
+    nominal, data, floor = _case([mode], T_out=T)
+    result = diagnose(nominal, data)
+    assert sorted(f.effect for f in result.findings) == ["crosstalk", "missing_mode"]
+    assert result.findings[-1].error_after < 1.02 * floor
+    xt = next(f for f in result.findings if f.effect == "crosstalk")
+    assert np.allclose(np.asarray(xt.parameters["matrix"]), T, atol=5e-4), xt.parameters
+    found = next(f for f in result.findings if f.effect == "missing_mode")
+    assert abs(found.parameters["freq_hz"] / mode[0] - 1) < 1e-3
