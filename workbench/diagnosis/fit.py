@@ -1107,8 +1107,26 @@ def fit_joint(
     The parts are stacked in :data:`_STACK_ORDER` (outer factors first). The
     FitResult of part k holds the model with parts 0..k (in the given order,
     stacked) and its error; its cost and parameter count are the joint ones.
+
+    A crosstalk beside parts with linear parameters is refitted once more from that
+    optimum with its matrix searched (:func:`_matrix_crosstalk`), and the lower cost is
+    kept: the search reaches what alternation approaches slowly (a collinear entry), and
+    alternation keeps where the search cannot move (a 5-output beam whose outputs span
+    fewer directions than the matrix has entries: the search stopped at 1.18x the floor,
+    alternation at 1.09x).
     """
-    parts, thetas = _matrix_crosstalk(parts, thetas, problem, base)
+    out, base_of = _fit_stacked(parts, thetas, problem, base, max_nfev)
+    held, held_thetas = _matrix_crosstalk(parts, [f.theta for f in out], problem, base)
+    if held is parts:
+        return out, base_of
+    searched, searched_bases = _fit_stacked(held, held_thetas, problem, base, max_nfev)
+    if searched[-1].cost < out[-1].cost:
+        return searched, searched_bases
+    return out, base_of
+
+
+def _fit_stacked(parts: list, thetas: list, problem, base: ModalModel, max_nfev: int):
+    """:func:`fit_joint`'s search of ``parts`` stacked, from ``thetas``."""
     order = sorted(range(len(parts)), key=lambda i: _stack_order(parts[i]))
     bases = []
     model = base
