@@ -1115,6 +1115,7 @@ def fit_joint(
     fewer directions than the matrix has entries: the search stopped at 1.18x the floor,
     alternation at 1.09x).
     """
+    parts, thetas = _crosstalk_as_given(parts, thetas)
     out, base_of = _fit_stacked(parts, thetas, problem, base, max_nfev)
     held, held_thetas = _matrix_crosstalk(parts, [f.theta for f in out], problem, base)
     if held is parts:
@@ -1123,6 +1124,26 @@ def fit_joint(
     if searched[-1].cost < out[-1].cost:
         return searched, searched_bases
     return out, base_of
+
+
+def _crosstalk_as_given(parts: list, thetas: list) -> tuple[list, list]:
+    """``parts`` with each crosstalk in the form its theta is for: a searched matrix
+    (:class:`~workbench.diagnosis.effects.CrosstalkMatrix`) where the theta holds its
+    entries, a solved one (:class:`~workbench.diagnosis.effects.Crosstalk`) where it is
+    empty (a caller pairs an earlier finding's structure with a joint fit's theta)."""
+    from workbench.diagnosis.effects import Crosstalk, CrosstalkMatrix
+
+    parts, thetas = list(parts), [np.asarray(t, float) for t in thetas]
+    for i, p in enumerate(parts):
+        if p.effect != "crosstalk":
+            continue
+        held = getattr(p, "held", False)
+        if not held and thetas[i].size:
+            n = int(round((1 + np.sqrt(1 + 4 * thetas[i].size)) / 2))
+            parts[i] = CrosstalkMatrix(side=p.side, n=n)
+        elif held and not thetas[i].size:
+            parts[i] = Crosstalk(side=p.side)
+    return parts, thetas
 
 
 def _fit_stacked(parts: list, thetas: list, problem, base: ModalModel, max_nfev: int):
