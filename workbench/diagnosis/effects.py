@@ -1673,8 +1673,8 @@ class CrosstalkMatrix:
     n: int = 2
     effect: str = "crosstalk"
     theta_names: tuple[str, ...] = ()
-    stack_order = -1
-    held = True
+    stack_order = -1  # before every other part (fit._stack_order)
+    matrix_searched = True
 
     def grid(self, problem, base):
         return []

@@ -990,8 +990,8 @@ def _stack_order(part) -> int:
 def _matrix_crosstalk(parts: list, thetas: list, problem, base: ModalModel):
     """(parts, thetas) with each :class:`~workbench.diagnosis.effects.Crosstalk` as a
     :class:`~workbench.diagnosis.effects.CrosstalkMatrix` started at the matrix the stack
-    gives it (:func:`_recoupled`), where another part solves linear parameters; else as
-    given.
+    of ``thetas`` gives it (:func:`_recoupled`), where another part solves linear
+    parameters; else the same ``parts`` and ``thetas`` objects.
 
     The matrix and those parameters are then one least-squares problem: the search moves
     the matrix, the parts solve theirs under it (variable projection), where alternating
@@ -1002,7 +1002,9 @@ def _matrix_crosstalk(parts: list, thetas: list, problem, base: ModalModel):
     against the truth's 813.74 Hz and 0.00537).
     """
     xt = [
-        i for i, p in enumerate(parts) if p.effect == "crosstalk" and not getattr(p, "held", False)
+        i
+        for i, p in enumerate(parts)
+        if p.effect == "crosstalk" and not getattr(p, "matrix_searched", False)
     ]
     if not xt:
         return parts, thetas
@@ -1071,7 +1073,7 @@ def _recoupled(parts, thetas, problem, base: ModalModel, first: list[Realized]) 
     if not (
         len(first) > 1
         and parts[-1].effect == "crosstalk"
-        and not getattr(parts[-1], "held", False)
+        and not getattr(parts[-1], "matrix_searched", False)
         and any(r.linear for r in first[:-1])
     ):
         return first
@@ -1117,10 +1119,10 @@ def fit_joint(
     """
     parts, thetas = _crosstalk_as_given(parts, thetas)
     out, base_of = _fit_stacked(parts, thetas, problem, base, max_nfev)
-    held, held_thetas = _matrix_crosstalk(parts, [f.theta for f in out], problem, base)
-    if held is parts:
+    matrix_parts, matrix_thetas = _matrix_crosstalk(parts, [f.theta for f in out], problem, base)
+    if matrix_parts is parts:
         return out, base_of
-    searched, searched_bases = _fit_stacked(held, held_thetas, problem, base, max_nfev)
+    searched, searched_bases = _fit_stacked(matrix_parts, matrix_thetas, problem, base, max_nfev)
     if searched[-1].cost < out[-1].cost:
         return searched, searched_bases
     return out, base_of
@@ -1137,11 +1139,11 @@ def _crosstalk_as_given(parts: list, thetas: list) -> tuple[list, list]:
     for i, p in enumerate(parts):
         if p.effect != "crosstalk":
             continue
-        held = getattr(p, "held", False)
-        if not held and thetas[i].size:
+        searched = getattr(p, "matrix_searched", False)
+        if not searched and thetas[i].size:
             n = int(round((1 + np.sqrt(1 + 4 * thetas[i].size)) / 2))
             parts[i] = CrosstalkMatrix(side=p.side, n=n)
-        elif held and not thetas[i].size:
+        elif searched and not thetas[i].size:
             parts[i] = Crosstalk(side=p.side)
     return parts, thetas
 
