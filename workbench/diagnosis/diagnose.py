@@ -79,6 +79,7 @@ from workbench.diagnosis.fit import (
     MAX_NFEV,
     NUMERICAL_FAILURES,
     FitResult,
+    coupling_added,
     fit,
     fit_budget,
     fit_joint,
@@ -1831,11 +1832,8 @@ def _coupling_read_back(found: list[Finding], model: ModalModel, base: ModalMode
             and [g.parameters.get("side") for g in found if g.effect == "crosstalk"].count(side)
             == 1
         )
-        if alone and side == "outputs" and model.T_out is not None:
-            T = model.T_out if base.T_out is None else model.T_out @ np.linalg.inv(base.T_out)
-            f = replace(f, parameters={**f.parameters, "matrix": T.tolist()})
-        elif alone and side == "inputs" and model.T_in is not None:
-            T = model.T_in if base.T_in is None else np.linalg.inv(base.T_in) @ model.T_in
+        T = coupling_added(model, base, "out" if side == "outputs" else "in") if alone else None
+        if T is not None:
             f = replace(f, parameters={**f.parameters, "matrix": T.tolist()})
         out.append(f)
     return out

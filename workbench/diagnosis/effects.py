@@ -36,7 +36,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from workbench.diagnosis.fit import NUMERICAL_FAILURES, FitResult, Held, Realized, structure_lines
+from workbench.diagnosis.fit import (
+    NUMERICAL_FAILURES,
+    FitResult,
+    Held,
+    Realized,
+    coupled,
+    structure_lines,
+)
 from workbench.modal.model import ModalModel, Mode, numerators_times
 
 __all__ = [
@@ -1642,11 +1649,7 @@ class Crosstalk(_LinearOnly):
     def build(self, theta, problem, base):
         E, S = problem.fit_crosstalk(base, self.side)
         T = np.eye(E.shape[0]) + E
-        if self.side == "out":
-            new = replace(base, T_out=T if base.T_out is None else T @ base.T_out)
-        else:
-            new = replace(base, T_in=T if base.T_in is None else base.T_in @ T)
-        return Realized(new, {"matrix": T}, {"matrix": S})
+        return Realized(coupled(base, self.side, T), {"matrix": T}, {"matrix": S})
 
     def n_linear(self, base):
         n = base.n_y if self.side == "out" else base.n_u
@@ -1694,11 +1697,7 @@ class CrosstalkMatrix:
 
     def build(self, theta, problem, base):
         T = self.matrix(theta)
-        if self.side == "out":
-            new = replace(base, T_out=T if base.T_out is None else T @ base.T_out)
-        else:
-            new = replace(base, T_in=T if base.T_in is None else base.T_in @ T)
-        return Realized(new, {"matrix": T}, {})
+        return Realized(coupled(base, self.side, T), {"matrix": T}, {})
 
     def n_linear(self, base):
         return 0

@@ -1048,6 +1048,26 @@ def _built(parts, thetas, problem, base: ModalModel) -> list[Realized]:
     return out
 
 
+def coupled(model: ModalModel, side: str, T: np.ndarray) -> ModalModel:
+    """``model`` with the static coupling ``T`` added on ``side`` ("out": ``T T_out``, "in":
+    ``T_in T``), where a crosstalk puts it."""
+    if side == "out":
+        return replace(model, T_out=T if model.T_out is None else T @ model.T_out)
+    return replace(model, T_in=T if model.T_in is None else model.T_in @ T)
+
+
+def coupling_added(model: ModalModel, base: ModalModel, side: str) -> np.ndarray | None:
+    """The coupling on ``side`` that :func:`coupled` added to ``base`` to give ``model``
+    (None where ``model`` has none there)."""
+    if side == "out":
+        if model.T_out is None:
+            return None
+        return model.T_out if base.T_out is None else model.T_out @ np.linalg.inv(base.T_out)
+    if model.T_in is None:
+        return None
+    return model.T_in if base.T_in is None else np.linalg.inv(base.T_in) @ model.T_in
+
+
 #: passes of the parts under a crosstalk that solve their linear parameters seeing it
 #: (:func:`_recoupled`): the first without it, then with the coupling the pass before found
 COUPLING_PASSES = 3
@@ -1085,11 +1105,7 @@ def _recoupled(parts, thetas, problem, base: ModalModel, first: list[Realized]) 
     r = out[-1]
     model = r.model
     linear = dict(r.linear)
-    if parts[-1].side == "out":
-        T = model.T_out if base.T_out is None else model.T_out @ np.linalg.inv(base.T_out)
-    else:
-        T = model.T_in if base.T_in is None else np.linalg.inv(base.T_in) @ model.T_in
-    linear["matrix"] = T
+    linear["matrix"] = coupling_added(model, base, parts[-1].side)
     return out[:-1] + [Realized(model, linear, r.linear_std)]
 
 
