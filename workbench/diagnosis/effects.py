@@ -1842,8 +1842,22 @@ def backfit(model: ModalModel, problem, *, d0: np.ndarray, sweeps: int = 4) -> M
     least-squares values; sweeps stop when the weighted misfit no longer falls.
 
     ``d0`` is the feedthrough the model had before the upper residual was added.
-    Returns the model with the lowest cost (``model`` itself when nothing improves).
+    Returns the model with the lowest cost (``model`` itself when nothing improves). On a
+    periodic record's lines (a problem with a ``time`` record) the lower cost must not
+    raise the record's error: a mode between the lines, refitted on the record, is what
+    the lines leave undetermined (an indepgen stage record, a mode at 814 Hz damped
+    0.0054 as an upper residual's image: 1.03x the noise floor after its record refit,
+    backfitted on the lines 17x).
     """
+    best = _backfit_sweeps(model, problem, d0=d0, sweeps=sweeps)
+    record = getattr(problem, "time", None)
+    if best is not model and record is not None and not record.error(best) <= record.error(model):
+        return model
+    return best
+
+
+def _backfit_sweeps(model: ModalModel, problem, *, d0: np.ndarray, sweeps: int) -> ModalModel:
+    """:func:`backfit`'s Gauss-Seidel sweeps: the model with the lowest cost."""
     best, best_cost = model, problem.cost(model)
     cur = model
     for _ in range(sweeps):
