@@ -99,12 +99,12 @@ def test_a_crosstalk_entry_collinear_with_a_modes_residue_is_searched_with_it():
     assert abs(found.parameters["freq_hz"] / mode[0] - 1) < 1e-3
 
 
-def _periodic_record(mode, side: str, *, gap: int = 8, periods: int = 6, noise: float = 1e-3):
+def _periodic_record(mode, side: str, *, gap: int = 8, seed: int = 0, periods: int = 6):
     """(nominal, TimeData, noise floor error): the model's modes plus ``mode`` (f Hz, z, b,
     c), driven by a random-phase multisine on every ``gap``-th line of a 1000-sample period
-    (``gap`` x 2 Hz apart), repeated ``periods`` times from rest; crosstalk T_IN on the
-    inputs (``side`` "in") or T_OUT on the outputs ("out")."""
-    rng = np.random.default_rng(0)
+    (``gap`` x 2 Hz apart), repeated ``periods`` times from rest, 0.1 % output noise;
+    crosstalk T_IN on the inputs (``side`` "in") or T_OUT on the outputs ("out")."""
+    rng = np.random.default_rng(seed)
     period = 1000
     U = np.zeros((period // 2 + 1, 2), complex)
     lines = np.arange(3, 450, gap)
@@ -116,26 +116,41 @@ def _periodic_record(mode, side: str, *, gap: int = 8, periods: int = 6, noise: 
     _, y, _ = scipy.signal.dlsim(sysd[:4] + (1 / FS,), u @ T_IN.T if side == "in" else u)
     if side == "out":
         y = y @ T_OUT.T
-    v = noise * y.std(axis=0) * rng.standard_normal(y.shape)
+    v = 1e-3 * y.std(axis=0) * rng.standard_normal(y.shape)
     floor = float(np.linalg.norm(v) / np.linalg.norm(y + v))
     return _ss(MODEL_MODES), TimeData(fs=FS, u=u, y=y + v, period=period), floor
 
 
-@pytest.mark.parametrize("f0, side", [(421.0, "in"), (414.0, "in"), (414.0, "out")])
-def test_crosstalk_beside_a_mode_between_the_lines_is_fitted_on_the_record(f0, side):
+@pytest.mark.parametrize(
+    "f0, z0, side, gap, seed",
+    [
+        (421.0, 0.003, "in", 8, 0),
+        (414.0, 0.003, "in", 8, 0),
+        (414.0, 0.003, "out", 8, 0),
+        # 38 lines: a 0.06 Hz suspension first by BIC on them, raising the record's error
+        (333.0, 0.002, "in", 12, 0),
+        # 28 lines: nothing on them reaches the noise, the whole record does
+        (150.0, 0.005, "in", 16, 5),
+    ],
+)
+def test_crosstalk_beside_a_mode_between_the_lines_is_fitted_on_the_record(f0, z0, side, gap, seed):
     # a periodic record's lines hold a lightly damped mode between them poorly (its half-power
-    # band 2.5 Hz, the lines 16 Hz apart): fitted with the crosstalk on the lines it ended
-    # at 2.8-3.0x the noise floor (damping 10 % off); the joint fits are refitted on the
-    # whole record, and compared there
-    mode = (f0, 0.003, np.array([1.2, 0.8]), np.array([-0.9, 1.4]))
-    nominal, data, floor = _periodic_record(mode, side)
+    # band 1.3-2.5 Hz, the lines 16-32 Hz apart): with the crosstalk, on the lines, the search
+    # ended at 2.8-3.0x the noise floor (damping 10 % off), or on a nonlinearity at 1.3-2.9x.
+    # Joint fits are refitted on the whole record and compared there; a candidate that raises
+    # the error is passed over; where the lines leave the misfit above the noise, the whole
+    # record is fitted
+    mode = (f0, z0, np.array([1.2, 0.8]), np.array([-0.9, 1.4]))
+    nominal, data, floor = _periodic_record(mode, side, gap=gap, seed=seed)
     result = diagnose(nominal, data)
     assert sorted(f.effect for f in result.findings) == ["crosstalk", "missing_mode"]
     assert result.findings[-1].error_after < 1.05 * floor, result.findings[-1].error_after / floor
     xt = next(f for f in result.findings if f.effect == "crosstalk")
     T = T_IN if side == "in" else T_OUT
-    assert np.allclose(np.asarray(xt.parameters["matrix"]), T, atol=1e-3), xt.parameters
+    # within 1e-3 or three of its standard deviations (28 lines: 0.003-0.005)
+    M, std = np.asarray(xt.parameters["matrix"]), np.asarray(xt.parameters_std["matrix"])
+    assert np.all(np.abs(M - T) <= np.maximum(1e-3, 3 * std)), (M, std)
     found = next(f for f in result.findings if f.effect == "missing_mode").parameters
     # within the mode's half-power band, which is what a record 3 s long resolves
-    assert abs(found["freq_hz"] - f0) < mode[1] * f0, found["freq_hz"]
-    assert abs(found["damping"] / mode[1] - 1) < 0.05, found["damping"]
+    assert abs(found["freq_hz"] - f0) < z0 * f0, found["freq_hz"]
+    assert abs(found["damping"] / z0 - 1) < 0.05, found["damping"]
