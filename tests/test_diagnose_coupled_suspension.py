@@ -407,7 +407,7 @@ def test_later_candidates_are_compared_with_the_coupling_held_and_refitted_whole
     only the suspended frequency and damping free), and the candidate taken is refitted
     with every parameter free: the findings carry the real structures, and the whole
     refit is no worse than the held one. On an FRF alike; on a periodic record's lines
-    nothing is held."""
+    nothing is held, and the refit on the whole record holds it."""
     import sys
 
     from workbench.diagnosis.effects import MissingMode
@@ -437,8 +437,14 @@ def test_later_candidates_are_compared_with_the_coupling_held_and_refitted_whole
     sizes.clear()
     lines = make_problem(data)
     assert lines.domain == "frequency" and lines.kind != "frf"
-    module._joint_candidates([coupled], [mode], lines, base, lines.n_obs)
-    assert sizes == [["CoupledSuspension", "MissingMode"]]
+    fits, _ = module._joint_candidates([coupled], [mode], lines, base, lines.n_obs)
+    # every parameter free on the lines; the suspended modes fall between them, and the
+    # whole record's refit holds the coupling (as a single effect's refit there does)
+    assert sizes == [["CoupledSuspension", "MissingMode"], ["Held", "MissingMode"]]
+    assert type(fits[0].structure) is CoupledSuspension and fits[0].theta.size == coupled.theta.size
+    whole, _ = original([cs, MissingMode()], [coupled.theta, mode.theta], lines, base)
+    assert fits[-1].n_params == whole[-1].n_params  # the held parameters counted
+    assert np.isfinite(fits[0].theta_std).sum() == np.isfinite(whole[0].theta_std).sum()
 
 
 def test_a_held_candidate_far_from_a_finding_is_not_refitted_whole(monkeypatch):

@@ -498,6 +498,15 @@ def _large_above_white(data: TimeData, problem, predicted, last: FitResult, err:
     return F >= PERIODIC_F and F_last - 1 <= COST_RATIO * (F - 1)
 
 
+def _judged_within_noise(model: ModalModel, problem) -> bool:
+    """compare's verdict on ``model`` where it measures the noise (an FRF with G_var, a
+    periodic record); False elsewhere (a record without periods: its verdict passed a model
+    at 2.2x the noise floor, tests/test_sampled_image.py)."""
+    data = problem.data
+    judged = _periodic_record(data) or (problem.kind == "frf" and problem.has_var)
+    return judged and _verdict(model, data).within_noise
+
+
 def _periodic_record(data) -> bool:
     """A time record compare can judge against its noise (periods set)."""
     return isinstance(data, TimeData) and bool(data.period)
@@ -1257,6 +1266,21 @@ def _backfitted(fits, problem, base: ModalModel) -> list:
     return list(fits[:-1]) + [done]
 
 
+def _unhold(fr: FitResult, h, whole: FitResult) -> FitResult:
+    """A fit of a held structure ``h`` back as the whole structure of ``whole`` (the fit it
+    was held from): theta full, the held entries' std ``whole``'s, its parameter count."""
+    free = list(h.free)
+    std = np.array(whole.theta_std, float)
+    std[free] = fr.theta_std
+    return replace(
+        fr,
+        structure=whole.structure,
+        theta=h.full(fr.theta),
+        theta_std=std,
+        n_params=whole.n_params,
+    )
+
+
 def _unheld(fits, held, accepted) -> list:
     """A joint fit's results with each held part (:class:`~workbench.diagnosis.fit.Held`)
     back as its structure at the held values: theta full, the held entries' std NaN (not
@@ -1379,7 +1403,7 @@ def _in_band_image(accepted, problem, base: ModalModel, err: float, err0: float)
             continue
         variants = [(fits, fb)] if _image_holds(fits, i, err, err0, top) else []
         if z_img <= IMAGE_DAMPING_RATIO * _structural_damping(base) and not (
-            variants and _verdict(fits[-1].model, problem.data).within_noise
+            variants and _judged_within_noise(fits[-1].model, problem)
         ):
             # a structural resonance (not damped in the band as a truncated mode is,
             # :func:`_truncated_images`): the pseudo-mode's static part may hold a compliance
@@ -1572,14 +1596,28 @@ def _joint_on_the_record(fits, bases, problem, base: ModalModel, *, start=None):
     if start is not None and getattr(problem, "line_hz", None) is not None:
         # the lines may move the record's mode where they do not hold it between them
         starts.append(start)
-    parts, best = [f.structure for f in fits], (fits, bases)
+    # a coupled suspension with its coupling held, as :func:`_refit_on_record` holds it
+    held = [
+        f.structure.held(f.theta, problem, base)
+        if isinstance(f.structure, CoupledSuspension)
+        else None
+        for f in fits
+    ]
+    parts = [h or f.structure for h, f in zip(held, fits)]
+    best = (fits, bases)
     for theta in starts:
+        theta = [t if h is None else np.asarray(t)[list(h.free)] for h, t in zip(held, theta)]
         try:
-            on_record = fit_joint(parts, list(theta), problem.time, base)
+            on_record, record_bases = fit_joint(parts, theta, problem.time, base)
         except NUMERICAL_FAILURES:
             continue
-        if on_record[0][-1].error < best[0][-1].error:
-            best = on_record
+        if any(held):  # back to the whole structures, the held entries' std the lines'
+            on_record = [
+                _unhold(r, h, f) if h is not None else replace(r, n_params=f.n_params)
+                for r, h, f in zip(on_record, held, fits)
+            ]
+        if on_record[-1].error < best[0][-1].error:
+            best = (on_record, record_bases)
     if best[0] is fits:
         return fits, bases
     costs = [problem.cost(f.model) for f in best[0]]
@@ -1706,16 +1744,7 @@ def _refit_on_record(fr: FitResult, problem, base) -> FitResult:
     if not on_record.error < fr.error:
         return fr
     if structure is not fr.structure:  # back to the whole structure's theta
-        free = list(structure.free)
-        std = np.array(fr.theta_std, float)
-        std[free] = on_record.theta_std
-        on_record = replace(
-            on_record,
-            structure=fr.structure,
-            theta=structure.full(on_record.theta),
-            theta_std=std,
-            n_params=fr.n_params,
-        )
+        on_record = _unhold(on_record, structure, fr)
     cost = problem.cost(on_record.model)
     return replace(
         on_record,
