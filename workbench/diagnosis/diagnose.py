@@ -1321,15 +1321,17 @@ def _simplified(chain, runners, problem, base: ModalModel, data, err0: float, fl
         accepted, bases, found, _, cost, err = chain
     swapped = _in_band_image(accepted, problem, base, err, err0)
     if swapped is not None:
-        i, fits, fb = swapped
+        i, order, fits, fb = swapped
         f_up = float(np.exp(accepted[i].theta[0]))
         extra = len(fits) > len(accepted)
         notes.append(
             f"the residual compliance of round {i + 1} is a pseudo-mode at {f_up:.5g} Hz, above "
             f"Nyquist: the image of a resonance in the band, named as the missing mode there"
+            + ("" if order.index(i) == i else ", after the other findings")
             + (", and a compliance of its own is added" if extra else "")
             + f" (error {fits[-1].error:.4g}, was {err:.4g})"
         )
+        runners[:] = [runners[k] for k in order]
         if extra:
             runners.append(None)
         chain = _rebuilt(fits, fb, runners, problem, base, data, err0, floor)
@@ -1363,11 +1365,12 @@ def _findings(fits, runners, bases, problem, data, err0: float, floor) -> list[F
 
 
 def _in_band_image(accepted, problem, base: ModalModel, err: float, err0: float):
-    """(i, fits, bases): the chain with its residual compliance ``i`` (an upper residual
-    whose pseudo-mode lies above Nyquist) replaced by a missing mode at the pseudo-mode's
-    image in the excited band (its frequency folded by a multiple of ``fs``), refitted
-    jointly, where that reaches the chain's error ``err`` (within :data:`IMAGE_TIE`); else
-    None.
+    """(i, order, fits, bases): the chain with its residual compliance ``i`` (an upper
+    residual whose pseudo-mode lies above Nyquist) replaced by a missing mode at the
+    pseudo-mode's image in the excited band (its frequency folded by a multiple of ``fs``),
+    refitted jointly, where that reaches the chain's error ``err`` (within
+    :data:`IMAGE_TIE`); else None. ``order``: the chain's findings (their indices) in the
+    order of ``fits``.
 
     Sampled, a mode at ``f`` and one at ``|f - k fs|`` (damping scaled by the frequency
     ratio: the same decay rate) have the same discrete poles
@@ -1397,46 +1400,70 @@ def _in_band_image(accepted, problem, base: ModalModel, err: float, err0: float)
             continue
         parts = [MissingMode() if k == i else b.structure for k, b in enumerate(accepted)]
         thetas = [np.log([f_img, z_img]) if k == i else b.theta for k, b in enumerate(accepted)]
-        try:
-            fits, fb = _joint_refined(parts, thetas, problem, base, from_start=True)
-        except NUMERICAL_FAILURES:
-            continue
-        variants = [(fits, fb)] if _image_holds(fits, i, err, err0, top) else []
-        if z_img <= IMAGE_DAMPING_RATIO * _structural_damping(base) and not (
-            variants and _judged_within_noise(fits[-1].model, problem)
-        ):
-            # a structural resonance (not damped in the band as a truncated mode is,
-            # :func:`_truncated_images`): the pseudo-mode's static part may hold a compliance
-            # of its own, modes far above the band beside the resonance whose image it took
-            # (an oracle record at 2000 Hz, a mode at 250 Hz fitted as a pseudo-mode at 1750
-            # Hz, damped 0.0014: 2.7x the floor; the mode in its place without a compliance
-            # 2.2x with a second folded mode): the mode and a compliance added on top, the
-            # better of the two by BIC. Not where the mode alone is within noise by compare's
-            # criterion, where the search would stop (the 814 Hz mode of :func:`_joint_refined`
-            # beside crosstalk, 1.02x the floor: a compliance of 74 parameters took it to 0.999x)
-            late = bool(getattr(a.structure, "late", False))
-            try:
-                upper = fit(UpperResidual(late=late), problem, fits[-1].model)
-                more_fits, more_bases = _joint_refined(
-                    parts + [upper.structure],
-                    [x.theta for x in fits] + [upper.theta],
-                    problem,
-                    base,
-                )
-                more = (more_fits, more_bases)
-            except NUMERICAL_FAILURES:
-                more = None
-            if (
-                more is not None
-                and _image_holds(more[0], i, err, err0, top, tie=1.0)
-                and more[0][-1].error < err
-            ):
-                variants.append(more)
-        if variants:
-            n = problem.n_obs
-            fits, fb = min(variants, key=lambda t: _bic(t[0][-1].cost, n, t[0][-1].n_params))
-            return i, fits, fb
+        # in the chain's order, else with the mode last: alone it may raise the error that
+        # it lowers after the others (an indepgen stage record at 5 kHz, a mode at 391 Hz
+        # and a 0.2 ms delay: the compliance first, its pseudo-mode at 5391 Hz; the mode in
+        # its place raised the error, 0.751 -> 0.767, and lowers it after the delay)
+        orders = [list(range(len(accepted)))]
+        if i < len(accepted) - 1:
+            orders.append([k for k in range(len(accepted)) if k != i] + [i])
+        for order in orders:
+            chain = _image_chain(
+                [parts[k] for k in order],
+                [thetas[k] for k in order],
+                order.index(i),
+                (z_img, bool(getattr(a.structure, "late", False))),
+                problem,
+                base,
+                (err, err0, top),
+            )
+            if chain is not None:
+                return i, order, *chain
     return None
+
+
+def _image_chain(parts, thetas, i: int, image, problem, base: ModalModel, errs):
+    """(fits, bases) of :func:`_in_band_image`'s chain ``parts`` (the mode at the image
+    ``i``, ``image`` = (its damping, whether the compliance was late)), or None where it
+    does not hold (:func:`_image_holds`, ``errs`` = (err, err0, top))."""
+    (z_img, late), (err, err0, top) = image, errs
+    try:
+        fits, fb = _joint_refined(parts, thetas, problem, base, from_start=True)
+    except NUMERICAL_FAILURES:
+        return None
+    variants = [(fits, fb)] if _image_holds(fits, i, err, err0, top) else []
+    if z_img <= IMAGE_DAMPING_RATIO * _structural_damping(base) and not (
+        variants and _judged_within_noise(fits[-1].model, problem)
+    ):
+        # a structural resonance (not damped in the band as a truncated mode is,
+        # :func:`_truncated_images`): the pseudo-mode's static part may hold a compliance
+        # of its own, modes far above the band beside the resonance whose image it took
+        # (an oracle record at 2000 Hz, a mode at 250 Hz fitted as a pseudo-mode at 1750
+        # Hz, damped 0.0014: 2.7x the floor; the mode in its place without a compliance
+        # 2.2x with a second folded mode): the mode and a compliance added on top, the
+        # better of the two by BIC. Not where the mode alone is within noise by compare's
+        # criterion, where the search would stop (the 814 Hz mode of :func:`_joint_refined`
+        # beside crosstalk, 1.02x the floor: a compliance of 74 parameters took it to 0.999x)
+        try:
+            upper = fit(UpperResidual(late=late), problem, fits[-1].model)
+            more = _joint_refined(
+                parts + [upper.structure],
+                [x.theta for x in fits] + [upper.theta],
+                problem,
+                base,
+            )
+        except NUMERICAL_FAILURES:
+            more = None
+        if (
+            more is not None
+            and _image_holds(more[0], i, err, err0, top, tie=1.0)
+            and more[0][-1].error < err
+        ):
+            variants.append(more)
+    if not variants:
+        return None
+    n = problem.n_obs
+    return min(variants, key=lambda t: _bic(t[0][-1].cost, n, t[0][-1].n_params))
 
 
 def _image_holds(fits, i: int, err: float, err0: float, top: float, tie=IMAGE_TIE) -> bool:
