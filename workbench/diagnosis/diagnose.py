@@ -1329,17 +1329,15 @@ def _simplified(chain, runners, problem, base: ModalModel, data, err0: float, fl
         accepted, bases, found, _, cost, err = chain
     swapped = _in_band_image(accepted, problem, base, err, err0)
     if swapped is not None:
-        i, order, fits, fb = swapped
+        i, fits, fb = swapped
         f_up = float(np.exp(accepted[i].theta[0]))
         extra = len(fits) > len(accepted)
         notes.append(
             f"the residual compliance of round {i + 1} is a pseudo-mode at {f_up:.5g} Hz, above "
             f"Nyquist: the image of a resonance in the band, named as the missing mode there"
-            + ("" if order.index(i) == i else ", after the other findings")
             + (", and a compliance of its own is added" if extra else "")
             + f" (error {fits[-1].error:.4g}, was {err:.4g})"
         )
-        runners[:] = [runners[k] for k in order]
         if extra:
             runners.append(None)
         chain = _rebuilt(fits, fb, runners, problem, base, data, err0, floor)
@@ -1373,12 +1371,11 @@ def _findings(fits, runners, bases, problem, data, err0: float, floor) -> list[F
 
 
 def _in_band_image(accepted, problem, base: ModalModel, err: float, err0: float):
-    """(i, order, fits, bases): the chain with its residual compliance ``i`` (an upper
-    residual whose pseudo-mode lies above Nyquist) replaced by a missing mode at the
-    pseudo-mode's image in the excited band (its frequency folded by a multiple of ``fs``),
-    refitted jointly, where that reaches the chain's error ``err`` (within
-    :data:`IMAGE_TIE`); else None. ``order``: the chain's findings (their indices) in the
-    order of ``fits``.
+    """(i, fits, bases): the chain with its residual compliance ``i`` (an upper residual
+    whose pseudo-mode lies above Nyquist) replaced by a missing mode at the pseudo-mode's
+    image in the excited band (its frequency folded by a multiple of ``fs``), refitted
+    jointly, where that reaches the chain's error ``err`` (within :data:`IMAGE_TIE`); else
+    None.
 
     Sampled, a mode at ``f`` and one at ``|f - k fs|`` (damping scaled by the frequency
     ratio: the same decay rate) have the same discrete poles
@@ -1408,25 +1405,17 @@ def _in_band_image(accepted, problem, base: ModalModel, err: float, err0: float)
             continue
         parts = [MissingMode() if k == i else b.structure for k, b in enumerate(accepted)]
         thetas = [np.log([f_img, z_img]) if k == i else b.theta for k, b in enumerate(accepted)]
-        # in the chain's order, else with the mode last: alone it may raise the error that
-        # it lowers after the others (an indepgen stage record at 5 kHz, a mode at 391 Hz
-        # and a 0.2 ms delay: the compliance first, its pseudo-mode at 5391 Hz; the mode in
-        # its place raised the error, 0.751 -> 0.767, and lowers it after the delay)
-        orders = [list(range(len(accepted)))]
-        if i < len(accepted) - 1:
-            orders.append([k for k in range(len(accepted)) if k != i] + [i])
-        for order in orders:
-            chain = _image_chain(
-                [parts[k] for k in order],
-                [thetas[k] for k in order],
-                order.index(i),
-                (z_img, bool(getattr(a.structure, "late", False))),
-                problem,
-                base,
-                (err, err0, top),
-            )
-            if chain is not None:
-                return i, order, *chain
+        chain = _image_chain(
+            parts,
+            thetas,
+            i,
+            (z_img, bool(getattr(a.structure, "late", False))),
+            problem,
+            base,
+            (err, err0, top),
+        )
+        if chain is not None:
+            return i, *chain
     return None
 
 
