@@ -127,9 +127,10 @@ def _periodic_record(mode, side: str, *, gap: int = 8, seed: int = 0, periods: i
         (421.0, 0.003, "in", 8, 0),
         (414.0, 0.003, "in", 8, 0),
         (414.0, 0.003, "out", 8, 0),
-        # 38 lines: a 0.06 Hz suspension first by BIC on them, raising the record's error
+        # 38 and 28 lines: on them the search ended on a nonlinearity (a 0.06 Hz suspension
+        # first by BIC on 38 lines, raising the record's error); the whole record reaches
+        # the noise
         (333.0, 0.002, "in", 12, 0),
-        # 28 lines: nothing on them reaches the noise, the whole record does
         (150.0, 0.005, "in", 16, 5),
     ],
 )
@@ -137,9 +138,8 @@ def test_crosstalk_beside_a_mode_between_the_lines_is_fitted_on_the_record(f0, z
     # a periodic record's lines hold a lightly damped mode between them poorly (its half-power
     # band 1.3-2.5 Hz, the lines 16-32 Hz apart): with the crosstalk, on the lines, the search
     # ended at 2.8-3.0x the noise floor (damping 10 % off), or on a nonlinearity at 1.3-2.9x.
-    # Joint fits are refitted on the whole record and compared there; a candidate that raises
-    # the error is passed over; where the lines leave the misfit above the noise, the whole
-    # record is fitted
+    # Joint fits are refitted on the whole record and compared there; where the lines leave
+    # the misfit above the noise, the whole record is diagnosed
     mode = (f0, z0, np.array([1.2, 0.8]), np.array([-0.9, 1.4]))
     nominal, data, floor = _periodic_record(mode, side, gap=gap, seed=seed)
     result = diagnose(nominal, data)

@@ -376,7 +376,9 @@ def diagnose(
     with limited_blas(blas_threads):
         result = _diagnose(model, data, **kw)
         if (
-            result.remaining is not None and not result.remaining["within_noise"]
+            result.remaining is not None
+            and not result.remaining["within_noise"]
+            and not _periodic_floor_reached(result, data, kw["shared"])
         ) or _coloured_chain(result, data):
             # the greedy search ended above the noise (compare's test: FRF with G_var, periodic
             # records): a pair of effects it passed over in its first round (each alone
@@ -412,23 +414,36 @@ def _final_error(d: Diagnosis) -> float:
 
 def _lines_left_above_noise(result: Diagnosis, data, shared: dict) -> bool:
     """Whether a periodic record fitted on its excited lines ends above the noise: by
-    compare's test, its final linear model's error above :data:`FLOOR_RATIO` x the noise
-    floor the periods give (:func:`_at_time_floor`), and a residual that shows no distortion
-    (a linear misfit the lines did not resolve, which the whole record may: :func:`diagnose`
-    fits it there). ``shared``: the search's (its problem on the lines)."""
-    problem = shared.get("problem")
-    if not isinstance(data, TimeData) or not data.period or problem is None:
-        return False
-    if getattr(problem, "time", None) is None:
-        return False
+    compare's test and above the periods' noise floor (:func:`_periodic_floor_reached`),
+    with a residual that shows no distortion (a linear misfit the lines did not resolve,
+    which the whole record may: :func:`diagnose` fits it there). ``shared``: the search's
+    (its problem on the lines)."""
     if result.remaining is None or result.remaining["within_noise"]:
         return False
     # compare may fail a model at the floor (an indepgen stage record, a delay and a modal
     # mismatch at 1.00x it: the whole record refitted them for 70 s, to the same findings)
-    linear = result.model
-    if _at_time_floor(data, problem, linear, problem.error(linear)):
+    if _periodic_floor_reached(result, data, shared) is not False:
         return False
-    return not _distorted(detect.nonlinearity(data, problem.predict(linear)))
+    problem = shared["problem"]
+    return not _distorted(detect.nonlinearity(data, problem.predict(result.model)))
+
+
+def _periodic_floor_reached(result: Diagnosis, data, shared: dict) -> bool | None:
+    """Whether a periodic time record's diagnosis ends within :data:`FLOOR_RATIO` of the
+    noise floor its periods give (:func:`~workbench.diagnosis.detect.noise_floor`, white
+    too): its final linear model's error or its last finding's (a nonlinear element's
+    simulation model, which compare does not judge). Neither rerun (:func:`diagnose`) can
+    go lower (a casegen stage record with friction at 1.01x the floor: the pairs' rerun
+    fitted the element again, 22 -> 77 s, to the same finding). None where the record is
+    not periodic, or not fitted on its lines."""
+    problem = shared.get("problem")
+    if not _periodic_record(data) or getattr(problem, "time", None) is None:
+        return None
+    linear = result.model
+    floor = detect.noise_floor(data, problem.predict(linear), white=True)
+    return floor is not None and (
+        min(problem.error(linear), _final_error(result)) <= FLOOR_RATIO * floor
+    )
 
 
 def _first_round(memo: dict | None, key: tuple, compute, *args, **kwargs):
@@ -729,7 +744,7 @@ def _diagnose(
         # best by BIC among those that lower it (an oracle record on 38 lines, crosstalk and
         # a mode between them: a 0.06 Hz suspension first by BIC at 1.9x the error, crosstalk
         # second at 0.008x, and the search ended on a nonlinearity at 2.9x the noise floor)
-        best = next((r for r in ranked if r.error < cur_err), ranked[0])
+        best = ranked[0]
         pair, alone = None, None
         # FRF with G_var: the floor is known in the first round, and a best single effect
         # far above it that explains little (the greedy's first step weakly determined)
