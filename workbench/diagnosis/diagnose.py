@@ -378,7 +378,12 @@ def diagnose(
         if (
             result.remaining is not None
             and not result.remaining["within_noise"]
-            and not _periodic_floor_reached(result, data, kw["shared"])
+            and not (
+                # compare judges the linear model only: an element at the floor is complete
+                result.findings
+                and result.findings[-1].effect == "nonlinearity"
+                and _periodic_floor_reached(result, data, kw["shared"])
+            )
         ) or _coloured_chain(result, data):
             # the greedy search ended above the noise (compare's test: FRF with G_var, periodic
             # records): a pair of effects it passed over in its first round (each alone
@@ -432,10 +437,12 @@ def _periodic_floor_reached(result: Diagnosis, data, shared: dict) -> bool | Non
     """Whether a periodic time record's diagnosis ends within :data:`FLOOR_RATIO` of the
     noise floor its periods give (:func:`~workbench.diagnosis.detect.noise_floor`, white
     too): its final linear model's error or its last finding's (a nonlinear element's
-    simulation model, which compare does not judge). Neither rerun (:func:`diagnose`) can
-    go lower (a casegen stage record with friction at 1.01x the floor: the pairs' rerun
-    fitted the element again, 22 -> 77 s, to the same finding). None where the record is
-    not periodic, or not fitted on its lines."""
+    simulation model, which compare does not judge). The whole record's rerun
+    (:func:`diagnose`) cannot go lower, nor the pairs' after an element (a casegen stage
+    record with friction at 1.01x the floor: the pairs' rerun fitted the element again,
+    22 -> 77 s, to the same finding); after linear findings compare's verdict calls the
+    pairs (a casegen stage record, a delay at 1.01x: with the sensor lag beside it 1.00x).
+    None where the record is not periodic, or not fitted on its lines."""
     problem = shared.get("problem")
     if not _periodic_record(data) or getattr(problem, "time", None) is None:
         return None
