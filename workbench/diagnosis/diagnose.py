@@ -427,13 +427,16 @@ def _lines_left_above_noise(result: Diagnosis, data, shared: dict) -> bool:
         return False
     # compare may fail a model at the floor (an indepgen stage record, a delay and a modal
     # mismatch at 1.00x it: the whole record refitted them for 70 s, to the same findings)
-    if _periodic_floor_reached(result, data, shared) is not False:
+    problem = shared.get("problem")
+    if not _periodic_record(data) or getattr(problem, "time", None) is None:
         return False
-    problem = shared["problem"]
-    return not _distorted(detect.nonlinearity(data, problem.predict(result.model)))
+    y = problem.predict(result.model)
+    if _periodic_floor_reached(result, data, shared, y):
+        return False
+    return not _distorted(detect.nonlinearity(data, y))
 
 
-def _periodic_floor_reached(result: Diagnosis, data, shared: dict) -> bool | None:
+def _periodic_floor_reached(result: Diagnosis, data, shared: dict, y=None) -> bool | None:
     """Whether a periodic time record's diagnosis ends within :data:`FLOOR_RATIO` of the
     noise floor its periods give (:func:`~workbench.diagnosis.detect.noise_floor`, white
     too): its final linear model's error or its last finding's (a nonlinear element's
@@ -442,12 +445,14 @@ def _periodic_floor_reached(result: Diagnosis, data, shared: dict) -> bool | Non
     record with friction at 1.01x the floor: the pairs' rerun fitted the element again,
     22 -> 77 s, to the same finding); after linear findings compare's verdict calls the
     pairs (a casegen stage record, a delay at 1.01x: with the sensor lag beside it 1.00x).
-    None where the record is not periodic, or not fitted on its lines."""
+    None where the record is not periodic, or not fitted on its lines. ``y``: the final
+    linear model's prediction, where the caller has it."""
     problem = shared.get("problem")
     if not _periodic_record(data) or getattr(problem, "time", None) is None:
         return None
     linear = result.model
-    floor = detect.noise_floor(data, problem.predict(linear), white=True)
+    y = problem.predict(linear) if y is None else y
+    floor = detect.noise_floor(data, y, white=True)
     return floor is not None and (
         min(problem.error(linear), _final_error(result)) <= FLOOR_RATIO * floor
     )
@@ -747,10 +752,6 @@ def _diagnose(
             for r in ranked[:JOINT_CANDIDATES]
         ]
         ranked = sorted(head + ranked[JOINT_CANDIDATES:], key=lambda r: _bic(r.cost, n, r.n_params))
-        # a candidate that raises the error is no finding (the search stopped at it): the
-        # best by BIC among those that lower it (an oracle record on 38 lines, crosstalk and
-        # a mode between them: a 0.06 Hz suspension first by BIC at 1.9x the error, crosstalk
-        # second at 0.008x, and the search ended on a nonlinearity at 2.9x the noise floor)
         best = ranked[0]
         pair, alone = None, None
         # FRF with G_var: the floor is known in the first round, and a best single effect
@@ -1251,10 +1252,7 @@ def _joint_candidates(accepted, chosen, problem, base: ModalModel, n: int, *, re
     parts = [h or a.structure for h, a in zip(held, accepted)]
     thetas = [a.theta if h is None else a.theta[list(h.free)] for h, a in zip(held, accepted)]
     joint = [fit_joint(parts + [r.structure], thetas + [r.theta], problem, base) for r in chosen]
-    k = min(
-        range(len(joint)), key=lambda i: _bic(joint[i][0][-1].cost, n, joint[i][0][-1].n_params)
-    )
-    fits, bases = joint[k]
+    fits, bases = min(joint, key=lambda t: _bic(t[0][-1].cost, n, t[0][-1].n_params))
     if not any(held):
         return _joint_on_the_record(fits, bases, problem, base)
     if reach is not None:
@@ -1519,11 +1517,7 @@ def _pruned(
     # suspension and a crosstalk: the suspension alone, refitted on the lines, 1.09x the
     # floor against its own 1.007x on the record)
     on_record = model is not None and _between_lines(model, problem, base)
-    if on_record:
-        n_rec = problem.time.n_obs
-        bic_all = _bic(problem.record_cost(model), n_rec, k)
-    else:
-        bic_all = _bic(cost, n, k)
+    bic_all = _bic_on(on_record, model, cost, k, problem)
     out, out_bic = None, np.inf
     for i in range(len(accepted)):
         rest = accepted[:i] + accepted[i + 1 :]
@@ -1536,10 +1530,7 @@ def _pruned(
         errs = [err0] + [f.error for f in fits]
         if not all(b < a for a, b in zip(errs, errs[1:])):
             continue
-        if on_record:
-            bic = _bic(problem.record_cost(fits[-1].model), n_rec, fits[-1].n_params)
-        else:
-            bic = _bic(fits[-1].cost, n, fits[-1].n_params)
+        bic = _bic_on(on_record, fits[-1].model, fits[-1].cost, fits[-1].n_params, problem)
         if (bic < bic_all or fits[-1].error <= err) and bic < out_bic:
             out, out_bic = (i, fits, fb), bic
     return out
@@ -1556,12 +1547,18 @@ def _chain_better(a: FitResult, k_a: int, b: FitResult, k_b: int, problem, base)
     record reach 1.00x the noise floor, their lines' cost 1 % above the mode's added alone
     (2.98x): on the lines the joint chain lost.
     """
-    if _between_lines(a.model, problem, base) or _between_lines(b.model, problem, base):
-        n_rec = problem.time.n_obs
-        return _bic(problem.record_cost(a.model), n_rec, k_a) < _bic(
-            problem.record_cost(b.model), n_rec, k_b
-        )
-    return _bic(a.cost, problem.n_obs, k_a) < _bic(b.cost, problem.n_obs, k_b)
+    on_record = _between_lines(a.model, problem, base) or _between_lines(b.model, problem, base)
+    return _bic_on(on_record, a.model, a.cost, k_a, problem) < _bic_on(
+        on_record, b.model, b.cost, k_b, problem
+    )
+
+
+def _bic_on(on_record: bool, model: ModalModel, cost: float, k: int, problem) -> float:
+    """BIC of ``model`` (``k`` parameters) on a periodic record's whole record, or on the
+    problem's own observations from its ``cost`` (:func:`_chain_better`, :func:`_pruned`)."""
+    if on_record:
+        return _bic(problem.record_cost(model), problem.time.n_obs, k)
+    return _bic(cost, problem.n_obs, k)
 
 
 def _falls(errs, hold=frozenset()) -> bool:
@@ -1631,8 +1628,8 @@ def _pair_chain(ranked, problem, base: ModalModel, n: int, err0: float):
 def _joint_refined(parts, thetas, problem, base: ModalModel, *, from_start: bool = False):
     """``parts`` fitted jointly to convergence (:func:`~workbench.diagnosis.fit.fit_joint`),
     then on a periodic record's whole record (:func:`_joint_on_the_record`). ``from_start``:
-    the record is also fitted from ``thetas`` (a start the record gave), the lower error
-    kept."""
+    the record's fit starts from ``thetas`` (a start the record gave), not from the lines'
+    optimum."""
     fits, bases = fit_joint(parts, thetas, problem, base)
     return _joint_on_the_record(fits, bases, problem, base, start=thetas if from_start else None)
 
@@ -1640,7 +1637,7 @@ def _joint_refined(parts, thetas, problem, base: ModalModel, *, from_start: bool
 def _joint_on_the_record(fits, bases, problem, base: ModalModel, *, start=None):
     """A joint fit on a periodic record's lines (``fits``, ``bases``: one per part) refitted
     on the whole record where the lines cannot resolve a mode it added (as
-    :func:`_on_the_record` for one effect), from its optimum and from ``start`` where given;
+    :func:`_on_the_record` for one effect), from its optimum or from ``start`` where given;
     the record's fit kept when its error is lower, each part's cost the lines' (the search
     compares those).
 
@@ -1657,14 +1654,12 @@ def _joint_on_the_record(fits, bases, problem, base: ModalModel, *, start=None):
         # nothing for the record to resolve (an indep3 beam record, a compliance at 1.05x
         # the floor: 14 record refits, 37 of the diagnosis's 81 s, none lower)
         return fits, bases
-    if start is not None:
-        # a start the record gave: the lines may move its mode where they do not hold it
-        # between them (there, from the lines' optimum the record gained nothing)
-        starts = [start]
-    elif _between_lines(fits[-1].model, problem, base):
-        starts = [[f.theta for f in fits]]
-    else:
-        return fits, bases
+    if start is None:
+        if not _between_lines(fits[-1].model, problem, base):
+            return fits, bases
+        start = [f.theta for f in fits]
+    # (a start the record gave: the lines may move its mode where they do not hold it
+    # between them, and from the lines' optimum the record gained nothing)
     # a coupled suspension with its coupling held, as :func:`_refit_on_record` holds it
     held = [
         f.structure.held(f.theta, problem, base)
@@ -1673,23 +1668,19 @@ def _joint_on_the_record(fits, bases, problem, base: ModalModel, *, start=None):
         for f in fits
     ]
     parts = [h or f.structure for h, f in zip(held, fits)]
-    best = (fits, bases)
-    for theta in starts:
-        theta = [t if h is None else np.asarray(t)[list(h.free)] for h, t in zip(held, theta)]
-        try:
-            on_record, record_bases = fit_joint(parts, theta, problem.time, base)
-        except NUMERICAL_FAILURES:
-            continue
-        if any(held):  # back to the whole structures, the held entries' std the lines'
-            on_record = [
-                _unhold(r, h, f) if h is not None else replace(r, n_params=f.n_params)
-                for r, h, f in zip(on_record, held, fits)
-            ]
-        if on_record[-1].error < best[0][-1].error:
-            best = (on_record, record_bases)
-    if best[0] is fits:
+    theta = [t if h is None else np.asarray(t)[list(h.free)] for h, t in zip(held, start)]
+    try:
+        on_record, record_bases = fit_joint(parts, theta, problem.time, base)
+    except NUMERICAL_FAILURES:
         return fits, bases
-    costs = [problem.cost(f.model) for f in best[0]]
+    if not on_record[-1].error < fits[-1].error:
+        return fits, bases
+    if any(held):  # back to the whole structures, the held entries' std the lines'
+        on_record = [
+            _unhold(r, h, f) if h is not None else replace(r, n_params=f.n_params)
+            for r, h, f in zip(on_record, held, fits)
+        ]
+    costs = [problem.cost(f.model) for f in on_record]
     return [
         replace(
             f,
@@ -1697,8 +1688,8 @@ def _joint_on_the_record(fits, bases, problem, base: ModalModel, *, start=None):
             sigma2=c / max(problem.n_obs - f.n_params, 1),
             error=problem.error(f.model),
         )
-        for f, c in zip(best[0], costs)
-    ], best[1]
+        for f, c in zip(on_record, costs)
+    ], record_bases
 
 
 def _record_best(ranked, problem, model: ModalModel, accepted) -> tuple[float, FitResult] | None:
