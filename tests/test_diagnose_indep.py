@@ -575,3 +575,31 @@ def test_a_delay_beside_a_mode_whose_image_a_compliance_takes_ends_at_the_floor(
     delay = next(f for f in res.findings if f.effect == "time_delay").parameters
     assert abs(delay["delay_s"] / truth["time_delay"]["delay_s"] - 1) < 0.01
     assert res.findings[-1].error_after < 1.05 * case.answer["noise_floor_error"]
+
+
+def test_a_resolved_pseudo_mode_above_the_band_is_the_missing_mode():
+    # a delay and a mode at 1785 Hz, above the excited band and below Nyquist (5 kHz): the
+    # search took a residual compliance whose pseudo-mode was that mode (1784.9 Hz, zeta
+    # 0.0167 for 0.0164), resolved by the record; named as the mode, as a missing mode
+    # fitted there is
+    case = make_case(
+        np.random.default_rng(15),
+        plant="stage",
+        kind="time",
+        effects=("time_delay", "missing_mode"),
+        case_id="x",
+    )
+    truth = {e["effect"]: e["parameters"] for e in case.answer["effects"]}
+    assert truth["missing_mode"]["freq_hz"] == pytest.approx(1785.120406469898, rel=1e-9)
+    floor = case.answer["noise_floor_error"]
+    res = diagnose(case.nominal, case.data)
+    got = {f.effect: f for f in res.findings}
+    assert set(got) == {"time_delay", "missing_mode"}, [f.effect for f in res.findings]
+    for effect, params in truth.items():
+        perr = param_error(effect, params, got[effect].parameters)
+        assert perr is None or perr <= TOL[effect][1], (effect, perr)
+    mode = got["missing_mode"].parameters
+    assert abs(mode["freq_hz"] - truth["missing_mode"]["freq_hz"]) < 1.0
+    assert "above the excited band" in got["missing_mode"].explanation
+    assert abs(mode["damping"] / truth["missing_mode"]["damping"] - 1) < 0.05
+    assert res.findings[-1].error_after <= 1.1 * floor

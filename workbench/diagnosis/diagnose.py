@@ -1349,12 +1349,18 @@ def _simplified(chain, runners, problem, base: ModalModel, data, err0: float, fl
         accepted, bases, found, _, cost, err = chain
     swapped = _in_band_image(accepted, problem, base, err, err0)
     if swapped is not None:
-        i, fits, fb = swapped
+        i, fits, fb, folded = swapped
         f_up = float(np.exp(accepted[i].theta[0]))
         extra = len(fits) > len(accepted)
+        what = (
+            "above Nyquist: the image of a resonance in the band, named as the missing mode "
+            "there"
+            if folded
+            else "above the band, whose resonance the data resolve: named as a missing mode"
+        )
         notes.append(
-            f"the residual compliance of round {i + 1} is a pseudo-mode at {f_up:.5g} Hz, above "
-            f"Nyquist: the image of a resonance in the band, named as the missing mode there"
+            f"the residual compliance of round {i + 1} is a pseudo-mode at {f_up:.5g} Hz, "
+            + what
             + (", and a compliance of its own is added" if extra else "")
             + f" (error {fits[-1].error:.4g}, was {err:.4g})"
         )
@@ -1391,38 +1397,51 @@ def _findings(fits, runners, bases, problem, data, err0: float, floor) -> list[F
 
 
 def _in_band_image(accepted, problem, base: ModalModel, err: float, err0: float):
-    """(i, fits, bases): the chain with its residual compliance ``i`` (an upper residual
-    whose pseudo-mode lies above Nyquist) replaced by a missing mode at the pseudo-mode's
-    image in the excited band (its frequency folded by a multiple of ``fs``), refitted
-    jointly, where that reaches the chain's error ``err`` (within :data:`IMAGE_TIE`); else
-    None.
+    """(i, fits, bases, folded): the chain with its residual compliance ``i`` (an upper
+    residual) replaced by a missing mode, refitted jointly, where that reaches the chain's
+    error ``err`` (within :data:`IMAGE_TIE`); else None. ``folded`` says which of two
+    places the mode is named at:
 
-    Sampled, a mode at ``f`` and one at ``|f - k fs|`` (damping scaled by the frequency
-    ratio: the same decay rate) have the same discrete poles
-    (:class:`~workbench.diagnosis.effects.AliasedMode`): the record shows a resonance in
-    the band, and the finding names it there;
-    :func:`_with_image` then reports the image above Nyquist beside it.
+    - the pseudo-mode lies above Nyquist (``folded`` True): at its image in the excited
+      band (its frequency folded by a multiple of ``fs``). Sampled, a mode at ``f`` and one
+      at ``|f - k fs|`` (damping scaled by the frequency ratio: the same decay rate) have
+      the same discrete poles (:class:`~workbench.diagnosis.effects.AliasedMode`): the
+      record shows a resonance in the band, and the finding names it there;
+      :func:`_with_image` then reports the image above Nyquist beside it;
+    - the pseudo-mode lies above the band but below Nyquist and the data resolve it
+      (:func:`_resolved`, ``folded`` False): where it is. The record shows that mode's
+      resonance, as :func:`_finding` names a missing mode fitted there (an indepgen stage
+      record at 5 kHz, a mode at 1785 Hz above its band beside a delay: a compliance
+      whose pseudo-mode was the mode, 1784.9 Hz damped 0.0167 for 0.0164).
     """
     fs = getattr(problem.data, "fs", None)
-    if fs is None:
-        return None
     for i, a in enumerate(accepted):
         if not isinstance(a.structure, UpperResidual):
             continue
         f, z = (float(x) for x in np.exp(a.theta))
-        # every mode at k fs +- f_img has the same sampled poles: a pseudo-mode folds into
-        # the band from any multiple of fs (an indepgen stage record at 8 kHz, a mode at
-        # 2043 Hz beside an actuator lag named as a compliance with its pseudo-mode at
-        # 18 043 Hz, zeta 0.003: the same decay rate, at the floor either way)
-        f_img = abs(f - fs * np.round(f / fs))
-        z_img = min(z * f / f_img, 0.5) if f_img > 0 else 0.5
-        # a resonance the band shows: its half-power band within the excited band (an indep3
-        # planar record at 5400 Hz: modes at 8133 and 10 256 Hz left out; the compliance's
-        # image at 2667 Hz, zeta 0.06, reaches past Nyquist, and the mode fitted there went
-        # to 2706 Hz, above it: a flat rise at the band's top, not a resonance in it)
-        top = min(problem.band_hz[1], 0.5 * fs)
-        if not (f > 0.5 * fs and problem.band_hz[0] < f_img and f_img * (1 + z_img) < top):
-            continue
+        folded = fs is not None and f > 0.5 * fs
+        if folded:
+            # every mode at k fs +- f_img has the same sampled poles: a pseudo-mode folds
+            # into the band from any multiple of fs (an indepgen stage record at 8 kHz, a
+            # mode at 2043 Hz beside an actuator lag named as a compliance with its
+            # pseudo-mode at 18 043 Hz, zeta 0.003: the same decay rate, at the floor
+            # either way)
+            f_img = abs(f - fs * np.round(f / fs))
+            z_img = min(z * f / f_img, 0.5) if f_img > 0 else 0.5
+            # a resonance the band shows: its half-power band within the excited band (an
+            # indep3 planar record at 5400 Hz: modes at 8133 and 10 256 Hz left out; the
+            # compliance's image at 2667 Hz, zeta 0.06, reaches past Nyquist, and the mode
+            # fitted there went to 2706 Hz, above it: a flat rise at the band's top, not a
+            # resonance in it)
+            top = min(problem.band_hz[1], 0.5 * fs)
+            if not (problem.band_hz[0] < f_img and f_img * (1 + z_img) < top):
+                continue
+        else:
+            _, std = a.structure.report(a, problem, base)
+            sf, sz = std["upper_freq_hz"], std["upper_damping"]
+            if not _resolved({"freq_hz": f, "damping": z}, {"freq_hz": sf, "damping": sz}):
+                continue
+            f_img, z_img, top = f, z, (0.5 * fs if fs is not None else np.inf)
         parts = [MissingMode() if k == i else b.structure for k, b in enumerate(accepted)]
         thetas = [np.log([f_img, z_img]) if k == i else b.theta for k, b in enumerate(accepted)]
         chain = _image_chain(
@@ -1435,7 +1454,7 @@ def _in_band_image(accepted, problem, base: ModalModel, err: float, err0: float)
             (err, err0, top),
         )
         if chain is not None:
-            return i, *chain
+            return i, *chain, folded
     return None
 
 
