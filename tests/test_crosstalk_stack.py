@@ -154,3 +154,41 @@ def test_crosstalk_beside_a_mode_between_the_lines_is_fitted_on_the_record(f0, z
     # within the mode's half-power band, which is what a record 3 s long resolves
     assert abs(found["freq_hz"] - f0) < z0 * f0, found["freq_hz"]
     assert abs(found["damping"] / z0 - 1) < 0.05, found["damping"]
+
+
+def _drawn_record(seed: int):
+    """(nominal, TimeData, noise floor error, truth's crosstalk side): a random draw of
+    the records above (a scipy-ZOH oracle sweep): a mode between the lines of a sparse
+    multisine (100-800 Hz, damping 0.001-0.01, random b, c), 4-7 periods from rest, and
+    crosstalk 8 % at most on the inputs or the outputs."""
+    rng = np.random.default_rng(1000 + seed)
+    f0, z0 = float(rng.uniform(100, 800)), float(10 ** rng.uniform(-3, -2))
+    gap, side = int(rng.integers(4, 20)), ["in", "out"][seed % 2]
+    b, c = rng.normal(size=2), rng.normal(size=2)
+    period, periods = 1000, int(rng.integers(4, 8))
+    U = np.zeros((period // 2 + 1, 2), complex)
+    lines = np.arange(int(rng.integers(1, gap)), 450, gap)
+    U[lines] = np.exp(2j * np.pi * rng.random((lines.size, 2)))
+    one = np.fft.irfft(U, n=period, axis=0)
+    u = np.tile(one / one.std(axis=0), (periods, 1))
+    truth = _ss(MODEL_MODES + [(f0, z0, b, c)])
+    sysd = scipy.signal.cont2discrete((truth.A, truth.B, truth.C, truth.D), 1 / FS, "zoh")
+    T = np.eye(2) + np.array([[0, rng.uniform(-0.08, 0.08)], [rng.uniform(-0.08, 0.08), 0]])
+    _, y, _ = scipy.signal.dlsim(sysd[:4] + (1 / FS,), u @ T.T if side == "in" else u)
+    if side == "out":
+        y = y @ T.T
+    v = 1e-3 * y.std(axis=0) * rng.standard_normal(y.shape)
+    floor = float(np.linalg.norm(v) / np.linalg.norm(y + v))
+    return _ss(MODEL_MODES), TimeData(fs=FS, u=u, y=y + v, period=period), floor, side
+
+
+@pytest.mark.parametrize("seed", [1, 16])
+def test_a_transient_the_lines_do_not_hold_is_fitted_on_the_record(seed):
+    # seed 1: a mode at 529 Hz damped 0.001 on lines 24 Hz apart, output crosstalk. Fitted on
+    # the lines, the crosstalk left 1.22x the noise floor, and compare's steady-state test
+    # passed it (the mode's transient rings between the lines, which it does not test): the
+    # search stopped there. Above the periods' floor, the whole record is diagnosed
+    nominal, data, floor, side = _drawn_record(seed)
+    res = diagnose(nominal, data)
+    assert "crosstalk" in [f.effect for f in res.findings]
+    assert res.findings[-1].error_after <= 1.05 * floor
