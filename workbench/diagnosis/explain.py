@@ -113,12 +113,23 @@ def explain(effect: str, ev: dict) -> str:
             f"{fall}{tail}"
         )
     if effect == "suspension_stiffness":
+        modes = p.get("modes") or []
+        held = [m["freq_hz"] for m in modes if m.get("resolved", True)]
+        free = [m for m in modes if not m.get("resolved", True)]
+        # a DOF the spring does not hold: its fitted frequency is not resolved (far below the
+        # band, or undetermined), and its rigid line stays in the band
+        rest = (
+            f"; {len(free)} rigid-body DOF(s) stay free (fitted springs at "
+            f"{_hz([m['freq_hz'] for m in free])}, which the data do not resolve)"
+            if free and held
+            else ""
+        )
         return (
             f"the rigid-body 1/w^2 line flattens at low frequency: the rigid-body modes are "
             "suspension modes at "
-            f"{_hz([m['freq_hz'] for m in p['modes']] if p.get('modes') else p['freq_hz'])} "
+            f"{_hz(held or [m['freq_hz'] for m in modes] or p['freq_hz'])} "
             f"with damping {p['damping']:.3g}, visible {lo:.4g}-{hi:.4g} Hz on "
-            f"{where}; {fall}{tail}"
+            f"{where}{rest}; {fall}{tail}"
         )
     if effect == "crosstalk":
         M = np.asarray(p["matrix"]) - np.eye(len(p["matrix"]))
