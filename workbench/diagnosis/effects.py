@@ -787,11 +787,24 @@ class SuspensionStiffness:
         ]
 
     def bounds(self, problem, base):
-        f_lo = problem.band_hz[0]
         return (
-            np.array([np.log(f_lo / 100), _LOG_Z[0]]),
+            np.array([np.log(self.f_min(problem)), _LOG_Z[0]]),
             np.array([np.log(self._f_max(problem, base)), np.log(2.0)]),
         )
+
+    @staticmethod
+    def f_min(problem) -> float:
+        """The lowest suspension frequency searched, Hz: a hundredth of the band's lowest
+        frequency (the spring changes the rigid line there by 1e-4), and on a record so low
+        that it turns a free DOF by 1e-3 cycle over the record's length. A DOF the spring
+        does not hold fits there: on a record, a hundredth of the band was a spring that
+        shows (an independent oracle, a gantry suspended in translation, its yaw free: a
+        0.017 Hz yaw spring on a record of seconds left 6x the noise floor)."""
+        f_min = problem.band_hz[0] / 100
+        data = getattr(problem, "data", None)
+        if problem.kind == "time" and getattr(data, "fs", None):
+            f_min = min(f_min, 1e-3 * data.fs / data.n_samples)
+        return f_min
 
     def build(self, theta, problem, base):
         modes = list(base.modes)
@@ -891,57 +904,90 @@ class RigidSuspension:
         return out
 
     def data_start(self, problem, base) -> np.ndarray | None:
-        """theta of the stiffness and damping the FRF's lowest lines give, or None.
+        """theta of the stiffness and damping the data's lowest lines give, or None.
 
         Below the flexible modes the measured rigid line (the data minus the model's other
-        terms), taken to the rigid coordinates (``C_r^+ G B_r^+``, R x R), is ``(s^2 I + s
-        Dk + K)^-1``: its inverse plus ``s^2 I`` gives ``K`` (real part) and ``Dk``
-        (imaginary part over w), averaged over the lines below half the highest
-        suspension frequency searched; ``K``'s eigenvalues are the ``w_k^2`` (those below
+        terms), taken to the rigid coordinates (``q = C_r^+ y``), obeys ``(s^2 I + s Dk +
+        K) q = B_r u``: ``K`` and ``Dk`` by least squares over the lines below half the
+        highest suspension frequency searched (an FRF: each input column a line's
+        equations; a periodic record: its excited lines' steady state, the sampled rigid
+        line's ZOH factor divided out). ``K``'s eigenvalues are the ``w_k^2`` (those below
         the search's lowest frequency raised to it: a DOF the spring does not hold) and its
         eigenvectors, in the chart of :meth:`rechart`, the coupling ``P``. From one shared
         frequency (the grid) the fit must find ``P`` itself, and a spring that holds one DOF
         of two where neither SVD direction is that DOF ended far off (a bar on a spring at
         its centre, its rotation free: every suspension fit raised the error 0.27 -> 0.53,
-        and the diagnosis found nothing). FRF data only (None elsewhere, or where the lines
-        or the matrices do not give a real positive stiffness).
+        and the diagnosis found nothing). None on other problems, or where the lines do
+        not give a real stiffness.
         """
-        if problem.kind != "frf":
-            return None
         R = self.rank(base)
-        nz = self.n_damping(R)
         lo, hi = self.bounds(problem, base)
         k, C, B = self._factors(base)
-        freq = problem.freq
-        sel = freq <= 0.5 * np.exp(hi[0])
-        if np.count_nonzero(sel) < 3:
-            return None
-        f = freq[sel]
-        s = 2j * np.pi * f
         rigid = base.modes[k]
         N0 = rigid.numerator()[0]
-        # the measured rigid line: the data minus the model's other terms
-        G_rigid = problem.data.G[sel] - (base.frf(f) - N0[None] / (s**2)[:, None, None])
-        Ci, Bi = np.linalg.pinv(C), np.linalg.pinv(B)
-        K = np.zeros((R, R))
-        Dk = np.zeros((R, R))
-        try:
-            for si, G in zip(s, G_rigid):
-                X = np.linalg.inv(Ci @ G @ Bi) - si**2 * np.eye(R)
-                K += X.real
-                Dk += X.imag / si.imag
-        except np.linalg.LinAlgError:
+        others = replace(base, modes=tuple(m for j, m in enumerate(base.modes) if j != k))
+        f_top = 0.5 * np.exp(hi[0])
+        if problem.kind == "frf":
+            sel = problem.freq <= f_top
+            f = problem.freq[sel]
+            s = 2j * np.pi * f
+            # the measured rigid line: the data minus the model's other terms
+            Y = problem.data.G[sel] - others.frf(f)  # (n_l, n_y, n_u): a line per column
+            U = np.broadcast_to(np.eye(base.n_u), Y.shape[:1] + (base.n_u, base.n_u))
+        elif callable(getattr(problem, "steady_lines", None)):
+            f, U, Y = problem.steady_lines()
+            sel = f <= f_top
+            f, U = f[sel], U[sel]
+            s = 2j * np.pi * f
+            # sampled: the rigid line is the ZOH's, a scalar factor per line on the
+            # continuous one (its phase half a sample, the model's delay and lags)
+            rigid_only = replace(base, D=np.zeros_like(base.D), modes=(rigid,))
+            exact = problem.steady_lines(rigid_only)[2][sel]
+            cont = (U @ N0.T) / (s**2)[:, None]
+            factor = np.sum(exact * cont.conj(), axis=1) / np.sum(np.abs(cont) ** 2, axis=1)
+            Y = (Y[sel] - problem.steady_lines(others)[2][sel]) / factor[:, None]
+            Y, U = Y[:, :, None], U[:, :, None]  # one column a line
+        else:
             return None
-        K, Dk = K / f.size, Dk / f.size
+        if base.T_in is not None:
+            U = base.T_in @ U
+        if f.size < max(3, R + 1):
+            return None
+        # (s^2 I + s Dk + K) q = B_r u, q = C_r^+ y: per row of K and Dk, least squares
+        q = np.linalg.pinv(C) @ Y  # (n_l, R, cols)
+        w_rhs = B @ U - (s**2)[:, None, None] * q
+        q, w_rhs, sc = (
+            np.moveaxis(q, 1, 2).reshape(-1, R),
+            np.moveaxis(w_rhs, 1, 2).reshape(-1, R),
+            np.repeat(s, Y.shape[2]),
+        )
+        A = np.concatenate([q, sc[:, None] * q], axis=1)  # (n_eq, 2R) complex
+        A_real = np.concatenate([A.real, A.imag])
+        rhs = np.concatenate([w_rhs.real, w_rhs.imag])
+        sol, *_ = np.linalg.lstsq(A_real, rhs, rcond=None)  # (2R, R): column i is row i
+        if not np.all(np.isfinite(sol)):
+            return None
+        K, Dk = sol[:R].T, sol[R:].T
+        return self._chart_start(K, Dk, lo, hi)
+
+    def _chart_start(self, K, Dk, lo, hi) -> np.ndarray | None:
+        """theta of the stiffness ``K`` and damping ``Dk`` (R x R, rigid coordinates) in
+        the chart of :meth:`rechart`, or None (complex or non-finite eigenvalues, a
+        coupling outside the box)."""
+        R = K.shape[0]
+        nz = self.n_damping(R)
         lam, V = np.linalg.eig(K)
-        if np.any(np.abs(lam.imag) > 1e-6 * np.max(np.abs(lam))) or not np.all(np.isfinite(lam)):
+        if not np.all(np.isfinite(lam)) or np.any(np.abs(lam.imag) > 1e-6 * np.max(np.abs(lam))):
             return None
         lam, V = lam.real, V.real / np.linalg.norm(V.real, axis=0)
         w_lo = 2 * np.pi * np.exp(lo[0])
         w2 = np.maximum(lam, w_lo**2)
         # each mode's damping: its modal damping coefficient over 2 w (the damper's
         # projection on the mode; a DOF without a spring keeps the damping's lower bound)
-        Vi = np.linalg.inv(V)
+        try:
+            Vi = np.linalg.inv(V)
+        except np.linalg.LinAlgError:
+            return None
         zeta = np.clip(np.diag(Vi @ Dk @ V) / (2 * np.sqrt(w2)), np.exp(lo[R]), np.exp(hi[R]))
         best = max(
             itertools.permutations(range(R)),
@@ -1050,9 +1096,9 @@ class RigidSuspension:
         return _suspension_report(f[order], z[order], sf[order], sz[order], problem.band_hz[0])
 
 
-#: a suspension frequency the data resolve: its standard deviation below this fraction of
-#: it; where the data do not determine it (std NaN), a frequency above this fraction of the
-#: band's lowest line (the spring changes the rigid line there by (f / f_lo)^2, 1 % or more)
+#: a suspension the data resolve: its frequency at least SUSPENSION_IN_VIEW of the band's
+#: lowest frequency (the spring changes the rigid line there by (f / f_lo)^2, 1 % or more)
+#: and its standard deviation, where the data determine it, below SUSPENSION_RESOLVED of it
 SUSPENSION_RESOLVED = 0.5
 SUSPENSION_IN_VIEW = 0.1
 
@@ -1064,17 +1110,17 @@ def _suspension_report(f, z, sf, sz, f_lo: float) -> tuple[dict, dict]:
 
     Spec section 3: ``freq_hz`` / ``damping`` a number, and the cause's modes listed, one
     object per rigid DOF (as modal_mismatch lists its modes). The number is the lowest
-    suspension the data resolve (:data:`SUSPENSION_RESOLVED`, :data:`SUSPENSION_IN_VIEW`):
+    suspension the data resolve (:data:`SUSPENSION_IN_VIEW`, :data:`SUSPENSION_RESOLVED`):
     a DOF the spring does not hold keeps its rigid line in the band, and its fitted
-    "suspension" sits at whatever frequency far below the band the data cannot tell from
-    zero (an independent oracle, a dual stage suspended on one of its two DOFs at 5.91 Hz:
-    the other at 0.032 Hz +- 66 %, the bound of the search, was the number reported; on its
-    record, coupled to the flexible modes, 0.0018 Hz, every frequency's std NaN). Such a
-    mode is listed with ``"resolved": False``; where none is resolved, the lowest is the
-    number.
+    "suspension" sits far below the band, where it changes nothing there (an independent
+    oracle, a dual stage suspended on one of its two DOFs at 5.91 Hz: the other at 0.032 Hz
+    +- 66 %, the bound of the search, was the number reported; on records 0.0018 and
+    0.0002 Hz, the latter +- 10 %: a spring of a period of hours, through the record's
+    slow drift). Such a mode is listed with ``"resolved": False``; where none is
+    resolved, the lowest is the number.
     """
     resolved = [
-        bool(b < SUSPENSION_RESOLVED * a if np.isfinite(b) else a >= SUSPENSION_IN_VIEW * f_lo)
+        bool(a >= SUSPENSION_IN_VIEW * f_lo and not (b >= SUSPENSION_RESOLVED * a))
         for a, b in zip(f, sf)
     ]
     top = resolved.index(True) if any(resolved) else 0

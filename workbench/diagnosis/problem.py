@@ -1610,6 +1610,21 @@ class PeriodicProblem(_FilteredProblem):
                     fine[p] = False
             return L
 
+    def steady_lines(self, model: ModalModel | None = None):
+        """The excited lines' steady state: (freq (n_l,) Hz, U (n_l, n_u), Y (n_l, n_y)),
+        complex, every block's lines in turn; ``Y`` the record's, or with ``model`` the
+        model's output there (its filters' responses times ``U``, no transient term).
+        The lines' frequencies repeat where blocks share a line."""
+        freq = self._lines * self.fs / self._period
+        n_l = self.z.size
+        if model is None:
+            y = self.target
+        else:
+            y = self._parts_sum(model, self._u_in(model), self._channels_key(model))
+            if model.T_out is not None:
+                y = y @ model.T_out.T
+        return freq, self.u_rows, y[:n_l] + 1j * y[n_l:]
+
     def predict(self, model: ModalModel) -> np.ndarray:
         """The time-domain simulated output (N, n_y), as :meth:`TimeProblem.predict`."""
         return self.time.predict(model)
