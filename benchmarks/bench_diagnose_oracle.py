@@ -100,6 +100,17 @@ def _pick_mode(params, f_true):
     return min(cands, key=lambda m: abs(_num(m["freq_hz"]) - f_true))
 
 
+def _found_matrix(found_p, shape):
+    """(the finding's matrix, "") or (None, why not): missing, or not of ``shape``."""
+    M = found_p.get("matrix")
+    if M is None:
+        return None, "no matrix"
+    M = np.asarray(M, float)
+    if M.shape != shape:
+        return None, f"matrix shape {M.shape} vs true {shape}"
+    return M, ""
+
+
 def check_params(effect, truth_p, found_p, band_hz):
     """-> (ok, notes list)"""
     notes = []
@@ -156,24 +167,18 @@ def check_params(effect, truth_p, found_p, band_hz):
                 cmp(f"fc[{i}]", g, w, TOL["cutoff"])
     elif effect == "crosstalk":
         T = np.asarray(truth_p["matrix"], float)
-        M = found_p.get("matrix")
+        M, why = _found_matrix(found_p, T.shape)
         if M is None:
-            return False, ["no matrix"]
-        M = np.asarray(M, float)
-        if M.shape != T.shape:
-            return False, [f"matrix shape {M.shape} vs true {T.shape} ({truth_p['side']} side)"]
+            return False, [why + f" ({truth_p['side']} side)"]
         off = ~np.eye(T.shape[0], dtype=bool)
         err = float(np.max(np.abs(M[off] - T[off])))
         ok = err <= TOL["xtalk_abs"]
         notes.append(f"offdiag max err {err:.4f} ({truth_p['side']} side){'' if ok else ' FAIL'}")
     elif effect == "residual_compliance":
         R = np.asarray(truth_p["matrix"], float)
-        M = found_p.get("matrix")
+        M, why = _found_matrix(found_p, R.shape)
         if M is None:
-            return False, ["no matrix"]
-        M = np.asarray(M, float)
-        if M.shape != R.shape:
-            return False, [f"matrix shape {M.shape} vs {R.shape}"]
+            return False, [why]
         r = float(np.linalg.norm(M - R) / np.linalg.norm(R))
         ok = r <= TOL["resid_rel"]
         notes.append(f"matrix rel err {100 * r:.1f}%{'' if ok else ' FAIL'}")
@@ -289,20 +294,12 @@ def main(argv=None):
     cases = og.make_suite(args.seed, kinds=kinds, pairs=args.pairs)
     if args.only:
         cases = [c for c in cases if args.only in c.name]
-    try:
-        import subprocess
+    from workbench.report import package_versions
 
-        head = subprocess.run(
-            ["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],
-            capture_output=True,
-            text=True,
-            timeout=10,
-        ).stdout.strip()
-    except Exception:  # no git: not needed for the run
-        head = "?"
+    head = package_versions()["workbench"]  # its version, and the checkout's git commit
     print(
         f"# oracle benchmark seed={args.seed} kinds={kinds} pairs={args.pairs} "
-        f"cases={len(cases)} workbench HEAD {head}",
+        f"cases={len(cases)} workbench {head}",
         flush=True,
     )
     recs = []
