@@ -934,7 +934,8 @@ class RigidSuspension:
             # the measured rigid line: the data minus the model's other terms
             Y = problem.data.G[sel] - others.frf(f)  # (n_l, n_y, n_u): a line per column
             U = np.broadcast_to(np.eye(base.n_u), Y.shape[:1] + (base.n_u, base.n_u))
-        elif callable(getattr(problem, "steady_lines", None)):
+        elif callable(getattr(problem, "steady_lines", None)) and not problem.whole:
+            # a periodic record's steady state (a whole record's lines carry the transient)
             f, U, Y = problem.steady_lines()
             sel = f <= f_top
             f, U = f[sel], U[sel]

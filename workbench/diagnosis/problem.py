@@ -1614,7 +1614,8 @@ class PeriodicProblem(_FilteredProblem):
         """The excited lines' steady state: (freq (n_l,) Hz, U (n_l, n_u), Y (n_l, n_y)),
         complex, every block's lines in turn; ``Y`` the record's, or with ``model`` the
         model's output there (its filters' responses times ``U``, no transient term).
-        The lines' frequencies repeat where blocks share a line."""
+        The lines' frequencies repeat where blocks share a line. On a whole record
+        (:attr:`whole`) the record's lines hold its transient too."""
         freq = self._lines * self.fs / self._period
         n_l = self.z.size
         if model is None:
