@@ -111,3 +111,29 @@ def test_a_gantry_record_suspended_in_translation_ends_at_the_floor(seed):
     assert top.parameters["freq_hz"] == pytest.approx(truth["freq_hz"], rel=0.01)
     assert top.parameters["damping"] == pytest.approx(truth["damping"], rel=0.1)
     assert res.findings[-1].error_after <= 1.1 * case.answer["noise_floor_error"]
+
+
+@pytest.mark.parametrize("side", ["in", "out"])
+def test_the_start_read_off_the_lines_sees_through_a_coupling(side):
+    # a model that already carries a crosstalk (found in an earlier round): the rigid line
+    # is read before the output coupling and after the input coupling; the start is the
+    # spring (6 Hz) and the free DOF at the search's lowest frequency
+    from workbench.diagnosis.diagnose import base_model
+    from workbench.diagnosis.effects import RigidSuspension
+    from workbench.diagnosis.fit import coupled
+    from workbench.diagnosis.problem import FrfProblem
+
+    T = np.array([[1.0, 0.4], [-0.3, 1.0]])  # a strong coupling: the start must undo it
+    freq = np.geomspace(2.0, 2000.0, 400)
+    k = MASS * (2 * np.pi * F_SPRING) ** 2
+    G = _rigid_frf(freq, k, 2 * Z_SPRING * np.sqrt(k * MASS)) + _flex_frf(freq)
+    G = G @ T if side == "in" else T @ G
+    data = FrfData(freq=freq, G=G, G_var=(1e-3 * np.abs(G)) ** 2)
+    problem = FrfProblem(data)
+    base = coupled(base_model(_nominal(), data), side, T)
+    theta = RigidSuspension().data_start(problem, base)
+    f = np.sort(np.exp(theta[:2]))
+    lo, _ = RigidSuspension().bounds(problem, base)
+    assert f[1] == pytest.approx(F_SPRING, rel=1e-3)
+    assert f[0] == pytest.approx(np.exp(lo[0]), rel=1e-9)
+    assert np.exp(theta[2]) == pytest.approx(Z_SPRING, rel=0.05)

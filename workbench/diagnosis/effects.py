@@ -933,30 +933,33 @@ class RigidSuspension:
             s = 2j * np.pi * f
             # the measured rigid line: the data minus the model's other terms
             Y = problem.data.G[sel] - others.frf(f)  # (n_l, n_y, n_u): a line per column
-            U = np.broadcast_to(np.eye(base.n_u), Y.shape[:1] + (base.n_u, base.n_u))
+            u_in = np.broadcast_to(np.eye(base.n_u), Y.shape[:1] + (base.n_u, base.n_u))
+            if base.T_in is not None:
+                u_in = base.T_in @ u_in
         elif callable(getattr(problem, "steady_lines", None)) and not problem.whole:
             # a periodic record's steady state (a whole record's lines carry the transient)
             f, U, Y = problem.steady_lines()
             sel = f <= f_top
-            f, U = f[sel], U[sel]
+            f, U, Y = f[sel], U[sel], Y[sel]
             s = 2j * np.pi * f
+            u_in = U if base.T_in is None else U @ base.T_in.T
             # sampled: the rigid line is the ZOH's, a scalar factor per line on the
             # continuous one (its phase half a sample, the model's delay and lags)
-            rigid_only = replace(base, D=np.zeros_like(base.D), modes=(rigid,))
+            rigid_only = replace(base, D=np.zeros_like(base.D), modes=(rigid,), T_out=None)
             exact = problem.steady_lines(rigid_only)[2][sel]
-            cont = (U @ N0.T) / (s**2)[:, None]
+            cont = (u_in @ N0.T) / (s**2)[:, None]
             factor = np.sum(exact * cont.conj(), axis=1) / np.sum(np.abs(cont) ** 2, axis=1)
-            Y = (Y[sel] - problem.steady_lines(others)[2][sel]) / factor[:, None]
-            Y, U = Y[:, :, None], U[:, :, None]  # one column a line
+            Y = (Y - problem.steady_lines(others)[2][sel]) / factor[:, None]
+            Y, u_in = Y[:, :, None], u_in[:, :, None]  # one column a line
         else:
             return None
-        if base.T_in is not None:
-            U = base.T_in @ U
+        if base.T_out is not None:  # the rigid line before the output coupling
+            Y = np.linalg.solve(base.T_out, Y)
         if f.size < max(3, R + 1):
             return None
         # (s^2 I + s Dk + K) q = B_r u, q = C_r^+ y: per row of K and Dk, least squares
         q = np.linalg.pinv(C) @ Y  # (n_l, R, cols)
-        w_rhs = B @ U - (s**2)[:, None, None] * q
+        w_rhs = B @ u_in - (s**2)[:, None, None] * q
         q, w_rhs, sc = (
             np.moveaxis(q, 1, 2).reshape(-1, R),
             np.moveaxis(w_rhs, 1, 2).reshape(-1, R),
