@@ -993,13 +993,9 @@ class RigidSuspension:
         except np.linalg.LinAlgError:
             return None
         zeta = np.clip(np.diag(Vi @ Dk @ V) / (2 * np.sqrt(w2)), np.exp(lo[R]), np.exp(hi[R]))
-        best = max(
-            itertools.permutations(range(R)),
-            key=lambda a: sum(np.log(abs(V[a[j], j]) + 1e-300) for j in range(R)),
-        )
-        P, w, z = np.eye(R), np.zeros(R), np.zeros(R)
-        for j, c in enumerate(best):  # mode j on coordinate c
-            P[:, c] = V[:, j] / V[c, j]
+        order, P = _chart(V)
+        w, z = np.zeros(R), np.zeros(R)
+        for j, c in enumerate(order):  # mode j on coordinate c
             w[c], z[c] = np.sqrt(w2[j]), zeta[j]
         off = P[~np.eye(R, dtype=bool)]
         if np.max(np.abs(off), initial=0.0) >= self.coupling_bound:
@@ -1046,14 +1042,10 @@ class RigidSuspension:
         if np.any(np.abs(lam.imag) > 1e-9 * np.abs(lam)) or np.any(lam.real <= 0):
             return None
         V = V.real / np.linalg.norm(V.real, axis=0)
-        best = max(
-            itertools.permutations(range(R)),
-            key=lambda a: sum(np.log(abs(V[a[k], k]) + 1e-300) for k in range(R)),
-        )
+        order, P_new = _chart(V)
         ln_z = np.broadcast_to(theta[R : R + nz], (R,))
-        P_new, w_new, z_new = np.zeros((R, R)), np.zeros(R), np.zeros(R)
-        for k, j in enumerate(best):  # mode k on coordinate j
-            P_new[:, j] = V[:, k] / V[j, k]
+        w_new, z_new = np.zeros(R), np.zeros(R)
+        for k, j in enumerate(order):  # mode k on coordinate j
             w_new[j] = np.sqrt(lam[k].real)
             # a damping per mode travels with its mode (K's eigenvalues are the w^2)
             z_new[j] = ln_z[np.argmin(np.abs(w**2 - lam[k].real))]
@@ -1098,6 +1090,24 @@ class RigidSuspension:
         sz = z * np.broadcast_to(fr.theta_std[R : R + nz], (R,))
         order = np.argsort(f)
         return _suspension_report(f[order], z[order], sf[order], sz[order], problem.band_hz[0])
+
+
+def _chart(V: np.ndarray) -> tuple[tuple, np.ndarray]:
+    """(order, P): the chart of a suspension's stiffness whose eigenvectors are ``V`` (R x R,
+    unit columns) that :meth:`RigidSuspension.rechart` and
+    :meth:`RigidSuspension.data_start` take. Mode ``k`` sits on coordinate ``order[k]``, the
+    assignment whose shapes are largest at their coordinates (the product of those entries
+    over the R! assignments), and ``P``'s column ``order[k]`` is its shape divided by that
+    entry (unit diagonal)."""
+    R = V.shape[0]
+    order = max(
+        itertools.permutations(range(R)),
+        key=lambda a: sum(np.log(abs(V[a[k], k]) + 1e-300) for k in range(R)),
+    )
+    P = np.zeros((R, R))
+    for k, j in enumerate(order):
+        P[:, j] = V[:, k] / V[j, k]
+    return order, P
 
 
 #: a suspension the data resolve: its frequency at least SUSPENSION_IN_VIEW of the band's
