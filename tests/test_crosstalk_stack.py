@@ -99,26 +99,39 @@ def test_a_crosstalk_entry_collinear_with_a_modes_residue_is_searched_with_it():
     assert abs(found.parameters["freq_hz"] / mode[0] - 1) < 1e-3
 
 
-def _periodic_record(mode, side: str, *, gap: int = 8, seed: int = 0, periods: int = 6):
-    """(nominal, TimeData, noise floor error): the model's modes plus ``mode`` (f Hz, z, b,
-    c), driven by a random-phase multisine on every ``gap``-th line of a 1000-sample period
-    (``gap`` x 2 Hz apart), repeated ``periods`` times from rest, 0.1 % output noise;
-    crosstalk T_IN on the inputs (``side`` "in") or T_OUT on the outputs ("out")."""
-    rng = np.random.default_rng(seed)
-    period = 1000
-    U = np.zeros((period // 2 + 1, 2), complex)
-    lines = np.arange(3, 450, gap)
+PERIOD = 1000  # samples of the records' multisine period
+
+
+def _multisine(rng, lines, periods: int) -> np.ndarray:
+    """(PERIOD periods, 2) inputs: a random-phase multisine on the DFT ``lines`` of one
+    period, unit rms per input, repeated ``periods`` times."""
+    U = np.zeros((PERIOD // 2 + 1, 2), complex)
     U[lines] = np.exp(2j * np.pi * rng.random((lines.size, 2)))
-    one = np.fft.irfft(U, n=period, axis=0)
-    u = np.tile(one / one.std(axis=0), (periods, 1))
+    one = np.fft.irfft(U, n=PERIOD, axis=0)
+    return np.tile(one / one.std(axis=0), (periods, 1))
+
+
+def _recorded(mode, u, T, side: str, rng):
+    """(nominal, TimeData, noise floor error): the model's modes plus ``mode`` (f Hz, z, b,
+    c) simulated by scipy's ZOH from rest on ``u``, the crosstalk ``T`` on the inputs
+    (``side`` "in") or the outputs ("out"), 0.1 % output noise."""
     truth = _ss(MODEL_MODES + [mode])
     sysd = scipy.signal.cont2discrete((truth.A, truth.B, truth.C, truth.D), 1 / FS, "zoh")
-    _, y, _ = scipy.signal.dlsim(sysd[:4] + (1 / FS,), u @ T_IN.T if side == "in" else u)
+    _, y, _ = scipy.signal.dlsim(sysd[:4] + (1 / FS,), u @ T.T if side == "in" else u)
     if side == "out":
-        y = y @ T_OUT.T
+        y = y @ T.T
     v = 1e-3 * y.std(axis=0) * rng.standard_normal(y.shape)
     floor = float(np.linalg.norm(v) / np.linalg.norm(y + v))
-    return _ss(MODEL_MODES), TimeData(fs=FS, u=u, y=y + v, period=period), floor
+    return _ss(MODEL_MODES), TimeData(fs=FS, u=u, y=y + v, period=PERIOD), floor
+
+
+def _periodic_record(mode, side: str, *, gap: int = 8, seed: int = 0, periods: int = 6):
+    """(nominal, TimeData, noise floor error): ``mode`` added (:func:`_recorded`), driven on
+    every ``gap``-th line (``gap`` x 2 Hz apart) repeated ``periods`` times; crosstalk T_IN on
+    the inputs (``side`` "in") or T_OUT on the outputs ("out")."""
+    rng = np.random.default_rng(seed)
+    u = _multisine(rng, np.arange(3, 450, gap), periods)
+    return _recorded(mode, u, T_IN if side == "in" else T_OUT, side, rng)
 
 
 @pytest.mark.parametrize(
@@ -165,21 +178,10 @@ def _drawn_record(seed: int):
     f0, z0 = float(rng.uniform(100, 800)), float(10 ** rng.uniform(-3, -2))
     gap, side = int(rng.integers(4, 20)), ["in", "out"][seed % 2]
     b, c = rng.normal(size=2), rng.normal(size=2)
-    period, periods = 1000, int(rng.integers(4, 8))
-    U = np.zeros((period // 2 + 1, 2), complex)
-    lines = np.arange(int(rng.integers(1, gap)), 450, gap)
-    U[lines] = np.exp(2j * np.pi * rng.random((lines.size, 2)))
-    one = np.fft.irfft(U, n=period, axis=0)
-    u = np.tile(one / one.std(axis=0), (periods, 1))
-    truth = _ss(MODEL_MODES + [(f0, z0, b, c)])
-    sysd = scipy.signal.cont2discrete((truth.A, truth.B, truth.C, truth.D), 1 / FS, "zoh")
+    periods = int(rng.integers(4, 8))
+    u = _multisine(rng, np.arange(int(rng.integers(1, gap)), 450, gap), periods)
     T = np.eye(2) + np.array([[0, rng.uniform(-0.08, 0.08)], [rng.uniform(-0.08, 0.08), 0]])
-    _, y, _ = scipy.signal.dlsim(sysd[:4] + (1 / FS,), u @ T.T if side == "in" else u)
-    if side == "out":
-        y = y @ T.T
-    v = 1e-3 * y.std(axis=0) * rng.standard_normal(y.shape)
-    floor = float(np.linalg.norm(v) / np.linalg.norm(y + v))
-    return _ss(MODEL_MODES), TimeData(fs=FS, u=u, y=y + v, period=period), floor, side
+    return *_recorded((f0, z0, b, c), u, T, side, rng), side
 
 
 @pytest.mark.parametrize("seed", [1, 16])
