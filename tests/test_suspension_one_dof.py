@@ -22,6 +22,8 @@ import pytest
 from workbench.diagnosis import diagnose
 from workbench.io.formats import FrfData
 
+sys.path.insert(0, str(Path(__file__).parent))  # the oracle generator beside the tests
+
 MASS, INERTIA = 12.0, 0.9  # kg, kg m^2
 F_SPRING, Z_SPRING = 6.0, 0.02  # Hz, damping ratio of the spring on x
 ARM_U, ARM_Y = 0.3, 0.25  # m: actuators and sensors at +-arm
@@ -43,6 +45,13 @@ def _flex_frf(freq) -> np.ndarray:
     f, z, b, c = FLEX
     w, s = 2 * np.pi * f, 2j * np.pi * freq
     return np.outer(c, b)[None] / (s**2 + 2 * z * w * s + w**2)[:, None, None]
+
+
+def _suspended_frf(freq) -> np.ndarray:
+    """(n_f, 2, 2): the truth, the bar on its spring at F_SPRING (damping Z_SPRING) and the
+    flexible mode."""
+    k = MASS * (2 * np.pi * F_SPRING) ** 2
+    return _rigid_frf(freq, k, 2 * Z_SPRING * np.sqrt(k * MASS)) + _flex_frf(freq)
 
 
 def _nominal() -> control.StateSpace:
@@ -74,9 +83,7 @@ def test_nominal_matches_its_direct_frf():
 def test_a_spring_on_one_dof_is_reported_at_its_frequency():
     rng = np.random.default_rng(3)
     freq = np.geomspace(2.0, 2000.0, 400)
-    k = MASS * (2 * np.pi * F_SPRING) ** 2
-    d = 2 * Z_SPRING * np.sqrt(k * MASS)
-    G = _rigid_frf(freq, k, d) + _flex_frf(freq)
+    G = _suspended_frf(freq)
     sigma = 2e-3 * np.abs(G)
     noise = sigma / np.sqrt(2) * (rng.standard_normal(G.shape) + 1j * rng.standard_normal(G.shape))
     data = FrfData(freq=freq, G=G + noise, G_var=sigma**2)
@@ -99,7 +106,6 @@ def test_a_gantry_record_suspended_in_translation_ends_at_the_floor(seed):
     # record's lines gave the fit its start: 6.05x the noise floor, a 0.017 Hz yaw spring
     # (the search's lowest frequency) reported as the suspension; 5.96x with crosstalk and
     # two missing modes (52-58 s)
-    sys.path.insert(0, str(Path(__file__).parent))
     from oraclegen import EFFECTS, PLANTS, make_case
 
     key = [seed, PLANTS.index("gantry"), 1, EFFECTS.index("suspension_stiffness")]
@@ -125,8 +131,7 @@ def test_the_start_read_off_the_lines_sees_through_a_coupling(side):
 
     T = np.array([[1.0, 0.4], [-0.3, 1.0]])  # a strong coupling: the start must undo it
     freq = np.geomspace(2.0, 2000.0, 400)
-    k = MASS * (2 * np.pi * F_SPRING) ** 2
-    G = _rigid_frf(freq, k, 2 * Z_SPRING * np.sqrt(k * MASS)) + _flex_frf(freq)
+    G = _suspended_frf(freq)
     G = G @ T if side == "in" else T @ G
     data = FrfData(freq=freq, G=G, G_var=(1e-3 * np.abs(G)) ** 2)
     problem = FrfProblem(data)
