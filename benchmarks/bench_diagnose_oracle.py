@@ -15,9 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
-import tempfile
 import time
 from collections import Counter, defaultdict
 from pathlib import Path
@@ -30,6 +28,9 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 import oraclegen as og  # noqa: E402
 
+from workbench.core.atomic import write_text  # noqa: E402
+from workbench.core.jsonutil import jsonable  # noqa: E402
+
 TOL = dict(
     delay=0.05,
     freq=0.01,
@@ -40,24 +41,6 @@ TOL = dict(
     susp_freq=0.05,
     error_ratio=2.0,
 )
-
-
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    if isinstance(x, (np.floating,)):
-        return float(x)
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    if isinstance(x, complex):
-        return [x.real, x.imag]
-    if isinstance(x, (str, int, float, bool)) or x is None:
-        return x
-    return repr(x)
 
 
 def _num(v):
@@ -202,7 +185,7 @@ def run_case(case):
         plant=case.plant,
         kind=case.kind,
         effects=list(case.effects),
-        truth=_jsonable(a["effects"]),
+        truth=jsonable(a["effects"]),
         noise_floor=floor,
         visibility=a["visibility"],
         nominal_error_oracle=a["nominal_error"],
@@ -226,7 +209,7 @@ def run_case(case):
     rec["findings"] = [
         dict(
             effect=f.effect,
-            parameters=_jsonable({k: v for k, v in f.parameters.items() if k not in ("b", "c")}),
+            parameters=jsonable({k: v for k, v in f.parameters.items() if k not in ("b", "c")}),
             error_after=f.error_after,
         )
         for f in fnd
@@ -343,22 +326,8 @@ def main(argv=None):
         for r in fails:
             print(_fmt(r))
     if args.json:
-        out = Path(args.json)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=out.parent, prefix=out.name, suffix=".tmp")
-        with os.fdopen(fd, "w") as fh:
-            json.dump(
-                dict(
-                    seed=args.seed,
-                    kinds=kinds,
-                    pairs=args.pairs,
-                    tolerances=TOL,
-                    cases=_jsonable(recs),
-                ),
-                fh,
-                indent=1,
-            )
-        os.replace(tmp, out)
+        record = dict(seed=args.seed, kinds=kinds, pairs=args.pairs, tolerances=TOL, cases=recs)
+        write_text(args.json, json.dumps(jsonable(record), indent=1))
     return 0
 
 
