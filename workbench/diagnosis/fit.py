@@ -452,10 +452,14 @@ def fit(
     evaluate = [lambda th: problem.residual(structure.build(th, problem, base).model)]
     size = [problem.n_obs]
 
+    basin: list = [None]  # the first search's optimum, once there is one (_Basin)
+
     def residual(theta):
         try:
             r = evaluate[0](theta)
             size[0] = r.size
+            if basin[0] is not None:
+                basin[0].check(theta, r)
             return r
         except NUMERICAL_FAILURES:
             # a trial point the structure cannot realize (an overdamped coupled mode): a
@@ -494,19 +498,18 @@ def fit(
         if normal is not None and lines is not None:
             # the same norms and inner products as the model's residual (structure_lines)
             evaluate[0] = lines.residual
+        coords = _Coordinates.of(structure, problem, base, lo, hi)
         for th0 in starts:
             th0 = np.clip(th0, lo + inner, hi - inner)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
-                if normal is not None:
-                    res = levenberg_marquardt(
-                        residual, normal, th0, lo, hi, max_nfev=max_nfev, **normal.tolerances
-                    )
-                else:
-                    secant = bool(getattr(structure, "secant", False))
-                    res = _trust_region(residual, th0, lo, hi, max_nfev, secant=secant)
+                try:
+                    res = coords.search(residual, normal, th0, max_nfev, structure)
+                except _SameBasin:
+                    continue
             if best is None or res.cost < best.cost:
                 best = res
+                basin[0] = _Basin.of(best, lo.size, problem.n_obs)
         theta, jac, gram = best.x, best.get("jac"), best.get("gram")
         if not best.success:
             status = f"least squares stopped: {best.message}"
@@ -529,6 +532,131 @@ def fit(
         error=problem.error(realized.model),
         status=status,
     )
+
+
+class _SameBasin(Exception):
+    """A later start's search reached the first search's optimum (:class:`_Basin`)."""
+
+
+class _Basin:
+    """The neighbourhood of a search's optimum that a later start's search, once in it,
+    would only confirm: within one standard deviation of it in the fit's own metric,
+    ``|J (theta - x)|^2 <= sigma^2`` (``J`` the optimum's Jacobian, ``J^T J`` its Gram
+    matrix), at a cost within ``2 sigma^2`` of its cost (``sigma^2`` = cost / (n - p), as
+    the parameters' std).
+
+    Every fit refines two starts; where both end at the same optimum the second was paid
+    for in full, its slow last steps the dearest (indep3 time records: 13 of 41 s of the
+    searches). Only a search that ended well (``success``) is a basin: one stopped by its
+    evaluations' limit is no optimum.
+    """
+
+    def __init__(self, x, gram, cost2, sigma2):
+        self.x, self.gram, self.cost2, self.sigma2 = x, gram, cost2, sigma2
+
+    @classmethod
+    def of(cls, res, n_theta: int, n_obs: int):
+        """The basin of the search result ``res`` (scipy's OptimizeResult), or None."""
+        if not res.success or res.get("fun") is None or n_obs <= n_theta:
+            return None
+        gram = res.get("gram")
+        if gram is None:
+            jac = res.get("jac")
+            if jac is None:
+                return None
+            jac = np.asarray(jac)
+            gram = jac.T @ jac
+        cost2 = float(res.fun @ res.fun)
+        sigma2 = cost2 / (n_obs - n_theta)
+        if not (np.all(np.isfinite(gram)) and sigma2 > 0):
+            return None
+        return cls(np.array(res.x, float), np.asarray(gram, float), cost2, sigma2)
+
+    def check(self, theta, r) -> None:
+        """Raises :class:`_SameBasin` where ``theta`` (its residual ``r``) lies in it."""
+        d = np.asarray(theta, float) - self.x
+        if float(d @ self.gram @ d) > self.sigma2:
+            return
+        if float(r @ r) <= self.cost2 + 2 * self.sigma2:
+            raise _SameBasin
+
+
+class _Coordinates:
+    """The coordinates a search runs in: theta itself, or ``u = log theta`` for the
+    parameters a structure marks (``log_floor(problem, base)`` -> (n_theta,) floors, NaN
+    where theta stays linear).
+
+    In ``u`` the bounds are ``[log max(floor, lo), log hi]``, the Jacobian and normal
+    equations are the chain rule's (``d theta / d u = theta``), and the result is mapped
+    back to theta (``x``, ``jac``, ``gram``); a search that ends at the floor ends at the
+    parameter's own lower bound (a lag's: no lag on that channel).
+    """
+
+    def __init__(self, lo, hi, floor=None):
+        self.lo, self.hi = lo, hi
+        self.log = None if floor is None else np.isfinite(floor)
+        if self.log is not None and not np.any(self.log):
+            self.log = None
+        if self.log is not None:
+            self.floor = np.where(self.log, np.maximum(floor, lo), lo)
+
+    @classmethod
+    def of(cls, structure, problem, base, lo, hi):
+        fn = getattr(structure, "log_floor", None)
+        return cls(lo, hi, None if fn is None else np.asarray(fn(problem, base), float))
+
+    def theta(self, u):
+        return u if self.log is None else np.where(self.log, np.exp(u), u)
+
+    def search(self, residual, normal, th0, max_nfev, structure):
+        lo, hi = self.lo, self.hi
+        if self.log is None:
+            if normal is not None:
+                return levenberg_marquardt(
+                    residual, normal, th0, lo, hi, max_nfev=max_nfev, **normal.tolerances
+                )
+            secant = bool(getattr(structure, "secant", False))
+            return _trust_region(residual, th0, lo, hi, max_nfev, secant=secant)
+        L = self.log
+        ulo = np.where(L, np.log(self.floor), lo)
+        uhi = np.where(L, np.log(np.maximum(hi, self.floor * (1 + 1e-9))), hi)
+        inner = 1e-3 * (uhi - ulo)
+        u0 = np.where(L, np.log(np.clip(th0, self.floor, hi)), th0)
+        u0 = np.clip(u0, ulo + inner, uhi - inner)
+
+        def res_u(u):
+            return residual(self.theta(u))
+
+        def dtheta(u):  # d theta / d u
+            return np.where(L, np.exp(u), 1.0)
+
+        if normal is not None:
+
+            def normal_u(u, r):
+                H, g = normal(self.theta(u), r)
+                d = dtheta(u)
+                return H * np.outer(d, d), g * d
+
+            res = levenberg_marquardt(
+                res_u,
+                _Normal(normal_u, normal.tolerances),
+                u0,
+                ulo,
+                uhi,
+                max_nfev=max_nfev,
+                **normal.tolerances,
+            )
+        else:
+            secant = bool(getattr(structure, "secant", False))
+            res = _trust_region(res_u, u0, ulo, uhi, max_nfev, secant=secant)
+        d = dtheta(res.x)
+        # a search ended at the floor: the parameter's own bound (a lag: none on that channel)
+        res.x = np.where(L & (res.x <= ulo + inner), lo, self.theta(res.x))
+        if res.get("jac") is not None:
+            res.jac = np.asarray(res.jac) / d
+        if res.get("gram") is not None:
+            res.gram = res.gram / np.outer(d, d)
+        return res
 
 
 def _trust_region(
@@ -791,6 +919,13 @@ class Held:
     def build(self, theta, problem, base):
         return self.structure.build(self.full(theta), problem, base)
 
+    def log_floor(self, problem, base):
+        """The structure's floors (:class:`_Coordinates`) of the free parameters."""
+        fn = getattr(self.structure, "log_floor", None)
+        if fn is None:
+            return np.full(len(self.free), np.nan)
+        return np.asarray(fn(problem, base), float)[list(self.free)]
+
     def jacobian(self, theta, problem, base):
         """The structure's analytic columns of the free parameters, or None (it has none)."""
         fn = getattr(self.structure, "jacobian", None)
@@ -828,6 +963,15 @@ class Composite:
         lo = [np.asarray(p.bounds(problem, b)[0], float) for p, b in zip(self.parts, self.bases)]
         hi = [np.asarray(p.bounds(problem, b)[1], float) for p, b in zip(self.parts, self.bases)]
         return np.concatenate(lo), np.concatenate(hi)
+
+    def log_floor(self, problem, base):
+        """Each part's :meth:`log_floor` where it has one (NaN: linear), concatenated."""
+        out = []
+        for p, b in zip(self.parts, self.bases):
+            fn = getattr(p, "log_floor", None)
+            n = len(p.bounds(problem, b)[0])
+            out.append(np.full(n, np.nan) if fn is None else np.asarray(fn(problem, b), float))
+        return np.concatenate(out) if out else np.zeros(0)
 
     def split(self, theta, problem) -> list[np.ndarray]:
         out, i = [], 0

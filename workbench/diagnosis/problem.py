@@ -760,15 +760,17 @@ class _FilteredProblem:
                 out[:, rows] += X[g, :, :, 1] @ N1[rows].T
         return out
 
-    def _products_of(self, model: ModalModel) -> dict:
+    def _products_of(self, model: ModalModel, store: dict | None = None) -> dict:
         """The cache of inputs mixed by each numerator for the model's input coupling
-        (``u_in``'s only variable): :func:`mixed_inputs` / :func:`mixed_lines` fill it."""
+        (``u_in``'s only variable): :func:`mixed_inputs` / :func:`mixed_lines` fill it.
+        ``store``: another per-coupling store than ``_products`` (the filters' outputs)."""
+        store = self._products if store is None else store
         T_in = _key(model.T_in)
-        products = self._products.get(T_in)
+        products = store.get(T_in)
         if products is None:
-            if len(self._products) > 8:
-                self._products.clear()
-            products = self._products[T_in] = {}
+            if len(store) > 8:
+                store.clear()
+            products = store[T_in] = {}
         return products
 
     def _u_in(self, model: ModalModel) -> np.ndarray:
@@ -1057,6 +1059,7 @@ class TimeProblem(_FilteredProblem):
         self._anchors: list = []  # (channels, items, parts, sum), see _parts_sum
         self._residual_last = None  # (model, its weighted residual), see _regress
         self._products: dict = {}  # T_in -> numerator, rows, cols -> mixed inputs (_mixed)
+        self._outputs: dict = {}  # T_in -> filter, its inputs -> its output (_mixed)
 
     def _filter(self, model, den, u_in):
         return filtered_inputs(model, den, u_in, self.fs)
@@ -1069,7 +1072,8 @@ class TimeProblem(_FilteredProblem):
         if den is None:
             return super()._mixed(model, den, N0, N1, u_in, channels)
         products = self._products_of(model)
-        return mixed_inputs(model, den, N0, N1, u_in, self.fs, products=products)
+        outputs = self._products_of(model, self._outputs)
+        return mixed_inputs(model, den, N0, N1, u_in, self.fs, products=products, outputs=outputs)
 
     def _start_basis(self, model: ModalModel) -> np.ndarray | None:
         """Orthonormal basis (N, n_b) of the model's free responses, or None (from rest)."""

@@ -170,7 +170,9 @@ def filtered_inputs(model, den, u: np.ndarray, fs: float, *, numerator_s: bool =
     return X, groups
 
 
-def mixed_inputs(model, den, N0, N1, u: np.ndarray, fs: float, *, products=None) -> np.ndarray:
+def mixed_inputs(
+    model, den, N0, N1, u: np.ndarray, fs: float, *, products=None, outputs=None
+) -> np.ndarray:
     """One mode's output on the record, (N, n_y): :func:`filtered_inputs` mixed by the
     numerator ``N1 s + N0``, without forming the filtered inputs.
 
@@ -184,8 +186,12 @@ def mixed_inputs(model, den, N0, N1, u: np.ndarray, fs: float, *, products=None)
     n_u; ``N1`` None or zero: ``1/d`` only), ``u`` (N, n_u) after the input coupling, ``fs``
     Hz. ``products``: a cache of the mixed inputs for this ``u`` (the caller keeps one per
     ``u``), keyed by the numerator and the filter's rows and columns: a moved mode keeps
-    its numerator. The same output as mixing :func:`filtered_inputs` (the additions in
-    another order: rounding).
+    its numerator. ``outputs``: a cache of each filter's recursion output for this ``u``
+    (the caller keeps one per ``u``, as ``products``), keyed by its coefficients and the
+    inputs it filters: a lag moved on one channel (a lag fit's difference quotient) leaves
+    the other channels' filters as they were, and they are found here (with four input
+    lags, one recursion in four). The same output as mixing :func:`filtered_inputs` (the
+    additions in another order: rounding).
     """
     filters, groups = _channel_filters(model, den, True)
     dt = 1.0 / fs
@@ -203,20 +209,23 @@ def mixed_inputs(model, den, N0, N1, u: np.ndarray, fs: float, *, products=None)
             roots = b"" if f.roots is None else f.roots.tobytes()
             coefficients.append(_zoh_coefficients(num.tobytes(), dm.tobytes(), dt, frac, roots))
         a = coefficients[0][1]
-        if 2 * f.cols.size < rows.size and len(coefficients) == 2:
-            # a lag on one input of many outputs: its column through 1/d and s/d (two
-            # recursions) and mixed after, fewer than one recursion per output
-            x = np.ascontiguousarray(u[:, f.cols].T)[None]
-            out = 0.0
-            for (b, _), N_k in zip(coefficients, numerators):
-                X = iir_streams(b[None], a, x)  # (n_cols, N)
-                out = out + N_k[np.ix_(rows, f.cols)] @ X
-        else:
-            bs = np.stack([b for b, _ in coefficients])
-            xs = np.stack(
-                [_mixed_record(u, N_k, rows, f.cols, products) for N_k in numerators[: len(bs)]]
+        key = None
+        if outputs is not None:
+            key = (
+                a.tobytes(),
+                tuple(b.tobytes() for b, _ in coefficients),
+                tuple(N_k[np.ix_(rows, f.cols)].tobytes() for N_k in numerators),
+                rows.tobytes(),
+                f.cols.tobytes(),
             )
-            out = iir_streams(bs, a, xs)  # (n_rows, N)
+            out = outputs.get(key)
+        if key is None or out is None:
+            out = _filter_record(coefficients, a, numerators, u, rows, f.cols, products)
+            if key is not None:
+                if len(outputs) >= RECORD_OUTPUTS_KEPT:
+                    outputs.pop(next(iter(outputs)))
+                out.flags.writeable = False
+                outputs[key] = out
         if m_int < N:
             y[m_int:, rows] += out[:, : N - m_int].T
     return y
@@ -225,6 +234,28 @@ def mixed_inputs(model, den, N0, N1, u: np.ndarray, fs: float, *, products=None)
 #: numerators whose mixed inputs a ``products`` cache of :func:`mixed_inputs` keeps (each
 #: n_y N floats: 0.4 MB for a 16 384-sample record with 3 outputs)
 RECORD_PRODUCTS_KEPT = 64
+
+#: filter outputs an ``outputs`` cache of :func:`mixed_inputs` keeps: a model's modes times
+#: its lag sets, twice over (a difference quotient's point beside its base point); each
+#: n_rows N floats (at most ~50 MB for 16 384 samples and 3 outputs)
+RECORD_OUTPUTS_KEPT = 128
+
+
+def _filter_record(coefficients, a, numerators, u, rows, cols, products) -> np.ndarray:
+    """One filter's output (n_rows, N) of :func:`mixed_inputs`: its inputs mixed by each
+    numerator and run through ``b_k / a`` in one recursion."""
+    if 2 * cols.size < rows.size and len(coefficients) == 2:
+        # a lag on one input of many outputs: its column through 1/d and s/d (two
+        # recursions) and mixed after, fewer than one recursion per output
+        x = np.ascontiguousarray(u[:, cols].T)[None]
+        out = 0.0
+        for (b, _), N_k in zip(coefficients, numerators):
+            X = iir_streams(b[None], a, x)  # (n_cols, N)
+            out = out + N_k[np.ix_(rows, cols)] @ X
+        return out
+    bs = np.stack([b for b, _ in coefficients])
+    xs = np.stack([_mixed_record(u, N_k, rows, cols, products) for N_k in numerators[: len(bs)]])
+    return iir_streams(bs, a, xs)  # (n_rows, N)
 
 
 def _mixed_record(u: np.ndarray, N: np.ndarray, rows, cols, products: dict | None):
