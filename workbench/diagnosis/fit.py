@@ -919,13 +919,6 @@ class Held:
     def build(self, theta, problem, base):
         return self.structure.build(self.full(theta), problem, base)
 
-    def log_floor(self, problem, base):
-        """The structure's floors (:class:`_Coordinates`) of the free parameters."""
-        fn = getattr(self.structure, "log_floor", None)
-        if fn is None:
-            return np.full(len(self.free), np.nan)
-        return np.asarray(fn(problem, base), float)[list(self.free)]
-
     def jacobian(self, theta, problem, base):
         """The structure's analytic columns of the free parameters, or None (it has none)."""
         fn = getattr(self.structure, "jacobian", None)
@@ -963,15 +956,6 @@ class Composite:
         lo = [np.asarray(p.bounds(problem, b)[0], float) for p, b in zip(self.parts, self.bases)]
         hi = [np.asarray(p.bounds(problem, b)[1], float) for p, b in zip(self.parts, self.bases)]
         return np.concatenate(lo), np.concatenate(hi)
-
-    def log_floor(self, problem, base):
-        """Each part's :meth:`log_floor` where it has one (NaN: linear), concatenated."""
-        out = []
-        for p, b in zip(self.parts, self.bases):
-            fn = getattr(p, "log_floor", None)
-            n = len(p.bounds(problem, b)[0])
-            out.append(np.full(n, np.nan) if fn is None else np.asarray(fn(problem, b), float))
-        return np.concatenate(out) if out else np.zeros(0)
 
     def split(self, theta, problem) -> list[np.ndarray]:
         out, i = [], 0
