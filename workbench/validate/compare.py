@@ -208,6 +208,13 @@ class Comparison:
     z_expected : float or None
         The mean of z for a right model: 1 for an FRF with G_var (Exp(1)),
         d / (d - 2) for a periodic record's F(2, d) (2 for three kept periods).
+    error_noise_floor : float or None
+        Periodic time data: the error the record's noise alone leaves over the whole
+        record, its variance from the period-to-period spread
+        (:func:`workbench.diagnosis.detect.noise_floor`); None otherwise. The bands test
+        the steady state's excited lines only; ``whole_record_ratio`` (the residual's error
+        over this floor, ``as_dict``) also sees a misfit between the lines and in the
+        first, dropped period (a lightly damped mode between the lines rings there).
     notes : tuple of str
         What was assumed or could not be done.
     """
@@ -229,6 +236,7 @@ class Comparison:
     notes: tuple[str, ...] = ()
     error_estimated_start: float | None = None
     z_expected: float | None = None
+    error_noise_floor: float | None = None
     frf: FrfDetail | None = field(default=None, repr=False)
     time: TimeDetail | None = field(default=None, repr=False)
 
@@ -240,6 +248,17 @@ class Comparison:
     def within_noise(self) -> bool:
         """True when no band fails (meaningful only with a noise reference)."""
         return not self.failing_bands
+
+    @property
+    def whole_record_ratio(self) -> float | None:
+        """Periodic time data: the error of the residual the bands are read from (from the
+        estimated start where there is one, else from rest) over ``error_noise_floor``;
+        about 1 for a right model, the whole record's transient and every line included."""
+        if self.error_noise_floor is None or self.time is None or self.error_noise_floor <= 0:
+            return None
+        t = self.time
+        y_model = t.y_model_x0 if t.residual_from == "estimated start" else t.y_model
+        return lti.relative_error_time(t.y, y_model) / self.error_noise_floor
 
     def as_dict(self) -> dict:
         """A JSON-ready summary (no per-line arrays)."""
@@ -261,6 +280,8 @@ class Comparison:
             if self.z_mean_per_channel is None
             else self.z_mean_per_channel.tolist(),
             "z_expected": self.z_expected,
+            "error_noise_floor": self.error_noise_floor,
+            "whole_record_ratio": self.whole_record_ratio,
             "criterion": self.criterion,
             "threshold": self.threshold,
             "within_noise": self.within_noise,
@@ -676,6 +697,36 @@ def _estimated_start(model, data: TimeData, y_rest: np.ndarray):
     return y_rest + y_free, ""
 
 
+#: whole-record error over the noise floor above which compare notes a misfit its bands (the
+#: steady state's excited lines) do not test
+WHOLE_RECORD_RATIO = 1.1
+
+
+def _whole_record_floor(data: TimeData, y_model, resid, bands, notes: list) -> float | None:
+    """The periodic record's whole-record noise floor (:attr:`Comparison.error_noise_floor`),
+    a note where the residual's error is above :data:`WHOLE_RECORD_RATIO` of it while no
+    band fails: what the steady state's lines do not show."""
+    # at call time: workbench.diagnosis imports this module
+    from workbench.diagnosis.detect import noise_floor
+
+    floor = noise_floor(data, y_model)
+    if floor is None or floor <= 0:
+        return None
+    ratio = float(np.linalg.norm(resid) / np.linalg.norm(data.y)) / floor
+    notes.append(
+        f"whole record: the residual's error is {ratio:.3g}x the error the noise alone leaves "
+        "(noise from the period-to-period spread, over every sample and line)"
+    )
+    if ratio > WHOLE_RECORD_RATIO and not bands:
+        notes.append(
+            f"the steady state's excited lines are within noise, but the whole record is "
+            f"{ratio:.3g}x its noise floor: a misfit between the excited lines or in the "
+            "first period's transient (a lightly damped mode between the lines rings there), "
+            "which the bands do not test"
+        )
+    return floor
+
+
 def _compare_time(model, data: TimeData, *, delay_s, window, false_alarm, gap, max_lag, noise):
     notes = [
         "error (spec measure): simulation from rest (zero initial state) with the recorded u",
@@ -741,6 +792,7 @@ def _compare_time(model, data: TimeData, *, delay_s, window, false_alarm, gap, m
         z_pc = z.mean(axis=0)
         z_expected = dof2 / (dof2 - 2) if dof2 > 2 else None
         bands = _bands(stat, z, freq, thr, gap)
+        floor = _whole_record_floor(data, y - resid, resid, bands, notes)
         label = f"running median of z over {w} lines"
         # F(2, d) has mean d / (d - 2), not 1
         if z_expected is not None:
@@ -754,7 +806,7 @@ def _compare_time(model, data: TimeData, *, delay_s, window, false_alarm, gap, m
             "shows the residual-to-output PSD ratio"
         )
         notes.append("non-periodic record: noise cannot be separated from model error per band")
-        z_mean, z_pc, z_expected, bands = None, None, None, []
+        z_mean, z_pc, z_expected, bands, floor = None, None, None, [], None
         label = "Welch PSD of the residual / PSD of y"
     return Comparison(
         kind="time",
@@ -774,6 +826,7 @@ def _compare_time(model, data: TimeData, *, delay_s, window, false_alarm, gap, m
         notes=tuple(notes),
         error_estimated_start=err_x0,
         z_expected=z_expected,
+        error_noise_floor=floor,
         time=TimeDetail(
             fs=data.fs,
             y=y,

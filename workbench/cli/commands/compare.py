@@ -83,6 +83,11 @@ def format_text(res: Comparison, model_src: str, data_src: str) -> str:
             )
         else:
             lines.append(f"error with estimated start: not computed ({res.time.x0_note})")
+    if res.whole_record_ratio is not None:
+        lines.append(
+            f"whole record: {res.whole_record_ratio:.4g}x the noise floor "
+            f"{res.error_noise_floor:.4g} (about 1 when within noise; every sample and line)"
+        )
     if res.z_mean is not None:
         # F(2, d) (G_var from few averages, periods) has mean d / (d - 2), not 1
         right = "1" if res.z_expected is None else f"{res.z_expected:.3g}"
