@@ -70,7 +70,8 @@ __all__ = [
 #: damped, and a record from rest keeps its free oscillation to the end (an indep3 beam
 #: record, undamped suspension modes at 18 / 31 Hz over 4 s: the true model with its
 #: suspension damped 1e-4 is 2.06x the noise floor, with 1e-5 1.016x)
-_LOG_Z = (np.log(1e-6), np.log(0.7))
+MIN_DAMPING = 1e-6
+_LOG_Z = (np.log(MIN_DAMPING), np.log(0.7))
 
 
 def _freq_damping(theta) -> tuple[float, float]:
