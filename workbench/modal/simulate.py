@@ -583,14 +583,10 @@ def _pole_coefficients(
         return None
     # scalar arithmetic from here (n <= 4 behind lags: numpy's per-call cost dominated)
     lam = [complex(x) for x in lam]
-    dden = [(n - i) * float(den[i]) for i in range(n)]  # den', highest power first
-    try:
-        r = [_horner(strict, x) / _horner(dden, x) for x in lam]
-        p = [cmath.exp(x * dt) for x in lam]
-        b0 = [_integral(x, dt - frac, dt) for x in lam]
-        b1 = [cmath.exp(x * (dt - frac)) * _integral(x, frac, dt) for x in lam]
-    except (OverflowError, ZeroDivisionError):
+    terms = _pole_terms(strict, den, lam, dt, frac)
+    if terms is None:
         return None
+    r, p, b0, b1 = terms
     b = [0j] * (n + 2)
     for k in range(n):
         rest = _poly_z(p[:k] + p[k + 1 :])  # prod_{j != k} (1 - p_j z^-1), length n
@@ -637,14 +633,10 @@ def _rigid_coefficients(strict: np.ndarray, den: np.ndarray, roots_bytes: bytes,
     q0, q1 = q[-1], (q[-2] if len(q) > 1 else 0.0)  # q(0), q'(0)
     s0, s1 = float(strict[-1]), (float(strict[-2]) if strict.size > 1 else 0.0)
     c2, c1 = s0 / q0, (s1 * q0 - s0 * q1) / (q0 * q0)
-    dden = [(n - i) * float(den[i]) for i in range(n)]
-    try:
-        r = [_horner(strict, x) / _horner(dden, x) for x in rest]
-        p = [cmath.exp(x * dt) for x in rest]
-        b0 = [_integral(x, dt - frac, dt) for x in rest]
-        b1 = [cmath.exp(x * (dt - frac)) * _integral(x, frac, dt) for x in rest]
-    except (OverflowError, ZeroDivisionError):
+    terms = _pole_terms(strict, den, rest, dt, frac)
+    if terms is None:
         return None
+    r, p, b0, b1 = terms
     h = dt - frac
     al0, al1 = 0.5 * h * h, dt * frac - 0.5 * frac * frac  # position from u[k], u[k-1]
     two = [0.0, al0, al1 - al0 + dt * h, dt * frac - al1]  # 1/s^2 over (1 - z^-1)^2
@@ -666,6 +658,23 @@ def _rigid_coefficients(strict: np.ndarray, den: np.ndarray, roots_bytes: bytes,
     b.flags.writeable = False
     a.flags.writeable = False
     return b, a
+
+
+def _pole_terms(strict: np.ndarray, den: np.ndarray, lam: list, dt: float, frac: float):
+    """Per simple pole ``lam_k`` of the monic ``den``: its residue ``r_k = strict(lam_k) /
+    den'(lam_k)``, ``p_k = exp(lam_k dt)`` and the sampled pole's numerator ``b0_k z^-1 +
+    b1_k z^-2`` with the input delayed by ``frac`` within a sample (lists, scalar
+    arithmetic), or None where they overflow."""
+    n = den.size - 1
+    dden = [(n - i) * float(den[i]) for i in range(n)]  # den', highest power first
+    try:
+        r = [_horner(strict, x) / _horner(dden, x) for x in lam]
+        p = [cmath.exp(x * dt) for x in lam]
+        b0 = [_integral(x, dt - frac, dt) for x in lam]
+        b1 = [cmath.exp(x * (dt - frac)) * _integral(x, frac, dt) for x in lam]
+    except (OverflowError, ZeroDivisionError):
+        return None
+    return r, p, b0, b1
 
 
 def _horner(c, x: complex) -> complex:
