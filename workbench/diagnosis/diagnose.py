@@ -64,7 +64,6 @@ from workbench.core.jsonutil import jsonable
 from workbench.core.lti import as_matrices, frf, relative_error_frf, relative_error_time
 from workbench.diagnosis import detect
 from workbench.diagnosis.effects import (
-    MIN_DAMPING,
     AliasedMode,
     CoupledSuspension,
     MissingMode,
@@ -75,7 +74,7 @@ from workbench.diagnosis.effects import (
     polish,
     refinements,
 )
-from workbench.diagnosis.explain import _hz, explain
+from workbench.diagnosis.explain import damping_floor_note, explain
 from workbench.diagnosis.fit import (
     MAX_NFEV,
     NUMERICAL_FAILURES,
@@ -219,36 +218,6 @@ def _has_nan(v) -> bool:
         return bool(np.any(np.isnan(np.asarray(v, float))))
     except (TypeError, ValueError):
         return False
-
-
-def _damping_floor_note(params: dict, params_std: dict) -> str:
-    """A sentence for damping ratios that ended at the search's floor
-    (:data:`~workbench.diagnosis.effects.MIN_DAMPING`), or "".
-
-    There the record resolves an upper bound only, about the std: a DaISy CD-player record
-    fitted a mode at 0.413 Hz with damping 1e-6 +- 0.0024 (no line in the output spectrum
-    there), and an undamped suspension on flexures is also reported so."""
-    at_floor = 1.001 * MIN_DAMPING
-    z = params.get("damping")
-    if isinstance(z, float) and z <= at_floor:
-        sd = params_std.get("damping")
-        bound = f"below about {sd:.2g} (its std)" if isinstance(sd, float) and sd > 0 else "low"
-        return (
-            f" Its damping ended at the search's floor ({MIN_DAMPING:g}): the record resolves "
-            f"only that it is {bound}, not its value."
-        )
-    low = [
-        m["freq_hz"]
-        for m in params.get("modes", [])
-        if isinstance(m, dict) and isinstance(m.get("damping"), float) and m["damping"] <= at_floor
-    ]
-    if low:
-        where = _hz(low)
-        return (
-            f" The damping of the mode(s) at {where} ended at the search's floor "
-            f"({MIN_DAMPING:g}): the record resolves only that it is low, not its value."
-        )
-    return ""
 
 
 def _mark_undetermined(x):
@@ -2026,7 +1995,7 @@ def _finding(fr: FitResult, runner, problem, base, data, err_before, floor) -> F
             f"resolve its resonance (frequency +- {params_std['freq_hz']:.3g} Hz, damping +- "
             f"{params_std['damping']:.2g}): a mode, not residual compliance."
         )
-    explanation += _damping_floor_note(params, params_std)
+    explanation += damping_floor_note(params, params_std)
     undetermined = [k for k, v in params_std.items() if _has_nan(v)]
     if undetermined:
         explanation += (

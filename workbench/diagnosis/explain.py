@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["explain"]
+from workbench.diagnosis.effects import MIN_DAMPING
+
+__all__ = ["damping_floor_note", "explain"]
 
 #: a lag whose every cutoff is this many times the band's top leaves no roll-off in it
 FAST_LAG = 100.0
@@ -160,3 +162,33 @@ def explain(effect: str, ev: dict) -> str:
     if effect == "none":
         return ev["reason"]
     return fall
+
+
+def damping_floor_note(params: dict, params_std: dict) -> str:
+    """A sentence for damping ratios that ended at the search's floor
+    (``MIN_DAMPING``, :data:`workbench.diagnosis.effects.MIN_DAMPING`), or "".
+
+    There the record resolves an upper bound only, about the std: a DaISy CD-player record
+    fitted a mode at 0.413 Hz with damping 1e-6 +- 0.0024 (no line in the output spectrum
+    there), and an undamped suspension on flexures is also reported so."""
+    at_floor = 1.001 * MIN_DAMPING
+    z = params.get("damping")
+    if isinstance(z, float) and z <= at_floor:
+        sd = params_std.get("damping")
+        bound = f"below about {sd:.2g} (its std)" if isinstance(sd, float) and sd > 0 else "low"
+        return (
+            f" Its damping ended at the search's floor ({MIN_DAMPING:g}): the record resolves "
+            f"only that it is {bound}, not its value."
+        )
+    low = [
+        m["freq_hz"]
+        for m in params.get("modes", [])
+        if isinstance(m, dict) and isinstance(m.get("damping"), float) and m["damping"] <= at_floor
+    ]
+    if low:
+        where = _hz(low)
+        return (
+            f" The damping of the mode(s) at {where} ended at the search's floor "
+            f"({MIN_DAMPING:g}): the record resolves only that it is low, not its value."
+        )
+    return ""

@@ -611,12 +611,7 @@ class _Coordinates:
     def search(self, residual, normal, th0, max_nfev, structure):
         lo, hi = self.lo, self.hi
         if self.log is None:
-            if normal is not None:
-                return levenberg_marquardt(
-                    residual, normal, th0, lo, hi, max_nfev=max_nfev, **normal.tolerances
-                )
-            secant = bool(getattr(structure, "secant", False))
-            return _trust_region(residual, th0, lo, hi, max_nfev, secant=secant)
+            return _search(residual, normal, th0, lo, hi, max_nfev, structure)
         L = self.log
         ulo = np.where(L, np.log(self.floor), lo)
         uhi = np.where(L, np.log(np.maximum(hi, self.floor * (1 + 1e-9))), hi)
@@ -630,25 +625,16 @@ class _Coordinates:
         def dtheta(u):  # d theta / d u
             return np.where(L, np.exp(u), 1.0)
 
+        normal_u = None
         if normal is not None:
 
-            def normal_u(u, r):
+            def chained(u, r):
                 H, g = normal(self.theta(u), r)
                 d = dtheta(u)
                 return H * np.outer(d, d), g * d
 
-            res = levenberg_marquardt(
-                res_u,
-                _Normal(normal_u, normal.tolerances),
-                u0,
-                ulo,
-                uhi,
-                max_nfev=max_nfev,
-                **normal.tolerances,
-            )
-        else:
-            secant = bool(getattr(structure, "secant", False))
-            res = _trust_region(res_u, u0, ulo, uhi, max_nfev, secant=secant)
+            normal_u = _Normal(chained, normal.tolerances)
+        res = _search(res_u, normal_u, u0, ulo, uhi, max_nfev, structure)
         d = dtheta(res.x)
         # a search ended at the floor: the parameter's own bound (a lag: none on that channel)
         res.x = np.where(L & (res.x <= ulo + inner), lo, self.theta(res.x))
@@ -657,6 +643,18 @@ class _Coordinates:
         if res.get("gram") is not None:
             res.gram = res.gram / np.outer(d, d)
         return res
+
+
+def _search(residual, normal, x0, lo, hi, max_nfev: int, structure):
+    """One refinement from ``x0``: Levenberg-Marquardt on ``normal``'s equations where
+    there are some (:func:`_normal_equations`), else scipy's trust region (secant updates
+    where the structure asks, :func:`_trust_region`)."""
+    if normal is not None:
+        return levenberg_marquardt(
+            residual, normal, x0, lo, hi, max_nfev=max_nfev, **normal.tolerances
+        )
+    secant = bool(getattr(structure, "secant", False))
+    return _trust_region(residual, x0, lo, hi, max_nfev, secant=secant)
 
 
 def _trust_region(

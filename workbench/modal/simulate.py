@@ -493,32 +493,20 @@ def _zoh_discretization(den_bytes: bytes, dt: float, frac: float):
 def _zoh_parts(
     num_bytes: bytes, den_bytes: bytes, dt: float, frac: float, roots_bytes: bytes = b""
 ):
-    """(b, a, k): the ZOH filter of :func:`_zoh_coefficients` as ``b / (a (1 - z^-1)^k)``.
+    """(b, a, k): the ZOH-sampled strictly proper part of num/den (monic den, num padded)
+    as ``b / (a (1 - z^-1)^k)``.
 
     ``k = 2`` for a ``den`` with the rigid body's double pole at the origin (behind lags:
     :func:`_rigid_coefficients`), run as a recursion through ``a`` (the other poles) and
-    two running sums; else ``k = 0`` and ``(b, a)`` of :func:`_zoh_coefficients`. A double
-    pole at ``z = 1`` inside ``a`` is not one in floating point (``a``'s rounding splits it
-    to ``1 +- sqrt(eps)``, and a direct-form recursion through it amplifies its rounding),
-    and the matrix exponential's ``b`` (a difference of characteristic polynomials that are
-    ~1/dt^2 larger than it) is ~1e-8 off. Over a 16 384-sample
+    two running sums (:func:`_recursion`); else ``k = 0``: partial fractions
+    (:func:`_pole_coefficients`) or, for poles too close for them, the matrix exponential.
+    A double pole at ``z = 1`` inside ``a`` is not one in floating point (``a``'s rounding
+    splits it to ``1 +- sqrt(eps)``, and a direct-form recursion through it amplifies its
+    rounding), and the matrix exponential's ``b`` (a difference of characteristic
+    polynomials that are ~1/dt^2 larger than it) is ~1e-8 off. Over a 16 384-sample
     record the simulated rigid body then moved with a lag by ~1e-6 of the cost for a 1e-12
     change in ``tau``, 0.1-0.2 of the noise variance (an indep3 planar record), which a lag
     fit's difference quotients read as slope; here the cost is smooth to 1e-8 of it.
-    """
-    num, den = np.frombuffer(num_bytes), np.frombuffer(den_bytes)
-    if den.size >= 3 and den[-1] == 0 and den[-2] == 0:
-        rigid = _rigid_coefficients(num[1:] - num[0] * den[1:], den, roots_bytes, dt, frac)
-        if rigid is not None:
-            return rigid + (2,)
-    return _zoh_coefficients(num_bytes, den_bytes, dt, frac, roots_bytes) + (0,)
-
-
-@functools.lru_cache(maxsize=512)
-def _zoh_coefficients(
-    num_bytes: bytes, den_bytes: bytes, dt: float, frac: float, roots_bytes: bytes = b""
-):
-    """(b, a) of the ZOH-sampled strictly proper part of num/den (monic den, num padded).
 
     Cached: a diagnosis fit evaluates the same mode with the same lag and delay
     many times (every other parameter's Jacobian column), and the discretization
@@ -530,16 +518,14 @@ def _zoh_coefficients(
     strict = num[1:] - num[0] * den[1:]
     if den.size >= 3 and den[-1] == 0 and den[-2] == 0:
         rigid = _rigid_coefficients(strict, den, roots_bytes, dt, frac)
-        if rigid is not None:  # over the whole denominator
-            b, a = rigid[0], np.convolve([1.0, -2.0, 1.0], rigid[1])
-            a.flags.writeable = False
-            return b, a
+        if rigid is not None:
+            return rigid + (2,)
     roots = np.frombuffer(roots_bytes, complex) if roots_bytes else None
     closed = _pole_coefficients(strict, den, dt, frac, roots)
     if closed is not None:
         for x in closed:
             x.flags.writeable = False
-        return closed
+        return closed + (0,)
     Ad, B0, B1, t, a = _zoh_discretization(den_bytes, dt, frac)
     C = (strict * t)[None, :]
     # SISO transfer functions of (Ad, B0, C) and (Ad, B1, C): numerator
@@ -548,6 +534,20 @@ def _zoh_coefficients(
     b1 = _charpoly(Ad - B1 @ C) - a
     b = np.concatenate([b0, [0.0]]) + np.concatenate([[0.0], b1])
     b.flags.writeable = False
+    return b, a, 0
+
+
+@functools.lru_cache(maxsize=512)
+def _zoh_coefficients(
+    num_bytes: bytes, den_bytes: bytes, dt: float, frac: float, roots_bytes: bytes = b""
+):
+    """(b, a) of :func:`_zoh_parts` over the whole denominator, ``a (1 - z^-1)^k`` (the
+    frequency responses' form: on the unit circle away from ``z = 1`` the product is
+    harmless)."""
+    b, a, k = _zoh_parts(num_bytes, den_bytes, dt, frac, roots_bytes)
+    if k:
+        a = np.convolve(np.poly(np.ones(k)), a)  # (1 - z^-1)^k: [1, -2, 1]
+        a.flags.writeable = False
     return b, a
 
 

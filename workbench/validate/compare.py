@@ -702,7 +702,7 @@ def _estimated_start(model, data: TimeData, y_rest: np.ndarray):
 WHOLE_RECORD_RATIO = 1.1
 
 
-def _whole_record_floor(data: TimeData, y_model, resid, bands, notes: list) -> float | None:
+def _whole_record_floor(data: TimeData, y_model, bands, notes: list) -> float | None:
     """The periodic record's whole-record noise floor (:attr:`Comparison.error_noise_floor`),
     a note where the residual's error is above :data:`WHOLE_RECORD_RATIO` of it while no
     band fails: what the steady state's lines do not show."""
@@ -712,7 +712,7 @@ def _whole_record_floor(data: TimeData, y_model, resid, bands, notes: list) -> f
     floor = noise_floor(data, y_model)
     if floor is None or floor <= 0:
         return None
-    ratio = float(np.linalg.norm(resid) / np.linalg.norm(data.y)) / floor
+    ratio = lti.relative_error_time(data.y, y_model) / floor  # Comparison.whole_record_ratio
     notes.append(
         f"whole record: the residual's error is {ratio:.3g}x the error the noise alone leaves "
         "(noise from the period-to-period spread, over every sample and line)"
@@ -792,7 +792,7 @@ def _compare_time(model, data: TimeData, *, delay_s, window, false_alarm, gap, m
         z_pc = z.mean(axis=0)
         z_expected = dof2 / (dof2 - 2) if dof2 > 2 else None
         bands = _bands(stat, z, freq, thr, gap)
-        floor = _whole_record_floor(data, y - resid, resid, bands, notes)
+        floor = _whole_record_floor(data, y - resid, bands, notes)
         label = f"running median of z over {w} lines"
         # F(2, d) has mean d / (d - 2), not 1
         if z_expected is not None:
