@@ -358,12 +358,12 @@ class MissingMode:
         )
 
     def lines(self, problem, base):
-        """:class:`_Lines` on FRF data without coupling (else None): the added mode's cost
-        from the normal equations its residue was solved with
-        (:meth:`FrfProblem.added_term_cost`, a screening), its residual as the base's
-        misfit minus the mode (:meth:`FrfProblem.added_term_residual`, finite differences):
-        no model's prediction formed."""
-        if problem.kind != "frf" or base.T_in is not None or base.T_out is not None:
+        """:class:`_Lines` where the problem adds a term exactly (``added_terms_exact``: FRF
+        data without coupling, a record from rest without output coupling; else None): the
+        added mode's cost from the normal equations its residue was solved with
+        (``added_term_cost``, a screening), its residual as the base's misfit minus the
+        mode (``added_term_residual``, finite differences): no model built and simulated."""
+        if not problem.added_terms_exact(base):
             return None
 
         def cost(theta):
@@ -1612,14 +1612,16 @@ class UpperResidual:
         return replace(mode, N0=N0, N1=N1, effect="upper_residual"), dD, far, sD, s0, s1
 
     def lines(self, problem, base):
-        """:class:`_Lines` on FRF data without coupling (else None): the residual as the
-        base's misfit minus the pseudo-mode and dD (:meth:`FrfProblem.added_term_residual`,
-        no model's prediction formed)."""
-        if problem.kind != "frf" or base.T_in is not None or base.T_out is not None:
+        """:class:`_Lines` where the problem adds a term exactly (``added_terms_exact``, see
+        :meth:`MissingMode.lines`; else None): the residual as the base's misfit minus the
+        pseudo-mode and dD or the late mode (``added_term_residual``), no model built."""
+        if not problem.added_terms_exact(base):
             return None
 
         def residual(theta):
-            mode, dD, *_ = self._term(theta, problem, base)
+            mode, dD, far, *_ = self._term(theta, problem, base)
+            if far is not None:
+                return problem.added_term_residual(base, mode, late=far)
             return problem.added_term_residual(base, mode, dD)
 
         return _Lines(residual=residual)

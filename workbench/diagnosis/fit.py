@@ -495,8 +495,9 @@ def fit(
         if lines is not None and lines.residual is None:
             lines = None  # a cheap cost only: the model's residual is searched
         normal = _normal_equations(structure, problem, base, residual, lo, hi, lines)
-        if normal is not None and lines is not None:
-            # the same norms and inner products as the model's residual (structure_lines)
+        if lines is not None and (normal is not None or problem.domain == "time"):
+            # the same norms and inner products as the model's residual (structure_lines);
+            # in the time domain the residual itself (an added term's, on a record from rest)
             evaluate[0] = lines.residual
         coords = _Coordinates.of(structure, problem, base, lo, hi)
         for th0 in starts:

@@ -366,6 +366,12 @@ class FrfProblem:
         std = np.sqrt(np.abs(np.stack([cov[..., 0, 0], cov[..., 1, 1]], -1)))
         return x[..., 0], x[..., 1] / wr, std[..., 0], std[..., 1] / wr
 
+    def added_terms_exact(self, model: ModalModel) -> bool:
+        """True where :meth:`added_term_cost` and :meth:`added_term_residual` are exact: a
+        model without coupling (the channel factor of :meth:`fit_new_term` is then the
+        model's outer factor)."""
+        return model.T_in is None and model.T_out is None
+
     def added_term_cost(self, model: ModalModel, den: np.ndarray, N0, N1) -> float:
         """:meth:`cost` of ``model`` plus the mode ``(N1 s + N0) / (s^2 + den[0] s + den[1])``.
 
@@ -565,25 +571,32 @@ def _orthonormal_columns(B: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
     return np.ascontiguousarray(Q[:, keep])
 
 
-def _lstsq_std(X: np.ndarray, b: np.ndarray):
+def _lstsq_std(X: np.ndarray, b: np.ndarray, normal: list | None = None):
     """Least squares by the normal equations of the column-scaled X; x and its unit-noise std.
 
     ``X`` (n, p); ``b`` (n,) or (n, k) (k right-hand sides sharing X: one factorization);
-    returns x (p,) or (p, k) and std (p,).
+    returns x (p,) or (p, k) and std (p,). ``normal``: a list the normal equations are
+    appended to, ``(M, Xs^T b, scale)`` with ``Xs = X / scale`` and ``M = Xs^T Xs``: the
+    cost of any coefficients without X (:meth:`_FilteredProblem.added_term_cost`).
     """
     if X.shape[1] == 0:
+        if normal is not None:
+            normal.append((np.zeros((0, 0)), np.zeros((0,) + b.shape[1:]), np.zeros(0)))
         return np.zeros((0,) + b.shape[1:]), np.zeros(0)
     scale = np.sqrt(np.einsum("ij,ij->j", X, X))  # np.linalg.norm(axis=0): ~3x slower, tall X
     scale = np.where(scale > 0, scale, 1.0)
     Xs = X / scale
     M = Xs.T @ Xs
+    Xb = Xs.T @ b
+    if normal is not None:
+        normal.append((M.copy(), Xb, scale))
     M += 1e-12 * np.eye(M.shape[0])
     # np.linalg.pinv(M, hermitian=True) (its default cutoff 1e-15 of the largest eigenvalue)
     # from one eigh, without pinv's SVD wrapper (a screen solves hundreds of these)
     lam, V = np.linalg.eigh(M)
     keep = np.abs(lam) > 1e-15 * np.max(np.abs(lam))
     cov = (V * np.where(keep, 1.0 / np.where(keep, lam, 1.0), 0.0)) @ V.T
-    x = cov @ (Xs.T @ b)
+    x = cov @ Xb
     s = 1.0 / scale if b.ndim == 1 else (1.0 / scale)[:, None]
     return x * s, np.sqrt(np.abs(np.diag(cov))) / scale
 
@@ -921,31 +934,92 @@ class _FilteredProblem:
         (:meth:`_regress`): the model's (:meth:`_start_basis`)."""
         return self._start_basis(model)
 
-    def _regress(self, model, X, groups, den=None):
+    def _misfit(self, model: ModalModel) -> np.ndarray:
+        """:func:`_unmixed_misfit` of ``model`` (n_rows, n_y), kept for the last model asked: a
+        screen regresses hundreds of added terms on it."""
+        last = self._residual_last
+        if last is None or last[0] is not model:
+            last = self._residual_last = (model, _unmixed_misfit(self, model))
+        return last[1]
+
+    def _regress(self, model, X, groups, den=None, term=None):
         """Per output: LS of the residual on the columns of X[g] (n_rows, n_reg); coef, std.
 
         ``den``: the denominator of the term the regressors filter through, or None
-        (:meth:`_regress_basis`)."""
-        last = self._residual_last
-        if last is None or last[0] is not model:
-            # kept for the last model asked: a screen regresses hundreds of added terms on it
-            last = self._residual_last = (model, _unmixed_misfit(self, model))
-        e = last[1]
+        (:meth:`_regress_basis`). ``term``: a key of the added term the regressors are; its
+        normal equations are then kept for :meth:`added_term_cost`."""
+        e = self._misfit(model)
         n_reg = X.shape[-1]
         coef = np.zeros((self.target.shape[1], n_reg))
         std = np.zeros_like(coef)
         Q = self._regress_basis(model, den)
+        normal = [] if term is not None and Q is None and model.T_out is None else None
         for g, rows in enumerate(groups):
             Xg = _remove(Q, X[g]) / self.scale
-            x, sd = _lstsq_std(Xg, e[:, rows])  # the outputs of a group share their regressors
+            # the outputs of a group share their regressors
+            x, sd = _lstsq_std(Xg, e[:, rows], normal)
             coef[rows], std[rows] = x.T, sd
+        self._normal_last = None if normal is None else (model, term, groups, normal)
         return coef, std
+
+    def added_terms_exact(self, model: ModalModel) -> bool:
+        """True where :meth:`added_term_cost` and :meth:`added_term_residual` are the cost and
+        the residual of ``model`` with the terms added (:meth:`TimeProblem.added_terms_exact`);
+        not where a start basis spans the added term's own poles (the lines)."""
+        return False
+
+    def _added_output(self, model: ModalModel, terms) -> np.ndarray:
+        """The output (n_rows, n_y) of ``terms`` ((den, N0, N1): a mode's; den None, N1 None:
+        a feedthrough) added to ``model``, from the inputs filtered for their linear fits
+        (cached) mixed by their numerators: no recursion run."""
+        u_in = self._u_in(model)
+        channels = self._channels_key(model)
+        y = 0.0
+        for den, N0, N1 in terms:
+            y = y + _FilteredProblem._mixed(self, model, den, N0, N1, u_in, channels)
+        return y
+
+    def added_term_residual(self, model: ModalModel, mode, dD=None, late=None) -> np.ndarray:
+        """:meth:`residual` of ``model`` with ``mode`` (and a feedthrough ``dD`` (n_y, n_u), or
+        the mode ``late``) appended, (n_obs,), where :meth:`added_terms_exact`: the model's
+        weighted misfit minus the terms' output (rounding ~1e-16 of the misfit)."""
+        terms = [(mode.denominator(), *mode.numerator())]
+        if dD is not None:
+            terms.append((None, dD, None))
+        if late is not None:
+            terms.append((late.denominator(), *late.numerator()))
+        y = self._added_output(model, terms)
+        return (self._misfit(model) - y / self.scale).ravel()
+
+    def added_term_cost(self, model: ModalModel, den: np.ndarray, N0, N1) -> float:
+        """:meth:`cost` of ``model`` plus the mode ``(N1 s + N0) / (s^2 + den[0] s + den[1])``
+        where :meth:`added_terms_exact` (N0, N1 (n_y, n_u), any values: a projected residue
+        too).
+
+        From the normal equations :meth:`fit_new_term` solved for ``den`` on this model
+        when it was the last linear fit: per output group ``|e|^2 - 2 c.(X^T e) + c^T X^T X c``
+        with ``c = (N0, N1)`` of each output, no output formed (a screening evaluates
+        hundreds); else from the output (:meth:`added_term_residual`). The rounding is
+        ~1e-16 of the model's cost.
+        """
+        kept = getattr(self, "_normal_last", None)
+        if kept is None or kept[0] is not model or kept[1] != ("term", _key(den)):
+            y = self._added_output(model, [(den, N0, N1)])
+            r = self._misfit(model) - y / self.scale
+            return float(np.sum(r * r))
+        e = self._misfit(model)
+        coef = np.concatenate([N0, N1], axis=1)
+        cost = float(np.sum(e * e))
+        for rows, (M, Xb, scale) in zip(kept[2], kept[3]):
+            c = coef[rows] * scale  # (n_rows_g, p), in the scaled columns
+            cost += float(np.einsum("ip,pq,iq->", c, M, c) - 2.0 * np.sum(c * Xb.T))
+        return cost
 
     def fit_new_term(self, model: ModalModel, den: np.ndarray):
         X, groups = self._filtered(model, den, self._u_in(model))
         n_u = model.n_u
         Xc = np.concatenate([X[..., 0], X[..., 1]], axis=-1)  # [u_0..u_{n-1} | s u_0..]
-        coef, std = self._regress(model, Xc, groups, den)
+        coef, std = self._regress(model, Xc, groups, den, term=("term", _key(den)))
         return coef[:, :n_u], coef[:, n_u:], std[:, :n_u], std[:, n_u:]
 
     def fit_feedthrough(self, model: ModalModel):
@@ -1057,7 +1131,8 @@ class TimeProblem(_FilteredProblem):
         self._basis_cache: dict = {}
         self._last_new: tuple | None = None  # the last key whose basis was not kept
         self._anchors: list = []  # (channels, items, parts, sum), see _parts_sum
-        self._residual_last = None  # (model, its weighted residual), see _regress
+        self._residual_last = None  # (model, its weighted residual), see _misfit
+        self._normal_last = None  # (model, term, groups, normal equations), see _regress
         self._products: dict = {}  # T_in -> numerator, rows, cols -> mixed inputs (_mixed)
         self._outputs: dict = {}  # T_in -> filter, its inputs -> its output (_mixed)
 
@@ -1074,6 +1149,13 @@ class TimeProblem(_FilteredProblem):
         products = self._products_of(model)
         outputs = self._products_of(model, self._outputs)
         return mixed_inputs(model, den, N0, N1, u_in, self.fs, products=products, outputs=outputs)
+
+    def added_terms_exact(self, model: ModalModel) -> bool:
+        """On a record from rest without output coupling: no start fitted, and the terms are
+        fitted to the misfit as the outputs see it. :meth:`added_term_cost` and
+        :meth:`added_term_residual` are then the model's cost and residual with the terms
+        added, at a fraction of building the model and simulating it."""
+        return model.T_out is None and not self.transient
 
     def _start_basis(self, model: ModalModel) -> np.ndarray | None:
         """Orthonormal basis (N, n_b) of the model's free responses, or None (from rest)."""
@@ -1276,7 +1358,8 @@ class PeriodicProblem(_FilteredProblem):
         self._filter_cache: dict = {}
         self._basis_cache: dict = {}
         self._anchors: list = []  # (channels, items, parts, sum), see _parts_sum
-        self._residual_last = None  # (model, its weighted residual), see _regress
+        self._residual_last = None  # (model, its weighted residual), see _misfit
+        self._normal_last = None  # (model, term, groups, normal equations), see _regress
         self._basis_key: dict = {}  # the model's poles and channels -> (delay terms, poles)
         self._last_new: tuple | None = None  # the last key whose basis was not kept
         self._responses: dict = {}  # filter -> its responses at z (filtered_lines' cache)
