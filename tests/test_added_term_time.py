@@ -20,7 +20,7 @@ from test_time_fast_paths import _model
 
 from workbench.diagnosis.effects import AliasedMode, MissingMode, UpperResidual, _Lines
 from workbench.diagnosis.fit import fit, screen
-from workbench.diagnosis.problem import TimeProblem
+from workbench.diagnosis.problem import TimeProblem, make_problem
 from workbench.io.formats import TimeData
 from workbench.modal import simulate as S
 from workbench.modal.model import Mode
@@ -45,7 +45,12 @@ THETAS = [np.log([410.0, 0.012]), np.log([150.0, 0.05]), np.log([1500.0, 0.002])
 
 @pytest.mark.parametrize(
     "kw",
-    [{}, {"delay": 1.7 / FS}, {"tau_in": np.array([0.0, 1 / (2 * np.pi * 700)])}],
+    [
+        {},
+        {"delay": 1.7 / FS},
+        {"tau_in": np.array([0.0, 1 / (2 * np.pi * 700)])},
+        {"T_in": np.array([[1.0, 0.05], [-0.03, 1.0]])},
+    ],
 )
 def test_a_missing_modes_cost_and_residual_are_the_built_models(kw):
     model, problem = _case(**kw)
@@ -96,6 +101,8 @@ def test_not_offered_where_a_start_is_fitted_or_the_outputs_are_coupled():
     moving = TimeProblem(problem.data, transient=True)
     coupled = replace(model, T_out=np.eye(3) + 0.02)
     assert MissingMode().lines(moving, model) is None
+    # the lines of a record (its DFT): the start's terms span the added term's poles
+    assert MissingMode().lines(make_problem(problem.data, domain="frequency"), model) is None
     assert UpperResidual().lines(problem, coupled) is None
     assert not problem.added_terms_exact(coupled)
     assert problem.added_terms_exact(model)
