@@ -191,7 +191,9 @@ class Finding:
     explanation: str
     model: ModalModel | None = field(default=None, repr=False, compare=False)
     fit_status: str = "ok"
-    """"ok", or why the least-squares fit stopped without converging."""
+    """"ok" (the search met its stops, or ended within a fraction of a noise variance of its
+    optimum: :data:`~workbench.diagnosis.fit.SETTLED_GAIN`), or why the least-squares fit
+    stopped without converging."""
 
     @property
     def undetermined(self) -> tuple[str, ...]:
