@@ -103,20 +103,3 @@ def test_a_parameter_pushed_against_its_bound_does_not_count_as_unsettled():
     res = scipy.optimize.OptimizeResult(x=ref.x, gram=A.T @ A, grad=A.T @ r, fun=r)
     # the unbounded Gauss-Newton step would move parameter 0 far below its bound
     assert _settled(res, lo, hi, sigma2)
-
-
-def test_a_mismatched_mode_moves_above_the_band_only_within_a_factor_two():
-    """ModalMismatch's range: a factor 2 either way, anywhere in the band, and above the
-    band's top only within the factor 2 (there the data show no resonance to move it to)."""
-    from types import SimpleNamespace
-
-    from workbench.diagnosis.effects import ModalMismatch
-    from workbench.modal.model import ModalModel, Mode
-
-    problem = SimpleNamespace(band_hz=(2.0, 800.0))
-    for f, top in ((226.0, 800.0), (300.0, 800.0), (600.0, 1200.0)):
-        mode = Mode("flexible", f, 0.02, np.ones(2), np.ones(2))
-        base = ModalModel(modes=(mode,), D=np.zeros((2, 2)))
-        lo, hi = ModalMismatch(0).bounds(problem, base)
-        assert np.exp(hi[0]) == pytest.approx(top)
-        assert np.exp(lo[0]) == pytest.approx(min(0.5 * f, 1.4))

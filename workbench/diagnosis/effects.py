@@ -427,16 +427,11 @@ class ModalMismatch:
         (as :class:`MissingMode`): a model can place a mode far from where the data
         show it (a wrong section or length; the modes' order mixed up), and the
         mode with its residue at the data's resonance explains both the misfit
-        at its model frequency and the unexplained peak with two parameters. Above
-        the band's top only within the factor 2: there the data show no resonance
-        to move it to, and a mode moved out of the band stands for the effects above
-        it (an oracle dual-stage record, a lag and a 226 -> 248 Hz
-        mismatch, band to 799 Hz: the mode moved to 1005 Hz, damped 0.36, beside a
-        compliance, at the same error as the right pair)
+        at its model frequency and the unexplained peak with two parameters.
         """
         f = base.modes[self.index].freq_hz
         f_lo, f_hi = problem.band_hz
-        return min(0.5 * f, 0.7 * f_lo), max(2.0 * f, f_hi)
+        return min(0.5 * f, 0.7 * f_lo), max(2.0 * f, 1.3 * f_hi)
 
     def grid(self, problem, base):
         t = base.modes[self.index]
