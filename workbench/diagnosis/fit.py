@@ -565,14 +565,18 @@ def _settled(res, lo: np.ndarray, hi: np.ndarray, sigma2: float) -> bool:
     H, g = np.asarray(H, float), np.asarray(g, float)
     if not (np.all(np.isfinite(H)) and np.all(np.isfinite(g)) and np.isfinite(sigma2)):
         return False
-    tol = 1e-9 * np.where(np.isfinite(hi - lo), hi - lo, 1.0)
-    held = ((x <= lo + tol) & (g > 0)) | ((x >= hi - tol) & (g < 0))
-    free = ~held
+    free = ~_held(x, g, lo, hi, 1e-9 * np.where(np.isfinite(hi - lo), hi - lo, 1.0))
     if not np.any(free):
         return True
     Hf, gf = H[np.ix_(free, free)], g[free]
     dx = np.linalg.lstsq(Hf, -gf, rcond=1e-12)[0]
     return float(-gf @ dx) <= SETTLED_GAIN * sigma2
+
+
+def _held(x: np.ndarray, g: np.ndarray, lo, hi, tol=0.0) -> np.ndarray:
+    """The parameters a bound holds (the active set): on ``lo`` or ``hi`` (within ``tol``)
+    with the gradient ``g`` of the cost pushing them outwards."""
+    return ((x <= lo + tol) & (g > 0)) | ((x >= hi - tol) & (g < 0))
 
 
 class _SameBasin(Exception):
@@ -805,7 +809,7 @@ def levenberg_marquardt(
         # crept by fractions of a noise variance until its budget ran out (the
         # walkthrough's joint refit of a delay, a mode and a pseudo-mode: 300
         # evaluations)
-        free = ~(((x <= lo) & (g > 0)) | ((x >= hi) & (g < 0)))
+        free = ~_held(x, g, lo, hi)
         if not np.any(free) or np.max(np.abs(g[free]) / np.sqrt(D[free])) <= gtol * max(
             np.sqrt(2 * cost), 1e-300
         ):

@@ -968,16 +968,17 @@ class _FilteredProblem:
         not where a start basis spans the added term's own poles (the lines)."""
         return False
 
-    def _added_output(self, model: ModalModel, terms) -> np.ndarray:
-        """The output (n_rows, n_y) of ``terms`` ((den, N0, N1): a mode's; den None, N1 None:
-        a feedthrough) added to ``model``, from the inputs filtered for their linear fits
-        (cached) mixed by their numerators: no recursion run."""
+    def _added_residual(self, model: ModalModel, terms) -> np.ndarray:
+        """The weighted misfit (n_rows, n_y) of ``model`` with ``terms`` ((den, N0, N1): a
+        mode's; den None, N1 None: a feedthrough) added: the model's misfit less the terms'
+        output, their inputs filtered for their linear fits (cached) mixed by their
+        numerators; no recursion run."""
         u_in = self._u_in(model)
         channels = self._channels_key(model)
         y = 0.0
         for den, N0, N1 in terms:
             y = y + _FilteredProblem._mixed(self, model, den, N0, N1, u_in, channels)
-        return y
+        return self._misfit(model) - y / self.scale
 
     def added_term_residual(self, model: ModalModel, mode, dD=None, late=None) -> np.ndarray:
         """:meth:`residual` of ``model`` with ``mode`` (and a feedthrough ``dD`` (n_y, n_u), or
@@ -988,8 +989,7 @@ class _FilteredProblem:
             terms.append((None, dD, None))
         if late is not None:
             terms.append((late.denominator(), *late.numerator()))
-        y = self._added_output(model, terms)
-        return (self._misfit(model) - y / self.scale).ravel()
+        return self._added_residual(model, terms).ravel()
 
     def added_term_cost(self, model: ModalModel, den: np.ndarray, N0, N1) -> float:
         """:meth:`cost` of ``model`` plus the mode ``(N1 s + N0) / (s^2 + den[0] s + den[1])``
@@ -1002,10 +1002,9 @@ class _FilteredProblem:
         hundreds); else from the output (:meth:`added_term_residual`). The rounding is
         ~1e-16 of the model's cost.
         """
-        kept = getattr(self, "_normal_last", None)
+        kept = self._normal_last
         if kept is None or kept[0] is not model or kept[1] != ("term", _key(den)):
-            y = self._added_output(model, [(den, N0, N1)])
-            r = self._misfit(model) - y / self.scale
+            r = self._added_residual(model, [(den, N0, N1)])
             return float(np.sum(r * r))
         e = self._misfit(model)
         coef = np.concatenate([N0, N1], axis=1)
