@@ -189,6 +189,9 @@ def test_slight_saturation_in_a_closed_loop_shows_as_a_drift():
     top = diag.findings[0]
     assert top.effect == "nonlinearity", [f.effect for f in diag.findings]
     assert top.parameters["element"] == "saturation", top.parameters["element_errors"]
+    # a saturation that leaves only the noise is fitted first, and friction and the spring
+    # at the ports (hundreds of nonlinear simulations) are then not fitted
+    assert set(top.parameters["element_errors"]) == {"saturation"}
     # the level is steep in the error (a from-rest rigid body): 1e-3 off is ~50x the floor
     np.testing.assert_allclose(top.parameters["saturation"], levels, rtol=1e-4)
     assert top.error_after <= 1.2 * floor, (top.error_after, floor)  # measured 1.00x
