@@ -133,6 +133,10 @@ class NonlinearityEvidence:
     band_hz: tuple[float, float]
     #: unexcited-line power of the last period over the first kept one (a transient decays)
     stationarity: float = 1.0
+    #: the evidence is the periods' spread, not the unexcited lines (the response does not
+    #: repeat; ``level`` and ``f_stat`` are then the spread's: diagnose's
+    #: ``_unrepeated_evidence``)
+    unrepeated: bool = False
 
 
 def nonlinearity(data: TimeData, y_model: np.ndarray | None = None) -> NonlinearityEvidence | None:

@@ -142,6 +142,17 @@ def explain(effect: str, ev: dict) -> str:
             f"on {where}; "
             f"{fall}{tail}"
         )
+    if effect == "nonlinearity" and ev.get("unrepeated"):
+        # the periods differ beyond the noise while their mean carries nothing on the
+        # unexcited lines: what is not linear does not repeat
+        return (
+            f"the record's periods do not repeat: their spread about the mean period is "
+            f"{ev['f_stat']:.3g} times (in power) its estimate as white noise, while the "
+            f"{ev['n_lines']} lines the multisine leaves empty carry nothing periodic. The "
+            "response to a periodic input is not periodic, which a linear time-invariant "
+            f"plant does not give once its transient has settled; about {100 * p['level']:.3g} "
+            "% of the output power (the spread beyond the noise) does not repeat."
+        )
     if effect == "nonlinearity" and not ev["n_lines"]:
         # no distortion measured on unexcited lines: the evidence is the residual no linear
         # effect removes, and the fitted element (its numbers follow in the finding's note)
