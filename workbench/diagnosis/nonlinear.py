@@ -1100,16 +1100,19 @@ def _level_profile(lin, meas, u, y, fs, level, j: int, k_max: int):
     free[j] = np.inf
     rho = y - sim.simulate_zoh(lin, np.clip(u, -free, free), fs)[:, meas]  # nothing clipped on j
     T = np.zeros_like(rho)
-    best_sq, best_level = float(np.sum(rho**2)), float(amp[order[0]])
+    # flat views: the products below as dot products, no temporaries (the loop runs once per
+    # clipped sample, up to a tenth of the record)
+    rho_f, T_f = rho.ravel(), T.ravel()
+    best_sq, best_level = float(rho_f @ rho_f), float(amp[order[0]])
     for i, k in enumerate(order[:-1]):
         T[k:] += np.sign(u[k, j]) * h[: n - k]  # the samples down to amplitude amp[k] clip
         a, b = amp[k], amp[order[i + 1]]
         if a <= b:
             continue  # a tie: the next sample joins at the same level
         # rho(a - t) = rho(a) + t T over 0 <= t <= a - b
-        tt, rt = float(np.sum(T * T)), float(np.sum(rho * T))
+        tt, rt = float(T_f @ T_f), float(rho_f @ T_f)
         t = min(max(-rt / tt, 0.0), a - b) if tt > 0 else 0.0
-        sq = float(np.sum(rho**2)) + 2 * t * rt + t * t * tt
+        sq = float(rho_f @ rho_f) + 2 * t * rt + t * t * tt
         if sq < best_sq:
             best_sq, best_level = sq, float(a - t)
         rho += (a - b) * T
