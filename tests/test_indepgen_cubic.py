@@ -15,6 +15,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 import scipy.integrate
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -80,3 +81,24 @@ def test_cubic_spring_record_converges_at_second_order():
     err = {n: np.sqrt(np.mean((_record(base, truth, r, n) - y_ref) ** 2)) / rms for n in (2, 4, 8)}
     assert err[4] < err[2] / 3 and err[8] < err[4] / 3, err  # second order: 4x a halving
     assert err[G.CUBIC_SUBSTEPS] < 2e-5, err
+
+
+def test_cubic_spring_record_is_converged_in_its_substeps():
+    # _converge_cubic doubles the substeps until doubling moves the noise-free record by at
+    # most CUBIC_RESOLVED of the noise: checked here from records computed afresh at the
+    # count it chose and at half and twice that, against the noise it was given
+    base, truth, r = _setup()
+    noise_rel = 1e-6  # far below the 8-substep error (4.8e-6 of the rms): several doublings
+    out = G._converge_cubic(
+        truth, base, 0, N, N, False, r, 1.0, {"noise_rel": noise_rel}
+    )  # fmt: skip
+    n = out["substeps"]
+    assert truth.nl["substeps"] == n and n > G.CUBIC_SUBSTEPS and out["reproducible"]
+
+    def change(a, b):
+        ya, yb = _record(base, truth, r, a), _record(base, truth, r, b)
+        return np.linalg.norm(yb - ya) / np.linalg.norm(yb) / noise_rel
+
+    assert change(n // 2, n) == pytest.approx(out["resolution"], rel=1e-6)
+    assert out["resolution"] <= G.CUBIC_RESOLVED < change(n // 4, n // 2)
+    assert change(n, 2 * n) < out["resolution"]  # converging: the next doubling moves less
