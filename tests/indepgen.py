@@ -25,7 +25,11 @@ using plants/ or the diagnosis code for the truth: numpy/scipy/control only
   effect's strength with the actual noise realization); two-effect cases.
 
 ``make_case(rng, plant=, kind=, effects=, size=)`` returns an :class:`IndepCase`
-with an ``answer`` dict in the layout of the examples' answer.json.
+with an ``answer`` dict in the layout of the examples' answer.json. A cubic spring's
+record is integrated at the substeps it converges at; its answer says how many
+(``substeps``), what the last doubling moved it by over its noise (``resolution``) and
+whether that is within the noise (``reproducible``: where not, the motion is sensitive to
+its own rounding and no model follows the record to its noise floor).
 """
 
 from __future__ import annotations
