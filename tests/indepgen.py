@@ -542,8 +542,9 @@ def _cubic_sample(x, Ph, Gn, Go, ua, ua1, iq, iv, kick):  # pragma: no cover - c
 CUBIC_RESOLVED, CUBIC_MAX_SUBSTEPS = 0.1, 512
 
 
-def _converge_cubic(truth, nom, rng_seed, N, period, closed, r, gain, opts) -> dict:
-    """Set ``truth.nl["substeps"]`` where the noise-free record converges (CUBIC_RESOLVED);
+def _converge_cubic(truth, noise_free, noise_rel: float) -> dict:
+    """Set ``truth.nl["substeps"]`` where the noise-free record ``noise_free()`` (N, n_y) of
+    ``truth`` converges (CUBIC_RESOLVED of ``noise_rel``, the noise's sd over the record's);
     returns the answer's ``substeps``, ``resolution`` (what the last doubling moved the
     record by, over the noise: ``||y_2n - y_n|| / ||y_2n|| / noise_rel``) and
     ``reproducible``: whether that is within the noise (else no model reproduces the
@@ -551,24 +552,14 @@ def _converge_cubic(truth, nom, rng_seed, N, period, closed, r, gain, opts) -> d
 
     def record(n):
         truth.nl["substeps"] = n
-        return time_record(
-            truth,
-            nom,
-            np.random.default_rng(rng_seed),
-            N=N,
-            period=period,
-            closed=closed,
-            r=r,
-            noise_sd=0.0,
-            gain=gain,
-        )[2]
+        return noise_free()
 
     n = CUBIC_SUBSTEPS
     y_n = record(n)
     change = np.inf
     while n < CUBIC_MAX_SUBSTEPS:
         y_2n = record(2 * n)
-        change = float(np.linalg.norm(y_2n - y_n) / np.linalg.norm(y_2n)) / opts["noise_rel"]
+        change = float(np.linalg.norm(y_2n - y_n) / np.linalg.norm(y_2n)) / noise_rel
         n, y_n = 2 * n, y_2n
         if change <= CUBIC_RESOLVED:
             break
@@ -746,68 +737,45 @@ def _build(base_plant, effects, params, strengths, kind, rng_seed, opts):
         N, period, closed = opts["N"], opts["period"], opts["closed"]
         r = opts["r"]
         gain = opts.get("gain", 1.0)
+
+        def record(t, noise_sd=0.0, stats=None):
+            """(u, y, y0) of truth ``t`` on this case's excitation, noise and loop."""
+            return time_record(
+                t,
+                nom,
+                np.random.default_rng(rng_seed),
+                N=N,
+                period=period,
+                closed=closed,
+                r=r,
+                noise_sd=noise_sd,
+                gain=gain,
+                stats=stats,
+            )
+
         if truth.nl:
             nlp = dict(truth.nl)
             s = nlp.pop("s")
-
-            def linear_noise_free(stats=None):
-                # the same record without the nonlinearity and without noise
-                linear = Truth(
-                    P, truth.delay_s, truth.act_cut, truth.sen_cut, truth.T_out, truth.T_in
-                )
-                return time_record(
-                    linear,
-                    nom,
-                    np.random.default_rng(rng_seed),
-                    N=N,
-                    period=period,
-                    closed=closed,
-                    r=r,
-                    noise_sd=0.0,
-                    gain=gain,
-                    stats=stats,
-                )
-
+            # the same record without the nonlinearity and without noise
+            linear = Truth(P, truth.delay_s, truth.act_cut, truth.sen_cut, truth.T_out, truth.T_in)
             if nlp["type"] == "saturation":
-                u_lin, _, _ = linear_noise_free()
+                u_lin, _, _ = record(linear)
                 nlp["lim"] = np.quantile(np.abs(u_lin), 1 - 0.1 * s, axis=0)
             elif nlp["type"] == "friction":
                 nlp["Fc"] = 0.1 * s * np.std(r, axis=0)
             else:
                 stats: dict = {}
-                linear_noise_free(stats)
+                record(linear, stats=stats)
                 # cubic spring: k3 q^2 ~ 0.3 s of the linear stiffness at the rms amplitude
                 nlp["k3"] = 0.3 * s / stats["q_rms"] ** 2
             truth.nl = nlp
             if nlp["type"] == "cubic" and opts.get("converge"):
-                resolution = _converge_cubic(truth, nom, rng_seed, N, period, closed, r, gain, opts)
+                resolution = _converge_cubic(truth, lambda: record(truth)[2], opts["noise_rel"])
                 for a, e in zip(answers, effects):
                     if e == "nonlinearity":
                         a.update(resolution)
-        u, y0, _ = None, None, None
-        u, yclean, y0 = time_record(
-            truth,
-            nom,
-            np.random.default_rng(rng_seed),
-            N=N,
-            period=period,
-            closed=closed,
-            r=r,
-            noise_sd=0.0,
-            gain=gain,
-        )
-        sd = opts["noise_rel"] * np.std(y0)
-        u, y, y0 = time_record(
-            truth,
-            nom,
-            np.random.default_rng(rng_seed),
-            N=N,
-            period=period,
-            closed=closed,
-            r=r,
-            noise_sd=sd,
-            gain=gain,
-        )
+        _, _, y0 = record(truth)
+        u, y, y0 = record(truth, opts["noise_rel"] * np.std(y0))
         data = TimeData(
             fs=fs,
             u=u,

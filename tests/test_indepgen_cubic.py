@@ -89,9 +89,12 @@ def test_cubic_spring_record_is_converged_in_its_substeps():
     # count it chose and at half and twice that, against the noise it was given
     base, truth, r = _setup()
     noise_rel = 1e-6  # far below the 8-substep error (4.8e-6 of the rms): several doublings
-    out = G._converge_cubic(
-        truth, base, 0, N, N, False, r, 1.0, {"noise_rel": noise_rel}
-    )  # fmt: skip
+
+    def noise_free():
+        rng = np.random.default_rng(0)
+        return G.time_record(truth, base, rng, N=N, period=N, closed=False, r=r, noise_sd=0.0)[2]
+
+    out = G._converge_cubic(truth, noise_free, noise_rel)
     n = out["substeps"]
     assert truth.nl["substeps"] == n and n > G.CUBIC_SUBSTEPS and out["reproducible"]
 
