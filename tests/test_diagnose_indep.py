@@ -515,6 +515,41 @@ def test_nonperiodic_records_name_the_element(name):
     assert res.findings[-1].error_after <= 1.1 * floor
 
 
+def test_rigid_friction_leaving_a_white_residual_ends_the_element_search_without_periods(
+    monkeypatch,
+):
+    # indepgen seed 12 with ``--kinds time --plants stage --nonperiodic``, nonlinearity clear: a
+    # closed-loop stage record without periods, Coulomb friction on its rigid bodies. The
+    # rigid-body friction (fitted first, event-exact) reaches the floor and leaves a white
+    # residual; without periods there was no floor to stop at, and the ports' friction and
+    # spring were fitted after it (43 of 49 s CPU, to lose). Now the search ends there
+    state = 103971923849790510402643582501511165789
+    rng = _rng_at(state, 141594020766391051164819261345714058667, 1, 271412755)
+    case = make_case(
+        rng, plant="stage", kind="time", effects=("nonlinearity",), size="clear", periodic=False
+    )
+    floor = case.answer["noise_floor_error"]
+    assert floor == pytest.approx(0.002476432239679487, rel=1e-9)
+    assert case.data.period is None and case.data.loop == "closed"
+    import workbench.diagnosis.nonlinear as nonlinear
+
+    fitted = []  # the hypotheses the element fits ran on (the ports', the rigid bodies')
+    fit = nonlinear.fit_port_element
+
+    def recorded(sys, *args, **kwargs):
+        fitted.append(type(sys).__name__)
+        return fit(sys, *args, **kwargs)
+
+    monkeypatch.setattr(nonlinear, "fit_port_element", recorded)
+    res = diagnose(case.nominal, case.data)
+    (top,) = res.findings
+    p = top.parameters
+    assert top.effect == "nonlinearity" and p["element"] == "coulomb_friction"
+    assert p["on"] == "rigid_modes" and top.error_after <= 1.01 * floor
+    assert set(fitted) == {"RigidPorts"}, fitted  # the ports' elements were not fitted
+    assert "without periods" in top.explanation and "0 times" not in top.explanation
+
+
 @pytest.mark.slow
 def test_compliance_pseudo_mode_folded_from_twice_the_sampling_rate_is_the_missing_mode():
     # indepgen seed 4 with ``--kinds time --plants stage --pairs --nonperiodic``: an actuator

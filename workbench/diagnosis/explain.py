@@ -156,9 +156,16 @@ def explain(effect: str, ev: dict) -> str:
     if effect == "nonlinearity" and not ev["n_lines"]:
         # no distortion measured on unexcited lines: the evidence is the residual no linear
         # effect removes, and the fitted element (its numbers follow in the finding's note)
-        return (
+        # (a record without periods measures no period-synchronous residual: f_stat 0)
+        lead = (
             f"a period-synchronous residual {ev['f_stat']:.3g} times its noise for the model as "
-            "given, which no linear effect of the vocabulary explains as well as a port "
+            "given"
+            if ev["f_stat"] > 0
+            else "a residual of the model as given (a record without periods: no noise "
+            "estimate from them)"
+        )
+        return (
+            f"{lead}, which no linear effect of the vocabulary explains as well as a port "
             "nonlinearity: the response is not linear in the input; about "
             f"{100 * p['level']:.3g} % of the output power is not explained by a linear model."
         )
