@@ -94,7 +94,7 @@ def test_cubic_spring_record_is_converged_in_its_substeps():
         rng = np.random.default_rng(0)
         return G.time_record(truth, base, rng, N=N, period=N, closed=False, r=r, noise_sd=0.0)[2]
 
-    out = G._converge_cubic(truth, noise_free, noise_rel)
+    out, _ = G._converge_cubic(truth, noise_free, noise_rel)
     n = out["substeps"]
     assert truth.nl["substeps"] == n and n > G.CUBIC_SUBSTEPS and out["reproducible"]
 

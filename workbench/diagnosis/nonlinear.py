@@ -1168,6 +1168,16 @@ def _fit_saturation_levels(lin, meas, u, y, fs, *, refine=True):
 SIMULATION_CACHE = 8
 
 
+def _between_neighbours(cost, grid: np.ndarray, errs: list, i: int, xatol: float):
+    """(x, cost) of a 1-D scan's best: the grid's point ``i`` (its cost ``errs[i]``) or a
+    bounded search between its neighbours on ``grid`` (clipped to its ends), the lower."""
+    lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
+    sol = scipy.optimize.minimize_scalar(
+        cost, bounds=(lo, hi), method="bounded", options={"xatol": xatol}
+    )
+    return (float(sol.x), float(sol.fun)) if sol.fun < errs[i] else (grid[i], errs[i])
+
+
 def _run_key(nl: PortNonlinearity, g) -> tuple:
     """What a simulation run of :func:`fit_port_element` depends on besides the record: the
     element's every field and the port gains ``g`` (None or (n_g,) m/N), as bytes."""
@@ -1739,14 +1749,7 @@ def fit_port_element(
                     return rms(simulated(nl, None, residual=True, n=start_n(name))[0])
 
                 errs = [cost(x) for x in grid]
-                i = int(np.argmin(errs))
-                x, e = grid[i], errs[i]
-                lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
-                sol = scipy.optimize.minimize_scalar(
-                    cost, bounds=(lo, hi), method="bounded", options={"xatol": 0.002}
-                )
-                if sol.fun < e:
-                    x, e = float(sol.x), float(sol.fun)
+                x, e = _between_neighbours(cost, grid, errs, int(np.argmin(errs)), 0.002)
                 if e < cost(0.0):
                     c[j] *= np.exp(x)
         return c
@@ -1810,11 +1813,7 @@ def fit_port_element(
             i = int(np.argmin(errs))
             if not errs[i] < none:
                 continue
-            lo, hi = grid[max(i - 1, 0)], grid[min(i + 1, grid.size - 1)]
-            sol = scipy.optimize.minimize_scalar(
-                cost, bounds=(lo, hi), method="bounded", options={"xatol": 0.005}
-            )
-            c[j] = np.exp(sol.x if sol.fun < errs[i] else grid[i])
+            c[j] = np.exp(_between_neighbours(cost, grid, errs, i, 0.005)[0])
         return c
 
     def rigid_start(name, c):
