@@ -21,7 +21,13 @@ from workbench.core.errors import InputError
 from workbench.core.jsonutil import jsonable
 from workbench.core.model import LTIModel, as_model, pade_delay, pade_order, with_pade
 from workbench.diagnosis import LINEAR_EFFECTS, detect
-from workbench.diagnosis.diagnose import _bic, _spec_error, base_model, model_notes
+from workbench.diagnosis.diagnose import (
+    _bic,
+    _spec_error,
+    base_model,
+    compare_start_error,
+    model_notes,
+)
 from workbench.diagnosis.effects import candidate_structures, refinements
 from workbench.diagnosis.fit import FitResult, fit, fit_budget, screen
 from workbench.diagnosis.nonlinear import PortNonlinearity
@@ -118,13 +124,23 @@ def augment(
         if effect == "nonlinearity":
             return _augment_nonlinearity(model, data, base, problem, error_before)
         start_note = ""
+        given = None
         if getattr(problem, "transient", False):
-            # error before and after on the same footing: both from the estimated start
+            # error before and after on the same footing: both from the start compare
+            # estimates (diagnose's measure too, :func:`compare_start_error`)
+            given = compare_start_error(model, data, delay0)
             start_note = (
-                f"the record does not start at rest: errors are from the estimated start; "
+                "the record does not start at rest: errors are from the estimated start as "
+                "compare computes it (one initial state for all outputs); "
                 f"from rest {error_before:.4g}"
             )
-            error_before = problem.error(base)
+            if given is None:  # compare cannot estimate it: the fit's own start
+                given = problem.error(base)
+                start_note = (
+                    "the record does not start at rest: errors are from the start fitted per "
+                    f"output (compare cannot estimate one); from rest {error_before:.4g}"
+                )
+            error_before = given
         structures = [s for s in candidate_structures(base, problem) if s.effect == effect]
         if not structures:
             raise InputError(
@@ -150,10 +166,17 @@ def augment(
             params,
             params_std,
             error_before,
-            best.error,
+            best.error if given is None else _after(best.model, data, best.error),
             best.model,
             note,
         )
+
+
+def _after(model: ModalModel, data, error: float) -> float:
+    """The augmented model's error from compare's estimated start (its fit's own where that
+    cannot be estimated)."""
+    after = compare_start_error(model, data)
+    return error if after is None else after
 
 
 def _lti(model: ModalModel) -> LTIModel:

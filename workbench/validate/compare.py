@@ -665,7 +665,7 @@ def _fit_note(model, data: TimeData, delay_s: float) -> str:
     return "identification " + f.describe(list(data.output_names))
 
 
-def _estimated_start(model, data: TimeData, y_rest: np.ndarray):
+def estimated_start(model, data: TimeData, y_rest: np.ndarray):
     """The simulation from the initial state estimated by least squares, or (None, why).
 
     The free response ``C Ad^k x0`` does not depend on the input or its delay,
@@ -736,7 +736,7 @@ def _compare_time(model, data: TimeData, *, delay_s, window, false_alarm, gap, m
     y = data.y
     ym = sim.simulate_zoh(model, data.u, data.fs, delay_s=delay_s)
     err = lti.relative_error_time(y, ym)
-    ym_x0, x0_note = _estimated_start(model, data, ym)
+    ym_x0, x0_note = estimated_start(model, data, ym)
     notes.append(_fit_note(model, data, delay_s))
     ny = np.linalg.norm(y, axis=0)
     sim_err = np.linalg.norm(y - ym, axis=0) / np.where(ny > 0, ny, np.inf)

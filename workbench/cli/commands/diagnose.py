@@ -30,8 +30,9 @@ def register(subparsers) -> argparse.ArgumentParser:
             "effect of the vocabulary (time_delay, missing_mode, modal_mismatch, "
             "residual_compliance, actuator_dynamics, sensor_dynamics, suspension_stiffness, "
             "crosstalk, nonlinearity, none) the model is missing; each is fitted and the "
-            "error before/after reported. Time data: ZOH simulation from rest driven by the "
-            "recorded u."
+            "error before/after reported. Time data: ZOH simulation driven by the recorded u, "
+            "from rest, or from the initial state compare estimates when the record does not "
+            "start at rest (the notes say which)."
         ),
     )
     add_model_and_data(p)
@@ -57,6 +58,9 @@ def summary(result) -> str:
             f"{list(f.outputs)}, band {f.band_hz[0]:.4g}-{f.band_hz[1]:.4g} Hz"
         )
         lines.append(f"   {f.explanation}")
+    # what the numbers are (from rest or an estimated start, a model converted): said, not
+    # left to the JSON
+    lines += [f"note: {n}" for n in result.notes]
     return "\n".join(lines)
 
 
