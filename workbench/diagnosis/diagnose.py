@@ -466,7 +466,7 @@ def _compare_measured(result: Diagnosis, model, data: TimeData, delay_s: float) 
     columns to every output's start, and they take up what no model explains: on the CD
     player arm's record (DaISy) an identified second-order model was given a residual
     compliance and a 0.0027 Hz mode, the search's error falling 0.229 -> 0.177 -> 0.148,
-    while compare's went 0.271 -> 0.241 -> 0.303. compare estimates one initial state for
+    while compare's went 0.271 -> 0.235 -> 0.266. compare estimates one initial state for
     all outputs (:func:`compare_start_error`), the established measure; so the errors
     reported are compare's, and a linear finding whose error there does not fall is not a
     finding: it, and the findings fitted after it, become alternatives with their numbers.

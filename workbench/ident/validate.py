@@ -247,14 +247,19 @@ def simulate(model, u: np.ndarray, x0=None) -> np.ndarray:
     return simulate_zoh(model, np.asarray(u, float), 1.0 / dt, x0=x0)
 
 
-def estimate_x0(model, u: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Initial state (n,) minimizing ``||y - y_sim(x0)||`` for a known model (least squares)."""
+def estimate_x0(model, u: np.ndarray, y: np.ndarray, *, weighted: bool = True) -> np.ndarray:
+    """Initial state (n,) minimizing ``||y - y_sim(x0)||`` for a known model (least squares).
+
+    ``weighted``: each output's error divided by the rms of its ``y`` (outputs in their own
+    units, as the simulation fit weighs them); False: the plain Frobenius norm over all
+    outputs, the spec's relative error (compare's estimated start).
+    """
     A, _, C, _, _ = _matrices(model)
     check_growth(A, u.shape[0])
     y_forced = simulate(model, u)
     if A.shape[0] == 0:
         return np.zeros(0)
-    sy = np.sqrt(np.mean(y**2, axis=0))
+    sy = np.sqrt(np.mean(y**2, axis=0)) if weighted else np.ones(y.shape[1])
     sy[sy == 0] = 1.0
     Cs = C / sy[:, None]  # each output in its own unit, as the fit weighs them
 
