@@ -241,7 +241,8 @@ class Diagnosis:
     Attributes
     ----------
     error_before : float
-        Spec error of the model as given.
+        Spec error of the model as given: simulated from rest, or on a time record that
+        starts moving from the initial state compare estimates (``notes`` says which).
     findings : tuple of Finding
         Ranked, most likely first; one ``none`` finding when nothing is missing.
     alternatives : tuple of dict
@@ -379,7 +380,7 @@ def diagnose(
     with limited_blas(blas_threads):
         result = _searched(model, data, kw)
         if isinstance(data, TimeData) and moving_start(data):
-            result = _compare_measured(result, model, data, delay_s)
+            result = _compare_measured(result, model, data, delay_s, kw["shared"])
         return result
 
 
@@ -456,7 +457,9 @@ def compare_start_error(model, data: TimeData, delay_s: float = 0.0) -> float | 
 _PER_OUTPUT_NOTE = "the record does not start at rest: errors are from the estimated start (the "
 
 
-def _compare_measured(result: Diagnosis, model, data: TimeData, delay_s: float) -> Diagnosis:
+def _compare_measured(
+    result: Diagnosis, model, data: TimeData, delay_s: float, shared: dict
+) -> Diagnosis:
     """``result`` with its errors as compare measures them, on a record that starts moving.
 
     The search fits such a record from a start estimated per output
@@ -468,30 +471,35 @@ def _compare_measured(result: Diagnosis, model, data: TimeData, delay_s: float) 
     compliance and a 0.0027 Hz mode, the search's error falling 0.229 -> 0.177 -> 0.148,
     while compare's went 0.271 -> 0.235 -> 0.266. compare estimates one initial state for
     all outputs (:func:`compare_start_error`), the established measure; so the errors
-    reported are compare's, and a linear finding whose error there does not fall is not a
-    finding: it, and the findings fitted after it, become alternatives with their numbers.
-    A diagnosis that names a nonlinearity keeps its errors (its element's simulation
-    measures them); the note gives compare's error of the model as given.
+    reported are compare's, and a linear finding is held to the search's own rule there:
+    its error must fall, and on a record without periods (no noise reference) fall by
+    :data:`ERROR_RATIO` (or its square by :data:`COST_RATIO`), as the search asks of a
+    finding on such a record. One that does not, and the findings fitted after it, become
+    alternatives with their numbers; where none is left, the 'none' finding says what the
+    best of them reaches. A diagnosis that names a nonlinearity keeps its errors (its
+    element's simulation measures them).
     """
     given = compare_start_error(model, data, delay_s)
-    notes = [n for n in result.notes if not n.startswith(_PER_OUTPUT_NOTE)]
-    from_rest = _spec_error(model, data, delay_s)
-    searched = (
-        f"the search fits each output's start on its own (a freer nuisance, cheap to project "
-        f"out): {result.error_before:.4g} for the model as given; the alternatives' errors "
-        "are in that measure"
-    )
     if given is None or any(f.effect == "nonlinearity" for f in result.findings):
         return result
+    notes = [n for n in result.notes if not n.startswith(_PER_OUTPUT_NOTE)]
+    notes.append(
+        f"the record does not start at rest: errors are from the estimated start as compare "
+        f"computes it (one initial state for all outputs, least squares), {given:.4g} for the "
+        f"model as given; from rest {_spec_error(model, data, delay_s):.4g}; the search fits "
+        f"each output's start on its own (a freer nuisance, cheap to project out): "
+        f"{result.error_before:.4g} for the model as given, the measure of the alternatives "
+        "it ranked (those rejected here are in compare's)"
+    )
     found: list[Finding] = []
     dropped: list[dict] = []
     before = given
     for f in result.findings:
         if f.effect == "none":
-            found.append(replace(f, error_after=given))
-            continue
+            continue  # said again below, at compare's error
         after = None if f.model is None or dropped else compare_start_error(f.model, data)
-        if after is not None and after < before:
+        why = _not_a_finding(before, after, data)
+        if not dropped and why is None:
             found.append(_reported_on_compare(_restated(f, before, after, f.model)))
             before = after
             continue
@@ -506,33 +514,57 @@ def _compare_measured(result: Diagnosis, model, data: TimeData, delay_s: float) 
                 "rejected": (
                     f"fitted after {dropped[0]['effect']}, which was not a finding"
                     if dropped
-                    else f"from the start compare estimates the error does not fall "
-                    f"({before:.4g} -> {after:.4g}); the search's fall came from the "
-                    "start it fits per output"
+                    else why
                 ),
             }
         )
-    notes.append(
-        f"the record does not start at rest: errors are from the estimated start as compare "
-        f"computes it (one initial state for all outputs, least squares), {given:.4g} for the "
-        f"model as given; from rest {from_rest:.4g}; {searched}"
-    )
-    model_after = found[-1].model if found and found[-1].model is not None else None
-    if dropped:
-        if model_after is None:
-            model_after = base_model(model, data, delay_s)
-        remaining = _remaining(model_after, data)
-    else:
-        model_after, remaining = result.model, result.remaining
+    if not dropped and not any(f.effect == "none" for f in result.findings):
+        return replace(result, error_before=given, findings=tuple(found), notes=tuple(notes))
+    alternatives = tuple(dropped) + result.alternatives
+    model_after = found[-1].model if found else shared.get("base")
+    if model_after is None:
+        model_after = base_model(model, data, delay_s)
+    if not found:
+        none = _none_finding(
+            shared["problem"], model_after, data, given, given, None, list(alternatives)
+        )
+        if not dropped:
+            # the runner-up the search ranked is in its own measure: said, with its start
+            text = _RUNNER_UP_NONE.sub(
+                rf"\g<0> from {result.error_before:.4g}, both with the start fitted per output",
+                none.explanation,
+                count=1,
+            )
+            none = replace(none, explanation=text)
+        found.append(none)
     return replace(
         result,
         error_before=given,
         findings=tuple(found),
-        alternatives=tuple(dropped) + result.alternatives,
+        alternatives=alternatives,
         notes=tuple(notes),
         model=model_after,
-        remaining=remaining,
+        remaining=_remaining(model_after, data) if dropped else result.remaining,
     )
+
+
+def _not_a_finding(before: float, after: float | None, data: TimeData) -> str | None:
+    """Why a linear finding whose compare error goes ``before`` -> ``after`` is not one
+    (:func:`_compare_measured`), or None."""
+    if after is None:
+        return "compare cannot estimate the start of the model with it"
+    if not after < before:
+        return (
+            f"from the start compare estimates the error does not fall ({before:.4g} -> "
+            f"{after:.4g}); the search's fall came from the start it fits per output"
+        )
+    if not data.period and after > ERROR_RATIO * before and (after / before) ** 2 > COST_RATIO:
+        return (
+            f"from the start compare estimates the error falls only from {before:.4g} to "
+            f"{after:.4g}: on a record without periods (no noise reference) a finding must "
+            f"lower it to {ERROR_RATIO:g}x (its square to {COST_RATIO:g}x)"
+        )
+    return None
 
 
 def _reported_on_compare(f: Finding) -> Finding:
@@ -2457,6 +2489,8 @@ _NUMBER = r"(?:\d+(?:\.\d+)?(?:e[-+]\d+)?|inf|nan)"
 _FALLS = re.compile(rf"the error falls from {_NUMBER} to {_NUMBER}")
 #: the runner-up's error an explanation states (:func:`~workbench.diagnosis.explain.explain`)
 _RUNNER_UP = re.compile(rf"(only reaches |fits as closely \()({_NUMBER})")
+#: ... and the 'none' finding's best candidate (:func:`_none_finding`)
+_RUNNER_UP_NONE = re.compile(rf"would only reach {_NUMBER}")
 
 
 def _with_image(finding: Finding, model: ModalModel, base: ModalModel, problem) -> Finding:
