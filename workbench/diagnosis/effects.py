@@ -730,6 +730,14 @@ class ModalModes(ModalPattern):
         pattern.update(
             _shared_ratio(z[inside] / z0[inside], sz[inside] / z0[inside], "damping_scale")
         )
+        if not pattern:
+            # two causes in one mismatch (an FE beam with Young's modulus and its flexures'
+            # stiffness wrong: ten bending modes at one factor, the two suspension modes
+            # each at its own): the factor most of them share, and which they are
+            pattern = _shared_by_most(f[inside] / f0[inside], sf[inside] / f0[inside])
+            if pattern:
+                share = pattern.pop("share")
+                pattern["of_modes_hz"] = [float(f0[inside][j]) for j in np.flatnonzero(share)]
         if pattern:
             params["pattern"] = pattern
         std = {
@@ -749,6 +757,29 @@ class ModalModes(ModalPattern):
 
 #: modes share a factor when their ratios agree within this relative spread (or 3 std)
 PATTERN_TOLERANCE = {"freq_scale": 0.003, "damping_scale": 0.15}
+
+
+#: ... and a factor shared by most of them (:func:`_shared_by_most`): at least this many modes,
+#: and more than half
+PATTERN_MIN_MODES = 3
+
+
+def _shared_by_most(ratio: np.ndarray, std: np.ndarray) -> dict:
+    """``{"freq_scale": mean, "share": mask}`` for the largest group of frequency ratios that
+    agree with their mean (:func:`_shared_ratio`'s test), when it holds more than half of
+    them and at least :data:`PATTERN_MIN_MODES`; else ``{}``."""
+    best = None
+    for r0 in ratio:
+        tol = np.maximum(PATTERN_TOLERANCE["freq_scale"] * r0, 3 * np.nan_to_num(std, nan=0.0))
+        group = np.abs(ratio - r0) <= tol
+        if best is None or group.sum() > best.sum():
+            best = group
+    if best is None or best.sum() < max(PATTERN_MIN_MODES, ratio.size // 2 + 1):
+        return {}
+    if best.all():
+        return {}  # every mode: _shared_ratio's test, which this one did not pass
+    pattern = _shared_ratio(ratio[best], std[best], "freq_scale")
+    return {**pattern, "share": best} if pattern else {}
 
 
 def _shared_ratio(ratio: np.ndarray, std: np.ndarray, name: str) -> dict:

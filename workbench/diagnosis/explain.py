@@ -25,6 +25,47 @@ def _chan(ins, outs, n_u, n_y) -> str:
     return f"inputs {list(ins)} x outputs {list(outs)}"
 
 
+def _modes_pattern(p: dict, f_hi: float) -> str:
+    """What a mismatch of several modes shares (``pattern``), and which modes in the band
+    (up to ``f_hi``, Hz) move on their own: '' for one mode."""
+    modes = p.get("modes") or []
+    if len(modes) < 2:
+        return ""
+    pattern = p.get("pattern") or {}
+    text = f"; {len(modes)} modes moved"
+    scale = pattern.get("freq_scale")
+    if scale is not None:
+        which = pattern.get("of_modes_hz")
+        who = (
+            "every mode's frequency"
+            if which is None
+            else f"the frequencies of {len(which)} of them ({_hz(min(which))} to "
+            f"{_hz(max(which))} in the model)"
+        )
+        text += (
+            f": {who} scaled by one factor, {scale:.4g} ({100 * (scale - 1):+.2f} %), the "
+            f"stiffness-to-mass ratio {scale**2:.4g} times the model's, as a wrong Young's "
+            "modulus or density gives"
+        )
+        if which is not None:
+            own = [
+                m
+                for m in modes
+                if m["model_freq_hz"] <= f_hi
+                and not any(abs(m["model_freq_hz"] - w) <= 1e-9 * w for w in which)
+            ]
+            if own:
+                moved = ", ".join(
+                    f"{m['model_freq_hz']:.4g} -> {m['freq_hz']:.4g} Hz "
+                    f"({100 * (m['freq_hz'] / m['model_freq_hz'] - 1):+.2f} %)"
+                    for m in own
+                )
+                text += f"; the others move each on its own ({moved}): another cause"
+    if pattern.get("damping_scale") is not None:
+        text += f"; every damping scaled by {pattern['damping_scale']:.3g}"
+    return text
+
+
 def explain(effect: str, ev: dict) -> str:
     """One paragraph for ``effect`` from the evidence dictionary ``ev``.
 
@@ -78,7 +119,7 @@ def explain(effect: str, ev: dict) -> str:
             f"{p.get('model_damping', 0):.3g}) shows in "
             f"the data at {_hz(p['freq_hz'])} ({shift:+.2f} %) with damping {p['damping']:.3g}: "
             "shifted peak "
-            f"on {where}, residues unchanged; {fall}{tail}"
+            f"on {where}, residues unchanged{_modes_pattern(p, hi)}; {fall}{tail}"
         )
     if effect == "residual_compliance":
         M = np.asarray(p["matrix"])

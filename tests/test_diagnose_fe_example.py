@@ -1,0 +1,71 @@
+"""diagnose on the public FE-updating example: two causes in one modal mismatch (issue 13).
+
+../shared/fe_examples/example_beam_update_frf was made by others' code (a finer mesh,
+an exact modal sum): an aluminium beam on two wire flexures whose FE file has Young's
+modulus 6 % too high and the flexures' stiffnesses -25 % and +10 %. The modes the file
+gives are its own, reduced at the measured channels; the measured FRF is the truth's.
+A wrong modulus scales every bending frequency by sqrt(E_true / E_file); the flexures
+move the two suspension modes each its own way. The check is against the example's
+answer.json, not the diagnosis code.
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from conftest import SHARED, require_shared
+
+from workbench.diagnosis import diagnose
+from workbench.diagnosis.effects import _shared_by_most
+from workbench.fe.model import read_fe
+from workbench.fe.reduce import reduce_fe
+from workbench.io.formats import load_measurement
+
+EXAMPLE = SHARED / "fe_examples" / "example_beam_update_frf"
+
+
+@pytest.fixture(scope="module")
+def fe_case():
+    folder = require_shared(EXAMPLE)
+    answer = json.loads((folder / "answer.json").read_text())
+    data = load_measurement(folder / "measurement.npz")
+    fe = read_fe(folder / "fe_model.npz")
+    model = reduce_fe(fe, 12, outputs=data.output_names, inputs=data.input_names)
+    return answer, data, diagnose(model.to_lti(), data)
+
+
+def test_a_wrong_modulus_is_one_shared_factor_beside_the_suspensions_own(fe_case):
+    answer, data, result = fe_case
+    (f,) = result.findings
+    assert f.effect == "modal_mismatch"
+    assert f.error_after < 1.2 * result.noise_floor
+    scale = np.sqrt(
+        answer["alpha_true"]["youngs_modulus_pa"] / answer["alpha_nominal"]["youngs_modulus_pa"]
+    )
+    pattern = f.parameters["pattern"]
+    assert pattern["freq_scale"] == pytest.approx(scale, rel=2e-4)
+    # the bending modes in the measured band share it; the suspension modes do not
+    nominal = np.array(answer["nominal_modal_freq_hz"])
+    bending = nominal[(nominal > 10.0) & (nominal <= data.freq[-1])]
+    np.testing.assert_allclose(pattern["of_modes_hz"], bending, rtol=1e-6)
+    true = np.array(answer["true_modal_freq_hz"])
+    fitted = {round(m["model_freq_hz"], 6): m["freq_hz"] for m in f.parameters["modes"]}
+    for f_model, f_true in zip(nominal[:2], true[:2], strict=True):
+        assert fitted[round(f_model, 6)] == pytest.approx(f_true, rel=0.01)
+    assert "scaled by one factor, 0.9713" in f.explanation
+    assert "the others move each on its own (2.526 -> " in f.explanation
+
+
+def test_a_factor_most_modes_share():
+    """Ten ratios at one factor and two apart: the ten; no majority, or every mode: none."""
+    ten = 0.9713 * (1 + 1e-4 * np.linspace(-1, 1, 10))
+    ratio = np.concatenate([[1.113, 0.994], ten])
+    std = np.full(ratio.size, 1e-5)
+    got = _shared_by_most(ratio, std)
+    assert got["freq_scale"] == pytest.approx(0.9713, rel=1e-4)
+    np.testing.assert_array_equal(got["share"], [False, False] + [True] * 10)
+    assert _shared_by_most(np.array([1.1, 0.9, 1.0, 1.05]), np.full(4, 1e-5)) == {}
+    assert _shared_by_most(ten, std[:10]) == {}  # all share: the full pattern's test
+    assert _shared_by_most(np.array([0.97, 0.97, 1.2]), np.full(3, 1e-5)) == {}  # two: too few
