@@ -701,6 +701,15 @@ class ModalModes(ModalPattern):
         f, z = np.exp(fr.theta[:n]), np.exp(fr.theta[n:])
         sf, sz = f * fr.theta_std[:n], z * fr.theta_std[n:]
         f0, z0 = self._f0z0(base)
+        # modes whose values the data do not determine in a joint fit, because a later part
+        # sets them anew (a suspension's springs, :class:`SuspensionSprings`), move nothing in
+        # the model: not reported, nor counted in the pattern
+        gone = np.isnan(sf) & np.isnan(sz)
+        if gone.any() and not gone.all():
+            keep = np.flatnonzero(~gone)
+            ks = [ks[j] for j in keep]
+            n = len(ks)
+            f, z, sf, sz, f0, z0 = (a[keep] for a in (f, z, sf, sz, f0, z0))
         modes = [
             {
                 "freq_hz": float(f[j]),
@@ -1210,6 +1219,165 @@ class SuspensionModes(RigidSuspension):
 #: the finest relative frequency step of the stiffening screen (ln sqrt(2) / 0.002: at most
 #: 173 points a mode)
 MIN_STIFFENING_STEP = 0.002
+
+
+#: a model's lowest 2-3 modes are a suspension (:func:`suspended_modes`) when the next mode
+#: lies at least this many times above the highest of them
+SUSPENDED_GAP = 5.0
+
+
+def suspended_modes(base: ModalModel) -> list[int]:
+    """The indices of a suspension the model has in place of rigid-body modes: its lowest two
+    or three flexible modes, ideal (``N0 = c b^T``), when it has no rigid mode and the next
+    mode lies :data:`SUSPENDED_GAP` times higher (a beam on two flexures: 2.5 and 3.4 Hz
+    under its first bending mode at 37 Hz); else []."""
+    if any(m.kind == "rigid" for m in base.modes):
+        return []
+    flex = sorted(
+        (k for k, m in enumerate(base.modes) if _model_flexible(m) and m.freq_hz > 0),
+        key=lambda k: base.modes[k].freq_hz,
+    )
+    for R in (2, 3):
+        if len(flex) > R and (
+            base.modes[flex[R]].freq_hz >= SUSPENDED_GAP * base.modes[flex[R - 1]].freq_hz
+        ):
+            group = flex[:R]
+            return group if all(_mode_factors(base.modes[k]) is not None for k in group) else []
+    return []
+
+
+#: a mode's residue is rank one (:func:`_mode_factors`) where its second singular value is below
+#: this share of its first, and its velocity term below it at the mode's frequency
+RANK_ONE = 1e-6
+
+
+def _mode_factors(mode: Mode) -> tuple[np.ndarray, np.ndarray] | None:
+    """(c, b) with ``c b^T`` the mode's numerator, where it is one (ideal), else None."""
+    if mode.N0 is None and mode.N1 is None:
+        return mode.c, mode.b
+    N0, N1 = mode.numerator()
+    U, S, Vt = np.linalg.svd(N0)
+    if S.size == 0 or S[0] == 0:
+        return None
+    if (S.size > 1 and S[1] > RANK_ONE * S[0]) or (
+        np.linalg.norm(N1) * 2 * np.pi * mode.freq_hz > RANK_ONE * S[0]
+    ):
+        return None
+    root = np.sqrt(S[0])
+    return U[:, 0] * root, Vt[0] * root
+
+
+@dataclass(frozen=True)
+class SuspensionSprings:
+    """The springs of a suspension the model already has (:func:`suspended_modes`), set anew.
+
+    A body on flexures whose stiffnesses are off: its suspension modes move, and since the
+    springs' ratio sets which combination of the rigid-body motions each mode is, their
+    shapes turn within the rigid-body coordinates. In the suspension modes' own
+    coordinates the stiffness becomes ``K = P W^2 P^-1`` (W the new frequencies, ``P = I +
+    off-diagonal`` the turn: similar to a symmetric matrix, the coordinates' scales being
+    the model's own), as :class:`RigidSuspension` has it for a free body: the modes
+    ``(C P)_k (P^-1 B)_k / (s^2 + 2 z_k w_k s + w_k^2)`` with C, B the suspension modes'
+    output and input vectors; their residues sum to the model's (the springs do not change
+    the mass). The public FE example (../shared/fe_examples, flexures -25 % and +10 %): a
+    modal mismatch moves the two modes to their frequencies and leaves compare failing at
+    2-9 Hz, residues kept. theta = (ln f per mode, ln z per mode, P's off-diagonal).
+    """
+
+    effect: str = "suspension_stiffness"
+    #: the box of P's off-diagonal entries (as :class:`RigidSuspension`'s)
+    coupling_bound: float = 10.0
+    #: started at the model's own suspension: scipy's trust-region reflective search
+    solver: str = "trf"
+
+    @property
+    def theta_names(self) -> tuple[str, ...]:
+        return ("log_freq_hz_per_mode", "log_damping_per_mode", "coupling")
+
+    def _f0z0(self, base) -> tuple[np.ndarray, np.ndarray]:
+        ks = suspended_modes(base)
+        f0 = np.array([base.modes[k].freq_hz for k in ks])
+        z0 = np.array([min(max(base.modes[k].damping, MIN_DAMPING), 0.7) for k in ks])
+        return f0, z0
+
+    def grid(self, problem, base):
+        f0, z0 = self._f0z0(base)
+        R = f0.size
+        coupling = np.zeros(R * (R - 1))
+        # the model's springs, all softer or stiffer, and one mode at a time moved
+        out = [np.concatenate([np.log(f0 * g), np.log(z0), coupling]) for g in (1.0, 0.8, 1.25)]
+        for j in range(R):
+            for g in (0.85, 1.15):
+                f = f0 * np.where(np.arange(R) == j, g, 1.0)
+                out.append(np.concatenate([np.log(f), np.log(z0), coupling]))
+        return out
+
+    def bounds(self, problem, base):
+        f0, _ = self._f0z0(base)
+        R = f0.size
+        c = np.full(R * (R - 1), self.coupling_bound)
+        lo = np.concatenate([np.log(f0 / 3), np.full(R, _LOG_Z[0]), -c])
+        hi = np.concatenate([np.log(f0 * 3), np.full(R, _LOG_Z[1]), c])
+        return lo, hi
+
+    @staticmethod
+    def _turn(theta, R: int) -> np.ndarray:
+        P = np.eye(R)
+        P[~np.eye(R, dtype=bool)] = theta[2 * R :]
+        return P
+
+    def build(self, theta, problem, base):
+        ks = suspended_modes(base)
+        R = len(ks)
+        theta = np.asarray(theta, float)
+        f, z = np.exp(theta[:R]), np.exp(theta[R : 2 * R])
+        P = self._turn(theta, R)
+        factors = [_mode_factors(base.modes[k]) for k in ks]
+        C = np.column_stack([c for c, _ in factors]) @ P
+        B = np.linalg.solve(P, np.vstack([b for _, b in factors]))
+        modes = list(base.modes)
+        for j, k in enumerate(ks):
+            modes[k] = replace(
+                modes[k],
+                freq_hz=float(f[j]),
+                damping=float(z[j]),
+                b=B[j],
+                c=C[:, j],
+                N0=None,
+                N1=None,
+                effect=self.effect,
+            )
+        return Realized(replace(base, modes=tuple(modes)))
+
+    def n_linear(self, base):
+        return 0
+
+    def report(self, fr, problem, base):
+        ks = suspended_modes(base)
+        R = len(ks)
+        f, z = np.exp(fr.theta[:R]), np.exp(fr.theta[R : 2 * R])
+        sf, sz = f * fr.theta_std[:R], z * fr.theta_std[R : 2 * R]
+        modes = [
+            {
+                "freq_hz": float(f[j]),
+                "damping": float(z[j]),
+                "model_freq_hz": float(base.modes[k].freq_hz),
+                "model_damping": float(base.modes[k].damping),
+            }
+            for j, k in enumerate(ks)
+        ]
+        worst = max(range(R), key=lambda j: abs(np.log(f[j] / modes[j]["model_freq_hz"])))
+        params = {
+            **modes[worst],
+            "modes": modes,
+            "coupling": self._turn(fr.theta, R).tolist(),
+        }
+        std = {
+            "freq_hz": float(sf[worst]),
+            "damping": float(sz[worst]),
+            "modes": [{"freq_hz": float(a), "damping": float(b)} for a, b in zip(sf, sz)],
+        }
+        return params, std
 
 
 @dataclass(frozen=True)
@@ -2030,6 +2198,8 @@ def candidate_structures(base: ModalModel, problem, *, exclude=()) -> list:
     n_flex = len(ModalPattern().indices(base))
     for skip in range(min(3, n_flex - 1)):
         out.append(ModalPattern(skip_lowest=skip))
+    if suspended_modes(base):
+        out.append(SuspensionSprings())
     if any(m.kind == "rigid" for m in base.modes):
         out.append(SuspensionStiffness())
         if 2 <= RigidSuspension.rank(base) <= 3:

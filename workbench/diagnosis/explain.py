@@ -66,6 +66,15 @@ def _modes_pattern(p: dict, f_hi: float) -> str:
     return text
 
 
+def springs_moved(modes: list[dict]) -> str:
+    """``2.526 -> 2.807 Hz (+11.13 %, damping 0.0302); ..``: a suspension's modes, set anew."""
+    return "; ".join(
+        f"{m['model_freq_hz']:.4g} -> {m['freq_hz']:.4g} Hz "
+        f"({100 * (m['freq_hz'] / m['model_freq_hz'] - 1):+.2f} %, damping {m['damping']:.3g})"
+        for m in modes
+    )
+
+
 def explain(effect: str, ev: dict) -> str:
     """One paragraph for ``effect`` from the evidence dictionary ``ev``.
 
@@ -154,6 +163,16 @@ def explain(effect: str, ev: dict) -> str:
             "first-order "
             f"lags with cutoffs {rng} on {where}; a pure delay would keep the magnitude flat; "
             f"{fall}{tail}"
+        )
+    if effect == "suspension_stiffness" and "model_freq_hz" in p:
+        # the model's own suspension, its springs set anew (SuspensionSprings)
+        moved = springs_moved(p["modes"])
+        turn = np.abs(np.asarray(p["coupling"]) - np.eye(len(p["modes"]))).max()
+        return (
+            f"the suspension's modes move and change shape: its springs are not the model's "
+            f"({moved}; the modes' shapes turned within the suspended motions by up to "
+            f"{turn:.3g}, residues summing to the model's: the same mass), visible "
+            f"{lo:.4g}-{hi:.4g} Hz on {where}; {fall}{tail}"
         )
     if effect == "suspension_stiffness":
         modes = p.get("modes") or []
