@@ -874,6 +874,14 @@ class SuspensionStiffness:
         return {"freq_hz": f, "damping": z}, {"freq_hz": sf, "damping": sz}
 
 
+def _coupling(off: np.ndarray, R: int) -> np.ndarray:
+    """``P = I + off-diagonal`` (R, R): the turn of a suspension's coordinates
+    (:class:`RigidSuspension`, :class:`SuspensionSprings`), ``off`` row-major."""
+    P = np.eye(R)
+    P[~np.eye(R, dtype=bool)] = off
+    return P
+
+
 @dataclass(frozen=True)
 class RigidSuspension:
     """Every rigid DOF on its own spring: one finding for a suspended body.
@@ -1077,8 +1085,7 @@ class RigidSuspension:
         if R < 2 or np.max(np.abs(theta[R + nz :])) < 0.99 * self.coupling_bound:
             return None
         w = 2 * np.pi * np.exp(theta[:R])
-        P = np.eye(R)
-        P[~np.eye(R, dtype=bool)] = theta[R + nz :]
+        P = _coupling(theta[R + nz :], R)
         lam, V = np.linalg.eig(P @ np.diag(w**2) @ np.linalg.inv(P))
         if np.any(np.abs(lam.imag) > 1e-9 * np.abs(lam)) or np.any(lam.real <= 0):
             return None
@@ -1101,8 +1108,7 @@ class RigidSuspension:
         nz = self.n_damping(R)
         f = np.exp(theta[:R])
         z = np.broadcast_to(np.exp(theta[R : R + nz]), (R,))
-        P = np.eye(R)
-        P[~np.eye(R, dtype=bool)] = theta[R + nz :]
+        P = _coupling(theta[R + nz :], R)
         Q = np.linalg.inv(P)
         rigid = base.modes[k]
         new = [
@@ -1320,18 +1326,12 @@ class SuspensionSprings:
         hi = np.concatenate([np.log(f0 * 3), np.full(R, _LOG_Z[1]), c])
         return lo, hi
 
-    @staticmethod
-    def _turn(theta, R: int) -> np.ndarray:
-        P = np.eye(R)
-        P[~np.eye(R, dtype=bool)] = theta[2 * R :]
-        return P
-
     def build(self, theta, problem, base):
         ks = suspended_modes(base)
         R = len(ks)
         theta = np.asarray(theta, float)
         f, z = np.exp(theta[:R]), np.exp(theta[R : 2 * R])
-        P = self._turn(theta, R)
+        P = _coupling(theta[2 * R :], R)
         factors = [_mode_factors(base.modes[k]) for k in ks]
         C = np.column_stack([c for c, _ in factors]) @ P
         B = np.linalg.solve(P, np.vstack([b for _, b in factors]))
@@ -1370,7 +1370,7 @@ class SuspensionSprings:
         params = {
             **modes[worst],
             "modes": modes,
-            "coupling": self._turn(fr.theta, R).tolist(),
+            "coupling": _coupling(fr.theta[2 * R :], R).tolist(),
         }
         std = {
             "freq_hz": float(sf[worst]),
@@ -1539,8 +1539,7 @@ class CoupledSuspension:
         nz = self._rigid.n_damping(R)
         w = 2 * np.pi * np.exp(th_r[:R])
         z = np.broadcast_to(np.exp(th_r[R : R + nz]), (R,))
-        P = np.eye(R)
-        P[~np.eye(R, dtype=bool)] = th_r[R + nz :]
+        P = _coupling(th_r[R + nz :], R)
         n = R + nf
         K = np.zeros((n, n))
         K[:R, :R] = P @ np.diag(w**2) @ np.linalg.inv(P)
