@@ -711,7 +711,12 @@ def test_a_beam_response_that_does_not_repeat_is_a_nonlinearity(name):
         assert top.parameters["periods_repeat"] is False
     else:
         assert top.parameters["f_stat"] > 4.0 and "periods_repeat" not in top.parameters
-    assert "periods do not repeat" in top.explanation
+    # said to the user: in the finding, or (seed 5 since the model's own suspension is a
+    # candidate, SuspensionSprings: the search then names the cubic spring itself, level
+    # 0.0025 for the drawn 0.0024, where it had named 0.00024 beside three linear findings,
+    # its linearization) in the notes the CLI prints
+    told = [top.explanation, *res.notes]
+    assert any("periods do not repeat" in t for t in told), told
     # what does not repeat is a part of what the spring adds (the generator's level, the
     # spring's whole share of the output power): 0.94 of it on seed 7, 0.1 on seed 5
     assert 0.05 * level < top.parameters["level"] <= 1.2 * level
