@@ -75,7 +75,14 @@ from workbench.diagnosis.effects import (
     polish,
     refinements,
 )
-from workbench.diagnosis.explain import _chan, _hz, damping_floor_note, explain, springs_moved
+from workbench.diagnosis.explain import (
+    _chan,
+    _hz,
+    damping_floor_note,
+    explain,
+    modes_moved,
+    own_modes,
+)
 from workbench.diagnosis.fit import (
     MAX_NFEV,
     NUMERICAL_FAILURES,
@@ -468,7 +475,9 @@ def _springs_from_given(result: Diagnosis, shared: dict) -> Diagnosis:
             found.append(f)
             continue
         worst = max(modes, key=lambda m: abs(np.log(m["freq_hz"] / m["model_freq_hz"])))
-        text = f.explanation.replace(springs_moved(p["modes"]), springs_moved(modes), 1)
+        text = f.explanation.replace(
+            modes_moved(p["modes"], damping="new"), modes_moved(modes, damping="new"), 1
+        )
         f = replace(f, parameters={**p, **worst, "modes": modes}, explanation=text)
         if found and found[-1].effect == "modal_mismatch" and found[-1].model is not None:
             # the mismatch before it: its error with the suspension's modes as given
@@ -487,14 +496,20 @@ def _mismatch_without(mismatch: Finding, springs: Finding, base: ModalModel, pro
     model = mismatch.model
     if len(model.modes) != len(base.modes) or not ks:
         return mismatch, springs
-    middle = replace(
-        model, modes=tuple(base.modes[i] if i in ks else m for i, m in enumerate(model.modes))
-    )
+    middle = _put_back(model, base, ks)
     err = problem.error(middle)
     if not before > err > springs.error_after:
         return mismatch, springs
     return _restated(mismatch, before, err, middle), _restated(
         springs, err, springs.error_after, springs.model
+    )
+
+
+def _put_back(model: ModalModel, before: ModalModel, indices) -> ModalModel:
+    """``model`` with its modes at ``indices`` as ``before`` has them (the same places)."""
+    return replace(
+        model,
+        modes=tuple(before.modes[i] if i in indices else m for i, m in enumerate(model.modes)),
     )
 
 
@@ -532,26 +547,18 @@ def _cause_parts(f: Finding, before: ModalModel, err_before: float, problem) -> 
     modes, stds = f.parameters["modes"], f.parameters_std.get("modes") or []
     hi = problem.band_hz[1]
 
-    def shared_mode(m) -> bool:
-        f0 = m["model_freq_hz"]
-        return f0 > hi or any(abs(f0 - w) <= 1e-9 * w for w in share)
-
-    own = [j for j, m in enumerate(modes) if not shared_mode(m)]
-    if not own or len(own) == len(modes):
+    own = own_modes(modes, share, hi)
+    if not own or len(own) == len(modes) or len(before.modes) != len(f.model.modes):
         return None
     index = {}
     for j in own:
         f0 = modes[j]["model_freq_hz"]
         k = [i for i, m in enumerate(before.modes) if abs(m.freq_hz - f0) <= 1e-9 * f0]
-        if len(k) != 1 or len(before.modes) != len(f.model.modes):
+        if len(k) != 1:
             return None
         index[j] = k[0]
     # the joint fit's model with the modes that move on their own put back
-    back = set(index.values())
-    middle = replace(
-        f.model,
-        modes=tuple(before.modes[i] if i in back else m for i, m in enumerate(f.model.modes)),
-    )
+    middle = _put_back(f.model, before, set(index.values()))
     err_mid = problem.error(middle)
     if not err_mid < err_before or not f.error_after < err_mid:
         return None
@@ -594,12 +601,7 @@ def _cause_parts(f: Finding, before: ModalModel, err_before: float, problem) -> 
             "next finding (fitted jointly with this one)."
         ),
     )
-    moved = "; ".join(
-        f"{modes[j]['model_freq_hz']:.4g} -> {modes[j]['freq_hz']:.4g} Hz "
-        f"({100 * (modes[j]['freq_hz'] / modes[j]['model_freq_hz'] - 1):+.2f} %, damping "
-        f"{modes[j]['model_damping']:.3g} -> {modes[j]['damping']:.3g})"
-        for j in own
-    )
+    moved = modes_moved([modes[j] for j in own], damping="both")
     second = replace(
         f,
         parameters=p2,

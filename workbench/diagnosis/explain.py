@@ -48,31 +48,44 @@ def _modes_pattern(p: dict, f_hi: float) -> str:
             "modulus or density gives"
         )
         if which is not None:
-            own = [
-                m
-                for m in modes
-                if m["model_freq_hz"] <= f_hi
-                and not any(abs(m["model_freq_hz"] - w) <= 1e-9 * w for w in which)
-            ]
+            own = [modes[j] for j in own_modes(modes, which, f_hi)]
             if own:
-                moved = ", ".join(
-                    f"{m['model_freq_hz']:.4g} -> {m['freq_hz']:.4g} Hz "
-                    f"({100 * (m['freq_hz'] / m['model_freq_hz'] - 1):+.2f} %)"
-                    for m in own
-                )
+                moved = modes_moved(own, sep=", ")
                 text += f"; the others move each on its own ({moved}): another cause"
     if pattern.get("damping_scale") is not None:
         text += f"; every damping scaled by {pattern['damping_scale']:.3g}"
     return text
 
 
-def springs_moved(modes: list[dict]) -> str:
-    """``2.526 -> 2.807 Hz (+11.13 %, damping 0.0302); ..``: a suspension's modes, set anew."""
-    return "; ".join(
-        f"{m['model_freq_hz']:.4g} -> {m['freq_hz']:.4g} Hz "
-        f"({100 * (m['freq_hz'] / m['model_freq_hz'] - 1):+.2f} %, damping {m['damping']:.3g})"
-        for m in modes
-    )
+def own_modes(modes: list[dict], share: list[float], f_hi: float) -> list[int]:
+    """The indices of ``modes`` (a mismatch's, each with ``model_freq_hz``) in the band (up to
+    ``f_hi``, Hz) that move each on its own: not among the model frequencies ``share`` of the
+    modes a pattern's factor moves."""
+    return [
+        j
+        for j, m in enumerate(modes)
+        if m["model_freq_hz"] <= f_hi
+        and not any(abs(m["model_freq_hz"] - w) <= 1e-9 * w for w in share)
+    ]
+
+
+def modes_moved(modes: list[dict], *, damping: str = "", sep: str = "; ") -> str:
+    """``2.526 -> 2.807 Hz (+11.13 %)`` for each mode, joined by ``sep``; ``damping``: ""
+    none, "new" its fitted damping (``, damping 0.0302``), "both" the model's and the
+    fitted (``, damping 0.01 -> 0.0302``)."""
+
+    def one(m: dict) -> str:
+        text = (
+            f"{m['model_freq_hz']:.4g} -> {m['freq_hz']:.4g} Hz "
+            f"({100 * (m['freq_hz'] / m['model_freq_hz'] - 1):+.2f} %"
+        )
+        if damping == "new":
+            text += f", damping {m['damping']:.3g}"
+        elif damping == "both":
+            text += f", damping {m['model_damping']:.3g} -> {m['damping']:.3g}"
+        return text + ")"
+
+    return sep.join(one(m) for m in modes)
 
 
 def explain(effect: str, ev: dict) -> str:
@@ -166,7 +179,7 @@ def explain(effect: str, ev: dict) -> str:
         )
     if effect == "suspension_stiffness" and "model_freq_hz" in p:
         # the model's own suspension, its springs set anew (SuspensionSprings)
-        moved = springs_moved(p["modes"])
+        moved = modes_moved(p["modes"], damping="new")
         turn = np.abs(np.asarray(p["coupling"]) - np.eye(len(p["modes"]))).max()
         return (
             f"the suspension's modes move and change shape: its springs are not the model's "
