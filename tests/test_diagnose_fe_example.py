@@ -18,7 +18,9 @@ import pytest
 from conftest import SHARED, require_shared
 
 from workbench.diagnosis import diagnose
-from workbench.diagnosis.effects import _shared_by_most
+from workbench.diagnosis.effects import SuspensionSprings, _shared_by_most, suspended_modes
+from workbench.diagnosis.modal import decompose
+from workbench.diagnosis.problem import FrfProblem
 from workbench.fe.model import read_fe
 from workbench.fe.reduce import reduce_fe
 from workbench.io.formats import load_measurement
@@ -95,3 +97,33 @@ def test_a_factor_most_modes_share():
     assert _shared_by_most(np.array([1.1, 0.9, 1.0, 1.05]), np.full(4, 1e-5)) == {}
     assert _shared_by_most(ten, std[:10]) == {}  # all share: the full pattern's test
     assert _shared_by_most(np.array([0.97, 0.97, 1.2]), np.full(3, 1e-5)) == {}  # two: too few
+
+
+def test_the_springs_jacobian_is_the_residuals_derivative():
+    """SuspensionSprings' analytic Jacobian (the trust region's) against central differences
+    of the model's residual, on the example's model at turned, moved springs."""
+    folder = require_shared(EXAMPLE)
+    data = load_measurement(folder / "measurement.npz")
+    model = reduce_fe(
+        read_fe(folder / "fe_model.npz"), 12, outputs=data.output_names, inputs=data.input_names
+    )
+    base = decompose(model.to_lti())
+    problem = FrfProblem(data)
+    springs = SuspensionSprings()
+    f0 = np.array([base.modes[k].freq_hz for k in suspended_modes(base)])
+    theta = np.concatenate([np.log(f0 * [1.1, 0.95]), np.log([0.03, 0.02]), [0.2, -0.4]])
+    J = springs.jacobian(theta, problem, base)
+
+    def residual(t):
+        return problem.residual(springs.build(t, problem, base).model)
+
+    cols = []
+    for i in range(theta.size):
+        up, down = theta.copy(), theta.copy()
+        up[i] += 1e-6
+        down[i] -= 1e-6
+        cols.append((residual(up) - residual(down)) / 2e-6)
+    J_fd = np.column_stack(cols)
+    scale = np.abs(J_fd).max(axis=0)
+    assert J.shape == J_fd.shape and np.all(scale > 0)
+    np.testing.assert_array_less(np.abs(J - J_fd).max(axis=0), 1e-5 * scale)

@@ -8,6 +8,8 @@ directly (``C (-w^2 M + j w D + K)^-1 B``); the nominal model is the free body (
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import control
 import numpy as np
 import pytest
@@ -73,6 +75,36 @@ def test_the_residues_of_the_suspension_modes_sum_to_the_rigid_body_mass_line():
     rigid = next(m for m in base.modes if m.kind == "rigid")
     total = sum(np.outer(m.c, m.b) for m in added)
     assert np.allclose(total, rigid.numerator()[0], rtol=1e-12, atol=1e-12 * np.abs(total).max())
+
+
+def _central_differences(residual, theta, h=1e-6):
+    cols = []
+    for i in range(theta.size):
+        up, down = theta.copy(), theta.copy()
+        step = h * max(1.0, abs(theta[i]))
+        up[i] += step
+        down[i] -= step
+        cols.append((residual(up) - residual(down)) / (2 * step))
+    return np.column_stack(cols)
+
+
+@pytest.mark.parametrize("structure", [RigidSuspension(), SuspensionModes()])
+def test_the_analytic_jacobian_is_the_residuals_derivative(structure):
+    """The trust region's Jacobian (frequencies, damping, the turn P) against central
+    differences of the model's residual, on a base with an input delay (outer factor)."""
+    nominal, data, _, _ = _case()
+    base = replace(decompose(nominal), delay_s=2e-4)
+    problem = FrfProblem(data)
+    nz = structure.n_damping(2)
+    theta = np.concatenate([np.log([8.0, 11.0]), np.log([0.05, 0.02][:nz]), [0.3, -0.7]])
+    J = structure.jacobian(theta, problem, base)
+    J_fd = _central_differences(
+        lambda t: problem.residual(structure.build(t, problem, base).model), theta
+    )
+    assert J.shape == J_fd.shape == (problem.n_obs, theta.size)
+    scale = np.abs(J_fd).max(axis=0)
+    assert np.all(scale > 0)
+    np.testing.assert_array_less(np.abs(J - J_fd).max(axis=0), 1e-5 * scale)
 
 
 def test_one_finding_with_each_suspension_frequency_at_the_noise_floor():

@@ -500,12 +500,13 @@ def fit(
             # in the time domain the residual itself (an added term's, on a record from rest)
             evaluate[0] = lines.residual
         coords = _Coordinates.of(structure, problem, base, lo, hi)
+        jac = None if normal is not None else _trust_region_jacobian(structure, problem, base)
         for th0 in starts:
             th0 = np.clip(th0, lo + inner, hi - inner)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
                 try:
-                    res = coords.search(residual, normal, th0, max_nfev, structure)
+                    res = coords.search(residual, normal, th0, max_nfev, structure, jac)
                 except _SameBasin:
                     continue
             if best is None or res.cost < best.cost:
@@ -577,6 +578,28 @@ def _held(x: np.ndarray, g: np.ndarray, lo, hi, tol=0.0) -> np.ndarray:
     """The parameters a bound holds (the active set): on ``lo`` or ``hi`` (within ``tol``)
     with the gradient ``g`` of the cost pushing them outwards."""
     return ((x <= lo + tol) & (g > 0)) | ((x >= hi - tol) & (g < 0))
+
+
+def _trust_region_jacobian(structure, problem, base):
+    """``jac(theta) -> J`` (n_obs, n_theta) for scipy's trust region from the structure's
+    analytic ``jacobian`` hook on FRF data (a structure that asks for trf there: a
+    suspension's turned modes), or None (difference quotients). A point where the hook
+    has none or the model cannot be built falls back to difference quotients of the
+    residual the search evaluates (``fallback``)."""
+    hook = getattr(structure, "jacobian", None)
+    if getattr(problem, "kind", "") != "frf" or not callable(hook):
+        return None
+
+    def jac(theta, residual, r, lo, hi):
+        try:
+            J = hook(theta, problem, base)
+        except NUMERICAL_FAILURES:
+            J = None
+        if J is None or not np.all(np.isfinite(J)):
+            return finite_difference_jacobian(residual, theta, r, lo, hi)
+        return J
+
+    return jac
 
 
 class _SameBasin(Exception):
@@ -653,10 +676,10 @@ class _Coordinates:
     def theta(self, u):
         return u if self.log is None else np.where(self.log, np.exp(u), u)
 
-    def search(self, residual, normal, th0, max_nfev, structure):
+    def search(self, residual, normal, th0, max_nfev, structure, jac=None):
         lo, hi = self.lo, self.hi
         if self.log is None:
-            return _search(residual, normal, th0, lo, hi, max_nfev, structure)
+            return _search(residual, normal, th0, lo, hi, max_nfev, structure, jac)
         L = self.log
         ulo = np.where(L, np.log(self.floor), lo)
         uhi = np.where(L, np.log(np.maximum(hi, self.floor * (1 + 1e-9))), hi)
@@ -679,7 +702,13 @@ class _Coordinates:
                 return H * np.outer(d, d), g * d
 
             normal_u = _Normal(chained, normal.tolerances)
-        res = _search(res_u, normal_u, u0, ulo, uhi, max_nfev, structure)
+        jac_u = None
+        if jac is not None:
+
+            def jac_u(u, res, r, lo_u, hi_u):
+                return jac(self.theta(u), residual, r, lo, hi) * dtheta(u)
+
+        res = _search(res_u, normal_u, u0, ulo, uhi, max_nfev, structure, jac_u)
         d = dtheta(res.x)
         # a search ended at the floor: the parameter's own bound (a lag: none on that channel)
         res.x = np.where(L & (res.x <= ulo + inner), lo, self.theta(res.x))
@@ -692,23 +721,25 @@ class _Coordinates:
         return res
 
 
-def _search(residual, normal, x0, lo, hi, max_nfev: int, structure):
+def _search(residual, normal, x0, lo, hi, max_nfev: int, structure, jac=None):
     """One refinement from ``x0``: Levenberg-Marquardt on ``normal``'s equations where
-    there are some (:func:`_normal_equations`), else scipy's trust region (secant updates
-    where the structure asks, :func:`_trust_region`)."""
+    there are some (:func:`_normal_equations`), else scipy's trust region (``jac``: an
+    analytic Jacobian, :func:`_trust_region_jacobian`; secant updates where the structure
+    asks, :func:`_trust_region`)."""
     if normal is not None:
         return levenberg_marquardt(
             residual, normal, x0, lo, hi, max_nfev=max_nfev, **normal.tolerances
         )
     secant = bool(getattr(structure, "secant", False))
-    return _trust_region(residual, x0, lo, hi, max_nfev, secant=secant)
+    return _trust_region(residual, x0, lo, hi, max_nfev, secant=secant, jac=jac)
 
 
 def _trust_region(
-    residual, x0, lo, hi, max_nfev: int, *, secant: bool = False
+    residual, x0, lo, hi, max_nfev: int, *, secant: bool = False, jac=None
 ) -> scipy.optimize.OptimizeResult:
-    """scipy's trust-region reflective search from ``x0``; difference quotients, or with
-    ``secant`` per :data:`TIME_JACOBIAN`.
+    """scipy's trust-region reflective search from ``x0``; an analytic ``jac(x, residual,
+    r, lo, hi)`` where given, else difference quotients, or with ``secant`` per
+    :data:`TIME_JACOBIAN`.
 
     With secant updates (:class:`_SecantJacobian`, from :data:`SECANT_MIN_THETA`
     parameters) a search that ends on an updated Jacobian (its stops, the gradient's and the
@@ -730,6 +761,19 @@ def _trust_region(
             diff_step=DIFF_STEP,
         )
 
+    if jac is not None:
+        last = {}  # trf asks for the Jacobian where it just evaluated the residual
+
+        def fun(x):
+            r = residual(x)
+            last["x"], last["r"] = np.array(x, float), r
+            return r
+
+        def jac_at(x):
+            r = last["r"] if np.array_equal(last.get("x"), x) else residual(x)
+            return jac(np.array(x, float), residual, r, lo, hi)
+
+        return run(x0, jac_at, fun, max_nfev)
     if not secant or TIME_JACOBIAN != "secant" or np.size(x0) < SECANT_MIN_THETA:
         return run(x0, "2-point", residual, max_nfev)
     secant = _SecantJacobian(residual, lo, hi)
