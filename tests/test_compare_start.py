@@ -124,3 +124,25 @@ def test_the_estimated_start_minimizes_the_error_it_reports():
     x_ls = np.linalg.lstsq(O.reshape(-1, 3), (data.y - y_rest).ravel(), rcond=None)[0]
     best = relative_error_time(data.y, y_rest + O @ x_ls)
     assert res.error_estimated_start == pytest.approx(best, rel=1e-9)
+
+
+def test_a_finding_on_a_record_in_motion_is_kept_at_compares_error(stage):
+    """The stage's delay left out of its true model: on the record cut mid-motion the
+    diagnosis keeps the delay as its finding, its errors those compare reports from the
+    estimated start (the model as given, then with the delay), down to the true model's."""
+    from workbench.diagnosis import diagnose
+
+    _, true, _, cut = stage
+    nominal = true.replace(delay_s=0.0)
+    result = diagnose(nominal, cut)
+    (delay,) = result.findings
+    assert delay.effect == "time_delay"
+    assert delay.parameters["delay_s"] == pytest.approx(true.delay_s, rel=0.01)
+    assert result.error_before == pytest.approx(
+        compare(nominal, cut).error_estimated_start, rel=1e-9
+    )
+    after = compare(delay.model.to_lti(), cut)
+    assert delay.error_after == pytest.approx(after.error_estimated_start, rel=1e-6)
+    assert delay.error_after < 1.05 * compare(true, cut).error_estimated_start
+    assert after.failing_bands == ()
+    assert any("as compare computes it" in n for n in result.notes)
