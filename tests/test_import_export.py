@@ -415,6 +415,75 @@ def test_csv_map_names_columns_and_units(tmp_path, capsys):
     )
 
 
+# ------------------------------------------------------------ headerless tables
+CD_MAP = '[variables]\nu = [1, 2]\ny = [3, 4]\n[units]\nu = "V"\ny = "V"\n'
+
+
+def test_daisy_table_read_as_numpy_reads_it(tmp_path, capsys):
+    """DaISy's CD player arm (../shared/realdata): four columns, no header, no sample time;
+    the map names the columns by number and fs, and the record is the file's numbers."""
+    from conftest import SHARED_REALDATA, require_shared
+
+    dat = require_shared(SHARED_REALDATA / "CD_player_arm.dat")
+    toml = tmp_path / "cd.toml"
+    toml.write_text("fs = 1.0\n" + CD_MAP)
+    out = tmp_path / "cd.npz"
+    assert main(["import", str(dat), "--out", str(out), "--map", str(toml)]) == 0
+    assert "2048 samples at 1 Hz" in capsys.readouterr().out
+    data = load_measurement(out)
+    d = np.loadtxt(dat)
+    np.testing.assert_array_equal(data.u, d[:, :2])
+    np.testing.assert_array_equal(data.y, d[:, 2:])
+    assert data.input_names == ("u1", "u2") and data.output_names == ("y1", "y2")
+    assert data.fs == 1.0 and data.loop == "open"
+
+
+def test_table_with_comments_a_time_column_units_and_a_column_left_out(tmp_path):
+    dat = tmp_path / "log.txt"
+    rows = "".join(f"{0.5 * k:g}\t{k % 3}\t{k % 5}  20.5\n" for k in range(40))
+    dat.write_text("% logger export\n# t[ms] F[mN] x[um] temp\n" + rows)
+    toml = tmp_path / "map.toml"
+    toml.write_text(
+        'output_names = ["x"]\n[variables]\nt = 1\nu = [2]\ny = [3]\n'
+        '[units]\nt = "ms"\nu = "mN"\ny = "um"\n'
+    )
+    got = read_data_file(dat, toml)
+    assert got.data.fs == pytest.approx(2000.0)
+    np.testing.assert_allclose(got.data.u[:, 0], (np.arange(40) % 3) * 1e-3)
+    np.testing.assert_allclose(got.data.y[:, 0], (np.arange(40) % 5) * 1e-6)
+    assert got.data.input_names == ("u1",) and got.data.output_names == ("x",)
+    assert "left out: 4" in got.notes[0]
+
+
+@pytest.mark.parametrize(
+    "text, map_text, words",
+    [
+        ("1 2\n3 4\n", None, ["says nothing about its columns", "[variables] u and y"]),
+        ("1 2\n3 4\n", CD_MAP.replace("3, 4", "2").replace("1, 2", "1"), ["fs in the map"]),
+        ("u y\n1 2\n", "fs = 1.0\n" + CD_MAP, ["line 1", "'u'", "header row", ".csv"]),
+        ("1 2 3 4\n1 2 3\n", "fs = 1.0\n" + CD_MAP, ["line 2", "expected 4 columns", "got 3"]),
+        ("1 2 3\n4 5 6\n", "fs = 1.0\n" + CD_MAP, ["variables.y", "1..3", "'4'"]),
+        ("1 2\n3 4\n", "fs = 1.0\n[variables]\nu = [0]\ny = [2]\n", ["number >= 1", "0"]),
+        ("1 2\n3 4\n", 'kind = "frf"\nfs = 1.0\n' + CD_MAP, ["kind", "'frf'"]),
+        (
+            "1 2 3 4\n5 6 7 8\n",
+            "fs = 1.0\n[variables]\nu = [1, 2]\ny = [3, 4]\n",
+            ["column 1", "names no units", "[units] u"],
+        ),
+    ],
+    ids=["no-map", "no-fs", "header", "ragged", "no-such-column", "column-0", "frf", "no-units"],
+)
+def test_table_refusals(tmp_path, capsys, text, map_text, words):
+    dat = tmp_path / "bad.dat"
+    dat.write_text(text)
+    argv = ["import", dat, "--out", tmp_path / "o.npz"]
+    if map_text is not None:
+        (tmp_path / "m.toml").write_text(map_text)
+        argv += ["--map", tmp_path / "m.toml"]
+    refused(argv, capsys, *words)
+    assert not (tmp_path / "o.npz").exists()
+
+
 # -------------------------------------------------------------- universal files
 def uff_record(pyuff, **fields):
     """A dataset 58 as a modal-test system writes it: ASCII, even abscissa, node + direction."""

@@ -1,6 +1,9 @@
-"""``workbench import FILE --out DATA.npz [--map MAP.toml]``: UFF, .mat or CSV to a spec file.
+"""``workbench import FILE --out DATA.npz [--map MAP.toml]``: a data file to a spec measurement.
 
-The format comes from FILE's suffix (``.uff``/``.unv``, ``.mat``, ``.csv``/``.tsv``);
+UFF, .mat, CSV or a plain table.
+
+The format comes from FILE's suffix (``.uff``/``.unv``, ``.mat``, ``.csv``/``.tsv``,
+``.dat``/``.txt``/``.asc``: numbers without a header, the map naming the columns);
 the map says what the file does not (:mod:`workbench.io.importers.mapping`).
 The measurement is written in the spec's format (1a time record or 1b FRF),
 SI units; what the importer did (unit conversions, a dropped 0 Hz line,
@@ -18,15 +21,18 @@ from workbench.io.formats import FrfData, save_measurement
 def register(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         "import",
-        help="import a UFF58, MATLAB .mat or CSV file as a spec measurement .npz",
+        help="import a UFF58, MATLAB .mat, CSV or plain table as a spec measurement .npz",
         description=(
             "Read FRFs or time records from a universal file (dataset 58), a MATLAB .mat "
-            "(v4-v7.3) or a CSV file with a header, and write them as a spec measurement "
+            "(v4-v7.3), a CSV file with a header or a numeric table without one (.dat, .txt: "
+            "DaISy's records), and write them as a spec measurement "
             "(kind 'time' or 'frf', SI units). --map names what the file does not say: which "
             "variable, column or channel is which input/output, fs, units."
         ),
     )
-    p.add_argument("file", metavar="FILE", help="data file: .uff/.unv, .mat, .csv/.tsv")
+    p.add_argument(
+        "file", metavar="FILE", help="data file: .uff/.unv, .mat, .csv/.tsv, .dat/.txt/.asc"
+    )
     p.add_argument("--out", required=True, metavar="DATA.npz", help="output measurement .npz")
     p.add_argument("--map", metavar="MAP.toml", help="map file: channels, fs, units")
     return p

@@ -5,6 +5,7 @@
 | universal file 58 (:mod:`.uff`) | ``.uff``, ``.unv`` | FRFs, time records | the same, exact |
 | MATLAB (:mod:`.matlab`) | ``.mat`` | v4-v7, v7.3 (HDF5) | v5: measurements, models |
 | CSV with a header (:mod:`.csvfile`) | ``.csv``, ``.tsv`` | FRFs, time records | |
+| numeric table, no header (:mod:`.table`) | ``.dat``, ``.txt``, ``.asc`` | time records | |
 
 Every import ends in a :class:`~workbench.io.formats.TimeData` or
 :class:`~workbench.io.formats.FrfData` in SI units, written by
@@ -38,7 +39,16 @@ __all__ = [
     "EXPORT_SUFFIXES",
 ]
 
-IMPORT_SUFFIXES = {".uff": "uff", ".unv": "uff", ".mat": "mat", ".csv": "csv", ".tsv": "csv"}
+IMPORT_SUFFIXES = {
+    ".uff": "uff",
+    ".unv": "uff",
+    ".mat": "mat",
+    ".csv": "csv",
+    ".tsv": "csv",
+    ".dat": "table",
+    ".txt": "table",
+    ".asc": "table",
+}
 EXPORT_SUFFIXES = {".uff": "uff", ".unv": "uff", ".mat": "mat"}
 
 
@@ -53,13 +63,13 @@ def _as_map(map) -> ImportMap:
 
 
 def read_data_file(path: str | os.PathLike, map=None) -> Imported:
-    """Read a UFF, .mat or CSV file into a measurement, with notes on what was done.
+    """Read a UFF, .mat, CSV or headerless table into a measurement, with notes.
 
     Parameters
     ----------
     path : path
         The data file; its suffix names the format (``.uff``/``.unv``, ``.mat``,
-        ``.csv``/``.tsv``).
+        ``.csv``/``.tsv``, ``.dat``/``.txt``/``.asc``: a table without a header).
     map : ImportMap, dict, path or None
         What the file does not say (:mod:`.mapping`): a map file's path, its
         contents as a dict, or an ImportMap.
@@ -67,8 +77,9 @@ def read_data_file(path: str | os.PathLike, map=None) -> Imported:
     fmt = IMPORT_SUFFIXES.get(Path(path).suffix.lower())
     if fmt is None:
         raise InputError(
-            f"{path}: expected a file ending in .uff or .unv (universal file), .mat (MATLAB) "
-            f"or .csv/.tsv, got {Path(path).suffix or 'no suffix'!r}"
+            f"{path}: expected a file ending in .uff or .unv (universal file), .mat (MATLAB), "
+            f".csv/.tsv or .dat/.txt/.asc (a table without a header), got "
+            f"{Path(path).suffix or 'no suffix'!r}"
         )
     m = _as_map(map)
     if fmt == "uff":
@@ -79,15 +90,19 @@ def read_data_file(path: str | os.PathLike, map=None) -> Imported:
         from .matlab import read_mat
 
         return read_mat(path, m)
-    from .csvfile import read_csv
-
     if not Path(path).is_file():
         raise InputError(f"{path}: no such file")
+    if fmt == "table":
+        from .table import read_table
+
+        return read_table(path, m)
+    from .csvfile import read_csv
+
     return read_csv(path, m)
 
 
 def import_file(path: str | os.PathLike, map=None) -> Measurement:
-    """The measurement (TimeData or FrfData, SI) in a UFF, .mat or CSV file."""
+    """The measurement (TimeData or FrfData, SI) in a UFF, .mat, CSV or table file."""
     return read_data_file(path, map).data
 
 

@@ -13,7 +13,8 @@ disagreement is refused, never settled silently)::
 
     [variables]              # spec key = where it is in the file
     u = ["force_x", "force_y"]     # .mat variables ("meas.F", "F(:,2)"), CSV columns,
-    y = "meas.disp"                # or UFF channels ("101+Z" or entity name)
+    y = "meas.disp"                # UFF channels ("101+Z" or entity name), or a
+                                   # headerless table's column numbers (u = [1, 2])
     t = "time"                     # time axis (.mat, CSV)
     freq = "w"                     # frequency axis (.mat, CSV)
     G = "H"                        # FRF array (.mat)
@@ -127,6 +128,15 @@ def _str(value, where: str) -> str:
     return value.strip()
 
 
+def _source(value, where: str) -> str:
+    """A source's name, or a column number (a headerless table's, from 1) as its text."""
+    if isinstance(value, int) and not isinstance(value, bool):
+        if value < 1:
+            raise InputError(f"{where}: expected a column number >= 1, got {value}")
+        return str(value)
+    return _str(value, where)
+
+
 def _names(value, where: str) -> tuple[str, ...]:
     if not isinstance(value, list) or not value:
         raise InputError(f"{where}: expected a list of channel names, got {value!r}")
@@ -177,9 +187,9 @@ def map_from_dict(raw: dict, source: str = "map") -> ImportMap:
         if isinstance(value, list) and key in CHANNEL_KEYS:
             if not value:
                 raise InputError(f"{w}: expected at least one source, got an empty list")
-            variables[key] = tuple(_str(v, w) for v in value)
+            variables[key] = tuple(_source(v, w) for v in value)
         else:
-            variables[key] = _str(value, w)
+            variables[key] = _source(value, w)
     units = raw.get("units", {})
     if not isinstance(units, dict):
         raise InputError(f"{where('units')}: expected a table [units], got {units!r}")
