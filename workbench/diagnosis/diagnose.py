@@ -842,6 +842,26 @@ def _first_round(memo: dict | None, key: tuple, compute, *args, **kwargs):
     return hit
 
 
+def _leaves_the_noise(memo, fr: FitResult, problem, base, data, verdict: bool) -> bool:
+    """Whether the fit ``fr``, as the search takes it, leaves only the noise: on an FRF with
+    G_var (``verdict``) by compare's criterion; on a periodic record refitted there where the
+    lines cannot resolve what it adds (:func:`_kept_on_the_record`, memoized as the ranking
+    asks for it), within FLOOR_RATIO of the floor the periods give (:func:`_at_time_floor`);
+    elsewhere (no noise reference) False.
+
+    A refinement with tens of parameters then has nothing left to explain: an indep3
+    planar record with a suspension, the rigid fit 1.00x the floor on the record, its
+    coupling to the flexible modes fitted on the lines (37 parameters by differences) for
+    13.7 of the diagnosis's 16.4 s, the same finding at the same error after.
+    """
+    if verdict:
+        return bool(_verdict(fr.model, data).within_noise)
+    if isinstance(data, TimeData) and data.period and getattr(problem, "line_hz", None) is not None:
+        kept = _first_round(memo, ("record", id(fr)), _kept_on_the_record, fr, problem, base)[1]
+        return _at_time_floor(data, problem, kept.model, kept.error)
+    return False
+
+
 def _kept_on_the_record(fr: FitResult, problem, base) -> tuple:
     """(``fr``, :func:`_on_the_record` of it): the memo's value keeps ``fr`` alive, so no
     other object takes the id it is keyed by (:func:`_first_round`)."""
@@ -1084,9 +1104,13 @@ def _diagnose(
         best_first = min(results, key=lambda r: _bic(r.cost, n, r.n_params), default=None)
         for r in list(results):
             for s, start in refinements(r, current, problem):
-                if fit_budget(s) > MAX_NFEV and r is not best_first:
+                if fit_budget(s) > MAX_NFEV and (
+                    r is not best_first
+                    or _leaves_the_noise(memo, r, problem, current, data, per_round_verdict)
+                ):
                     # a costly refinement (a coupled suspension: tens of parameters, hundreds
-                    # of evaluations) only where its structure already explains the data best
+                    # of evaluations) only where its structure already explains the data
+                    # best, and leaves more than the noise
                     continue
                 results.append(
                     _first_round(
