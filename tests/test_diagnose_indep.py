@@ -720,3 +720,27 @@ def test_a_beam_response_that_does_not_repeat_is_a_nonlinearity(name):
     # what does not repeat is a part of what the spring adds (the generator's level, the
     # spring's whole share of the output power): 0.94 of it on seed 7, 0.1 on seed 5
     assert 0.05 * level < top.parameters["level"] <= 1.2 * level
+
+
+def test_a_linear_record_whose_transient_rings_through_every_period_is_searched():
+    # indepgen seed 6 with ``--effects suspension_stiffness,crosstalk,none``, beam, time,
+    # crosstalk clear: an open-loop periodic record from rest, input crosstalk 0.12. The
+    # suspension's transient rings through all five periods (their spread 5.6x its white
+    # estimate), so the period-synchronous misfit came out below PERIODIC_F against that
+    # spread, the search stopped before its first round, and the record was named a
+    # nonlinearity at 10.2x the floor. The spread is no noise reference there: searched, the
+    # crosstalk fits to the floor.
+    rng = _rng_at(
+        253861021359029665752462506301666546232,
+        48033170148846378449264849981880743275,
+        1,
+        3605136091,
+    )
+    case = make_case(rng, plant="beam", kind="time", effects=("crosstalk",), size="clear")
+    floor = case.answer["noise_floor_error"]
+    assert floor == pytest.approx(0.008848906140376015, rel=1e-9)
+    assert case.data.period and case.data.loop == "open"
+    res = diagnose(case.nominal, case.data)
+    (top,) = res.findings
+    assert top.effect == "crosstalk" and top.parameters["side"] == "inputs"
+    assert top.error_after <= 1.05 * floor
