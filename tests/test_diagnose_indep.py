@@ -744,3 +744,30 @@ def test_a_linear_record_whose_transient_rings_through_every_period_is_searched(
     (top,) = res.findings
     assert top.effect == "crosstalk" and top.parameters["side"] == "inputs"
     assert top.error_after <= 1.05 * floor
+
+
+def test_a_suspension_far_below_the_lowest_excited_line_is_found_not_a_spring():
+    # indepgen seed 14 (all effects), stage, time, suspension subtle: a closed-loop record
+    # whose multisine starts at 40 Hz, the stage suspended at 1.22 Hz (damping 0.077). The
+    # suspension's grid started at a tenth of the band (4 Hz), where every point cost more
+    # than no suspension: the structure was not among the five fitted, and a cubic spring
+    # at two ports was named at 2.6x the floor (85 s). Screened down to a hundredth of the
+    # band, it is fitted, to the floor.
+    rng = _rng_at(
+        142769400245411378071398269362186294033,
+        210602798688404222029095236965608334861,
+        0,
+        399614559,
+    )
+    case = make_case(
+        rng, plant="stage", kind="time", effects=("suspension_stiffness",), size="subtle"
+    )
+    floor = case.answer["noise_floor_error"]
+    assert floor == pytest.approx(0.0030012367065901644, rel=1e-9)
+    assert case.data.loop == "closed" and case.data.period
+    res = diagnose(case.nominal, case.data)
+    (top,) = res.findings
+    truth = case.answer["effects"][0]["parameters"]
+    assert top.effect == "suspension_stiffness"
+    assert top.parameters["freq_hz"] == pytest.approx(truth["freq_hz"], rel=0.01)
+    assert top.error_after <= 1.02 * floor
