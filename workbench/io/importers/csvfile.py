@@ -159,14 +159,18 @@ class _Table:
         return U.si_factor(by_map[1], expect, m.where("units." + by_map[0]))
 
 
-def _read_columns(path: Path) -> tuple[list[_Column], str]:
+def read_text(path: Path, what: str = "text file") -> str:
+    """The file's text (UTF-8, a byte-order mark dropped); refused in one line otherwise."""
     try:
-        text = path.read_text(encoding="utf-8-sig")
+        return path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError as exc:
         raise InputError(
-            f"{path}: expected a UTF-8 text file, got {exc.reason} at byte {exc.start}"
+            f"{path}: expected a UTF-8 {what}, got {exc.reason} at byte {exc.start}"
         ) from None
-    lines = text.splitlines()
+
+
+def _read_columns(path: Path) -> tuple[list[_Column], str]:
+    lines = read_text(path).splitlines()
     start = next(
         (i for i, s in enumerate(lines) if s.strip() and not s.lstrip().startswith("#")), None
     )

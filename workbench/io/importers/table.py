@@ -37,7 +37,7 @@ from pathlib import Path
 from workbench.core.errors import InputError
 
 from .build import Imported
-from .csvfile import _Column, _Table, _time
+from .csvfile import _Column, _Table, _time, read_text
 from .mapping import ImportMap
 
 __all__ = ["read_table"]
@@ -68,12 +68,7 @@ class _PlainTable(_Table):
 
 
 def _read_rows(path: Path) -> list[_Column]:
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise InputError(
-            f"{path}: expected a UTF-8 text table, got {exc.reason} at byte {exc.start}"
-        ) from None
+    text = read_text(path, "text table")
     rows: list[list[str]] = []
     lines: list[int] = []
     for i, raw in enumerate(text.splitlines()):
