@@ -213,7 +213,11 @@ def test_a_whole_records_grid_in_batches_costs_what_each_model_costs_alone(monke
         assert len(grid) > 40
         models = [s.build(g, problem, base).model for g in grid]
         together = problem.costs(models)
-        assert not alone_calls  # every point in a batch
+        # every point in a batch, but the suspension's few far below the band whose slow
+        # pole is overdamped (evaluated alone by design, PeriodicProblem._moved_costs)
+        slow = [m for m in alone_calls if min(x.freq_hz for x in m.modes) < problem.band_hz[0] / 10]
+        assert len(alone_calls) == len(slow) <= 9  # 3 frequencies x 3 dampings
+        alone_calls.clear()
         alone = np.array([cost(m) for m in models])
         assert np.allclose(together, alone, rtol=1e-9, atol=1e-12 * np.max(alone))
 
