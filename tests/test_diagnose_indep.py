@@ -771,3 +771,27 @@ def test_a_suspension_far_below_the_lowest_excited_line_is_found_not_a_spring():
     assert top.effect == "suspension_stiffness"
     assert top.parameters["freq_hz"] == pytest.approx(truth["freq_hz"], rel=0.01)
     assert top.error_after <= 1.02 * floor
+
+
+def test_a_mode_below_the_lowest_excited_line_is_found_on_the_record():
+    # indepgen seed 15 (all effects), beam, time, missing mode subtle: an open-loop record
+    # from rest, its multisine from 28.7 Hz, the nominal without a mode at 22.7 Hz (damping
+    # 0.0053). The missing mode's grid started at the band's lowest line, and a compliance
+    # whose pseudo-mode above Nyquist (4118 Hz at fs 4096) imitated the mode was named at
+    # 1.64x the floor. Screened below the band too, within its bounds: the mode itself.
+    rng = _rng_at(
+        236111878897160235865746703450165751019,
+        168635386100685449938534718985723470245,
+        1,
+        1480309174,
+    )
+    case = make_case(rng, plant="beam", kind="time", effects=("missing_mode",), size="subtle")
+    floor = case.answer["noise_floor_error"]
+    assert floor == pytest.approx(0.004948606009313975, rel=1e-9)
+    res = diagnose(case.nominal, case.data)
+    (top,) = res.findings
+    truth = case.answer["effects"][0]["parameters"]
+    assert top.effect == "missing_mode"
+    assert top.parameters["freq_hz"] == pytest.approx(truth["freq_hz"], rel=1e-3)
+    assert top.parameters["damping"] == pytest.approx(truth["damping"], rel=0.1)
+    assert top.error_after <= 1.02 * floor
