@@ -722,6 +722,16 @@ def test_a_beam_response_that_does_not_repeat_is_a_nonlinearity(name):
     assert 0.05 * level < top.parameters["level"] <= 1.2 * level
 
 
+def _one_finding(draw: tuple, floor: float, **case):
+    """(case, its one finding): the indepgen case at a recorded PCG64 ``draw`` (state, inc,
+    has_uint32, uinteger; ``case`` make_case's keywords), checked to be the one drawn by
+    its noise floor, diagnosed."""
+    c = make_case(_rng_at(*draw), **case)
+    assert c.answer["noise_floor_error"] == pytest.approx(floor, rel=1e-9)
+    (top,) = diagnose(c.nominal, c.data).findings
+    return c, top
+
+
 def test_a_linear_record_whose_transient_rings_through_every_period_is_searched():
     # indepgen seed 6 with ``--effects suspension_stiffness,crosstalk,none``, beam, time,
     # crosstalk clear: an open-loop periodic record from rest, input crosstalk 0.12. The
@@ -730,18 +740,17 @@ def test_a_linear_record_whose_transient_rings_through_every_period_is_searched(
     # spread, the search stopped before its first round, and the record was named a
     # nonlinearity at 10.2x the floor. The spread is no noise reference there: searched, the
     # crosstalk fits to the floor.
-    rng = _rng_at(
+    draw = (
         253861021359029665752462506301666546232,
         48033170148846378449264849981880743275,
         1,
         3605136091,
     )
-    case = make_case(rng, plant="beam", kind="time", effects=("crosstalk",), size="clear")
-    floor = case.answer["noise_floor_error"]
-    assert floor == pytest.approx(0.008848906140376015, rel=1e-9)
+    floor = 0.008848906140376015
+    case, top = _one_finding(
+        draw, floor, plant="beam", kind="time", effects=("crosstalk",), size="clear"
+    )
     assert case.data.period and case.data.loop == "open"
-    res = diagnose(case.nominal, case.data)
-    (top,) = res.findings
     assert top.effect == "crosstalk" and top.parameters["side"] == "inputs"
     assert top.error_after <= 1.05 * floor
 
@@ -753,20 +762,17 @@ def test_a_suspension_far_below_the_lowest_excited_line_is_found_not_a_spring():
     # than no suspension: the structure was not among the five fitted, and a cubic spring
     # at two ports was named at 2.6x the floor (85 s). Screened down to a hundredth of the
     # band, it is fitted, to the floor.
-    rng = _rng_at(
+    draw = (
         142769400245411378071398269362186294033,
         210602798688404222029095236965608334861,
         0,
         399614559,
     )
-    case = make_case(
-        rng, plant="stage", kind="time", effects=("suspension_stiffness",), size="subtle"
+    floor = 0.0030012367065901644
+    case, top = _one_finding(
+        draw, floor, plant="stage", kind="time", effects=("suspension_stiffness",), size="subtle"
     )
-    floor = case.answer["noise_floor_error"]
-    assert floor == pytest.approx(0.0030012367065901644, rel=1e-9)
     assert case.data.loop == "closed" and case.data.period
-    res = diagnose(case.nominal, case.data)
-    (top,) = res.findings
     truth = case.answer["effects"][0]["parameters"]
     assert top.effect == "suspension_stiffness"
     assert top.parameters["freq_hz"] == pytest.approx(truth["freq_hz"], rel=0.01)
@@ -779,17 +785,16 @@ def test_a_mode_below_the_lowest_excited_line_is_found_on_the_record():
     # 0.0053). The missing mode's grid started at the band's lowest line, and a compliance
     # whose pseudo-mode above Nyquist (4118 Hz at fs 4096) imitated the mode was named at
     # 1.64x the floor. Screened below the band too, within its bounds: the mode itself.
-    rng = _rng_at(
+    draw = (
         236111878897160235865746703450165751019,
         168635386100685449938534718985723470245,
         1,
         1480309174,
     )
-    case = make_case(rng, plant="beam", kind="time", effects=("missing_mode",), size="subtle")
-    floor = case.answer["noise_floor_error"]
-    assert floor == pytest.approx(0.004948606009313975, rel=1e-9)
-    res = diagnose(case.nominal, case.data)
-    (top,) = res.findings
+    floor = 0.004948606009313975
+    case, top = _one_finding(
+        draw, floor, plant="beam", kind="time", effects=("missing_mode",), size="subtle"
+    )
     truth = case.answer["effects"][0]["parameters"]
     assert top.effect == "missing_mode"
     assert top.parameters["freq_hz"] == pytest.approx(truth["freq_hz"], rel=1e-3)

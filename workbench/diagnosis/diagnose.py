@@ -1572,8 +1572,14 @@ def _unsettled(data, y_model) -> bool:
     nonlinearity at 10.2x the floor; the crosstalk fits to 1.01x.
     """
     spread = detect.noise_floor(data, y_model)
+    return spread is not None and _white_below(data, y_model, spread) is not None
+
+
+def _white_below(data, y_model, spread: float) -> float | None:
+    """The record's noise floor with the noise taken as white (:func:`detect.noise_floor`)
+    where the periods' ``spread`` exceeds it :data:`UNREPEATED_RATIO` times, else None."""
     white = detect.noise_floor(data, y_model, white=True)
-    return spread is not None and white is not None and spread > UNREPEATED_RATIO * white
+    return white if white is not None and spread > UNREPEATED_RATIO * white else None
 
 
 def _unrepeated_periods(data, y_model, spread_floor: float, err: float) -> str | None:
@@ -1589,8 +1595,8 @@ def _unrepeated_periods(data, y_model, spread_floor: float, err: float) -> str |
     of the output, white floor 0.012, its residual growing from 4 % to 29 % of the output
     over ten periods; no spring on a mode of the model reproduced it).
     """
-    white = detect.noise_floor(data, y_model, white=True)
-    if white is None or not (spread_floor > UNREPEATED_RATIO * white and err > DRIFT_RATIO * white):
+    white = _white_below(data, y_model, spread_floor)
+    if white is None or not err > DRIFT_RATIO * white:
         return None
     return (
         f"the record's periods do not repeat: their spread is {spread_floor:.3g} of the output, "

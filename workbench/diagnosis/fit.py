@@ -585,7 +585,7 @@ def _trust_region_jacobian(structure, problem, base):
     analytic ``jacobian`` hook on FRF data (a structure that asks for trf there: a
     suspension's turned modes), or None (difference quotients). A point where the hook
     has none or the model cannot be built falls back to difference quotients of the
-    residual the search evaluates (``fallback``)."""
+    residual the search evaluates."""
     hook = getattr(structure, "jacobian", None)
     if getattr(problem, "kind", "") != "frf" or not callable(hook):
         return None

@@ -37,14 +37,13 @@ from pathlib import Path
 from workbench.core.errors import InputError
 
 from .build import Imported
-from .csvfile import _Column, _Table, _time, read_text
+from .csvfile import _DOT_NUMBER, _Column, _Table, _time, read_text
 from .mapping import ImportMap
 
 __all__ = ["read_table"]
 
 _COMMENT = ("#", "%", "!")
 _SPLIT = re.compile(r"[\s,;]+")
-_NUMBER = re.compile(r"^[+-]?(\d+\.?\d*|\.\d+)([eE][+-]?\d+)?$|^[+-]?(nan|inf)$", re.IGNORECASE)
 
 
 class _PlainTable(_Table):
@@ -76,7 +75,7 @@ def _read_rows(path: Path) -> list[_Column]:
         if not s or s.startswith(_COMMENT):
             continue
         fields = [f for f in _SPLIT.split(s) if f]
-        bad = next((f for f in fields if not _NUMBER.match(f)), None)
+        bad = next((f for f in fields if not _DOT_NUMBER.match(f)), None)
         if bad is not None:
             hint = (
                 ": a header row? name the file .csv (columns named in its header)"
@@ -145,5 +144,5 @@ def read_table(path: str | Path, m: ImportMap) -> Imported:
         output_names=m.output_names or tuple(f"y{k + 1}" for k in range(count("y"))),
     )
     got = _time(table, tcol, named)
-    notes = tuple(n.replace("columns the map", "table columns the map") for n in got.notes)
+    notes = tuple(t.replace("columns the map", "table columns the map") for t in got.notes)
     return Imported(got.data, notes, f"table, {got.data.n_samples} rows of {n} columns")
