@@ -125,6 +125,29 @@ def test_the_fit_finds_the_spring_on_the_mode():
     assert ef.error_after < 1.2e-3 and ef.error_before > 5 * ef.error_after
 
 
+def test_the_modes_coordinate_is_read_off_the_record():
+    # a strong spring (half the mode's stiffness at the rms displacement): the linear model's
+    # coordinate is far from the record's, the one measured through the mode's outputs is it
+    from dataclasses import replace
+
+    from workbench.core.model import as_model
+    from workbench.diagnosis.nonlinear import _measured_mode
+    from workbench.sim import simulate_zoh
+
+    u = _input()
+    y = _ode(u, 0.5 * _k3(u)[0])
+    q = (y[:, 0] - C[2] * _ode_rigid(u)) / C[0]
+    port = ModalPort(_model(), 1)
+    lin = as_model(port.lti)
+    y_lin = simulate_zoh(lin, u, FS)
+    Cp = port.maps[1]
+    q_lin = simulate_zoh(replace(lin, C=Cp, D=np.zeros((1, 2)), output_names=()), u, FS)
+    assert np.linalg.norm(q_lin[:, 0] - q) > 0.1 * np.linalg.norm(q)
+    measured = _measured_mode(lin, port.maps, y - y_lin, q_lin)
+    assert measured.shape == (N, 1)
+    assert np.linalg.norm(measured[:, 0] - q) < 1e-8 * np.linalg.norm(q)
+
+
 def test_a_port_on_a_rigid_mode_is_refused():
     with pytest.raises(InputError, match="flexible mode"):
         ModalPort(_model(), 0)

@@ -27,7 +27,7 @@ from workbench.core.errors import InputError
 from workbench.core.lti import relative_error_frf, relative_error_time
 from workbench.diagnosis.fit import NUMERICAL_FAILURES, cholesky_qr2
 from workbench.io.formats import FrfData, TimeData
-from workbench.modal.model import ModalModel, Mode
+from workbench.modal.model import ModalModel, Mode, left_product
 from workbench.modal.simulate import (
     filtered_inputs,
     filtered_lines,
@@ -470,11 +470,11 @@ class FrfProblem:
         ``e`` itself without coupling. The weights stay the mixed channels' (exact for
         equal weights, ``T`` near I: second order in its off-diagonal), see
         :func:`_unmixed_misfit`."""
+        # one inverse each, not a solve per line (numpy factors the matrix once per line)
         if model.T_out is not None:
-            e = np.linalg.solve(model.T_out, e)
+            e = left_product(np.linalg.inv(model.T_out), e)
         if model.T_in is not None:
-            e = np.linalg.solve(np.swapaxes(model.T_in, -1, -2), np.swapaxes(e, -1, -2))
-            e = np.swapaxes(e, -1, -2)
+            e = e @ np.linalg.inv(model.T_in)
         return e
 
     def fit_feedthrough(self, model: ModalModel):
@@ -490,28 +490,28 @@ class FrfProblem:
         "E)."""
         Gm = self.predict(model)
         e = self.data.G - Gm
-        n_y, n_u = Gm.shape[1:]
-        if side == "out":
-            E = np.zeros((n_y, n_y))
-            S = np.zeros((n_y, n_y))
-            for i in range(n_y):
-                others = [k for k in range(n_y) if k != i]
-                X = Gm[:, others, :] * self.w[:, i, None, :]  # (n_f, n_y-1, n_u)
-                X = np.moveaxis(X, 1, -1).reshape(-1, len(others))
-                b = (e[:, i, :] * self.w[:, i, :]).ravel()
-                Xr, br = np.vstack([X.real, X.imag]), np.concatenate([b.real, b.imag])
-                E[i, others], S[i, others] = _lstsq_std(Xr, br)
+        if side != "out":  # G_model (I + E) = ((I + E^T) G_model^T)^T: the outputs' case
+            Gm, e = np.swapaxes(Gm, 1, 2), np.swapaxes(e, 1, 2)
+            w2 = np.swapaxes(self.w2, 1, 2)
         else:
-            E = np.zeros((n_u, n_u))
-            S = np.zeros((n_u, n_u))
-            for j in range(n_u):
-                others = [k for k in range(n_u) if k != j]
-                X = Gm[:, :, others] * self.w[:, :, j, None]
-                X = X.reshape(-1, len(others))
-                b = (e[:, :, j] * self.w[:, :, j]).ravel()
-                Xr, br = np.vstack([X.real, X.imag]), np.concatenate([b.real, b.imag])
-                E[others, j], S[others, j] = _lstsq_std(Xr, br)
-        return E, S
+            w2 = self.w2
+        n_f, n, n_o = Gm.shape
+        # row i of E by weighted least squares over the lines and the other channels: its
+        # normal equations for every row at once (one product each, not a solve's X per row)
+        # M[i, k, l] = sum_f,o w2[f, i, o] Re(conj G[f, k, o] G[f, l, o])
+        Go = np.moveaxis(Gm, 2, 1).reshape(n_f * n_o, n)
+        X = np.concatenate([Go.real, Go.imag])  # (2 n_f n_o, n): Re(a^H b) = a_r b_r + a_i b_i
+        W = np.moveaxis(w2, 1, 0).reshape(n, n_f * n_o)
+        M = np.stack([(X.T * np.tile(W[i], 2)) @ X for i in range(n)])
+        # rhs[i, k] = sum_f,o w2[f, i, o] Re(conj G[f, k, o] e[f, i, o])
+        we = np.moveaxis(w2 * e, 1, 0).reshape(n, n_f * n_o)
+        rhs = we.real @ Go.real + we.imag @ Go.imag
+        E = np.zeros((n, n))
+        S = np.zeros((n, n))
+        for i in range(n):
+            others = np.arange(n) != i
+            E[i, others], S[i, others] = _normal_std(M[i][np.ix_(others, others)], rhs[i, others])
+        return (E, S) if side == "out" else (E.T, S.T)
 
     def residual_peaks(self, model: ModalModel, n: int = 6) -> list[float]:
         """Frequencies (Hz) of the n largest separated peaks of the misfit per line."""
@@ -590,14 +590,28 @@ def _lstsq_std(X: np.ndarray, b: np.ndarray, normal: list | None = None):
     Xb = Xs.T @ b
     if normal is not None:
         normal.append((M.copy(), Xb, scale))
-    M += 1e-12 * np.eye(M.shape[0])
+    return _scaled_solve(M, Xb, scale)
+
+
+def _normal_std(M: np.ndarray, r: np.ndarray):
+    """:func:`_lstsq_std` from the normal equations ``M = X^T X`` (p, p), ``r = X^T b``
+    (p,): the same column scaling, x (p,) and its unit-noise std (p,)."""
+    scale = np.sqrt(np.maximum(np.diag(M), 0.0))
+    scale = np.where(scale > 0, scale, 1.0)
+    return _scaled_solve(M / np.outer(scale, scale), r / scale, scale)
+
+
+def _scaled_solve(M: np.ndarray, Xb: np.ndarray, scale: np.ndarray):
+    """x and its std of the column-scaled normal equations ``M x_s = Xb`` (``x = x_s /
+    scale``); M is not kept."""
+    M = M + 1e-12 * np.eye(M.shape[0])
     # np.linalg.pinv(M, hermitian=True) (its default cutoff 1e-15 of the largest eigenvalue)
     # from one eigh, without pinv's SVD wrapper (a screen solves hundreds of these)
     lam, V = np.linalg.eigh(M)
     keep = np.abs(lam) > 1e-15 * np.max(np.abs(lam))
     cov = (V * np.where(keep, 1.0 / np.where(keep, lam, 1.0), 0.0)) @ V.T
     x = cov @ Xb
-    s = 1.0 / scale if b.ndim == 1 else (1.0 / scale)[:, None]
+    s = 1.0 / scale if Xb.ndim == 1 else (1.0 / scale)[:, None]
     return x * s, np.sqrt(np.abs(np.diag(cov))) / scale
 
 

@@ -687,6 +687,17 @@ def lag_factor(s: np.ndarray, tau: np.ndarray) -> np.ndarray:
     return 1.0 / (1.0 + s[:, None] * tau[None, :])
 
 
+def left_product(T: np.ndarray, G: np.ndarray) -> np.ndarray:
+    """``T @ G[f]`` for every line f of ``G`` (n_f, n_y, n_u). A real ``T`` on a complex
+    ``G`` is one real product on G's (re, im) view: the complex product casts ``T``, and
+    einsum's generic loop was 7x slower still (6x6 on 2000 lines: 3.2 ms; the coupled
+    model's predictions in a joint fit spent most of their time there)."""
+    if np.isrealobj(T) and np.iscomplexobj(G):
+        G = np.ascontiguousarray(G, dtype=complex)
+        return (T @ G.view(float)).view(complex)
+    return T @ G
+
+
 def apply_outer(freq_hz, G, *, tau_in=None, tau_out=None, T_in=None, T_out=None, delay_s=0.0):
     """``T_out Hy G Hu T_in exp(-s delay_s)`` for a core response ``G`` (n_f, n_y, n_u).
 
@@ -699,7 +710,7 @@ def apply_outer(freq_hz, G, *, tau_in=None, tau_out=None, T_in=None, T_out=None,
     if tau_in is not None and np.any(tau_in):
         G = G * lag_factor(s, tau_in)[:, None, :]
     if T_out is not None:
-        G = np.einsum("ab,fbu->fau", T_out, G)
+        G = left_product(np.asarray(T_out), G)
     if T_in is not None:
         G = G @ T_in
     if delay_s:
