@@ -288,6 +288,20 @@ class TimeDelay:
     def n_linear(self, base):
         return 0
 
+    def kinks(self, theta, problem, base) -> list[np.ndarray]:
+        """The whole-sample delays either side of ``theta`` on a sampled record (ms), where the
+        ZOH response bends (a computation delay is often a whole number of samples); none on
+        an FRF."""
+        if problem.kind != "time":
+            return []
+        k = theta[0] * 1e-3 * problem.data.fs
+        lo, hi = self.bounds(problem, base)
+        return [
+            np.array([n * 1e3 / problem.data.fs])
+            for n in sorted({np.floor(k), np.ceil(k)})
+            if lo[0] <= n * 1e3 / problem.data.fs <= hi[0]
+        ]
+
     def jacobian(self, theta, problem, base):
         """d residual / d theta (n_obs, 1) on FRF data: ``-w s 1e-3 G`` (theta in ms); else None.
 
