@@ -148,6 +148,19 @@ def test_the_modes_coordinate_is_read_off_the_record():
     assert np.linalg.norm(measured[:, 0] - q) < 1e-8 * np.linalg.norm(q)
 
 
+def test_a_softening_mode_gets_no_spring():
+    # the record's mode softens (k3 < 0): no hardening spring regresses above zero on its
+    # measured coordinate, and the fit says so (no level, the linear model's error) instead
+    # of refining a spring that is not there
+    u = _input()
+    k3 = -0.04 * _k3(u)[0]
+    y = _ode(u, k3)
+    y = y + 1e-3 * np.sqrt(np.mean(y**2)) * np.random.default_rng(1).standard_normal(y.shape)
+    ef = fit_port_element(ModalPort(_model(), 1), u, y, FS)
+    assert ef.parameters["cubic_stiffness"] == [0.0]
+    assert ef.error_after == ef.error_before
+
+
 def test_a_port_on_a_rigid_mode_is_refused():
     with pytest.raises(InputError, match="flexible mode"):
         ModalPort(_model(), 0)

@@ -1553,6 +1553,8 @@ def fit_port_element(
         of the whole record. The hard law (free rigid bodies) has no v0 and no sensitivities:
         its levels only, by forward differences."""
         active = np.flatnonzero(c > 0)
+        if active.size == 0:  # no element to refine
+            return []
         friction = name == "coulomb_friction"
         n_lvl = active.size
         smooth = friction and not hard  # the hard law has no v0 and no sensitivities
@@ -1979,6 +1981,8 @@ def fit_port_element(
         # simulation inflates: judged again after the levels are refitted at the finer count
         n_sub = params.get("substeps", substeps)
         hopeless = give_up_above is not None and after > COARSE_MARGIN * give_up_above
+        # no element at all (no level regressed above zero): nothing to converge
+        hopeless = hopeless or not np.any(np.asarray(next(iter(params.values())), float) > 0)
         for _ in range(0 if hopeless else CONVERGE_ROUNDS):
             levels = np.asarray(next(iter(params.values())), float)
             vel, g = params.get("friction_velocity"), gains_of(params)
