@@ -1515,6 +1515,18 @@ def _diagnose(
             notes.append(note)
             if remaining is not None:
                 remaining["explanation"] += "; " + note
+    elif nl_early is not None and isinstance(data, TimeData) and data.period:
+        # the early element took the linear search's place: whether the periods repeat is
+        # judged on the model as given all the same (an indepgen beam record whose spring
+        # near its jumps the measured-coordinate fit reaches early: the note was lost with
+        # the later path it came from)
+        y_given = problem.predict(current)
+        spread = detect.noise_floor(data, y_given)
+        note = _unrepeated_periods(data, y_given, spread, cur_err) if spread else None
+        if note is not None:
+            notes.append(note)
+            if remaining is not None:
+                remaining["explanation"] += "; " + note
     element = next((f for f in found if f.effect == "nonlinearity" and f.model is not None), None)
     if remaining is not None and not remaining["within_noise"] and element is not None:
         # compare simulates a linear model: the element's simulation model is what explains
