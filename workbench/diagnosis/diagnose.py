@@ -1507,14 +1507,11 @@ def _diagnose(
                 notes.append(weak)
     found = _coupling_read_back(found, current, base)
     remaining = _remaining(current, data)
+    note = None
     if time_floor is not None and nl_early is None:
         note = unrepeated_note
         if current is not linear_end:  # the element on the model as given took its place
             note = _unrepeated_periods(data, problem.predict(current), time_floor, cur_err)
-        if note is not None:
-            notes.append(note)
-            if remaining is not None:
-                remaining["explanation"] += "; " + note
     elif nl_early is not None and isinstance(data, TimeData) and data.period:
         # the early element took the linear search's place: whether the periods repeat is
         # judged on the model as given all the same (an indepgen beam record whose spring
@@ -1523,10 +1520,10 @@ def _diagnose(
         y_given = problem.predict(current)
         spread = detect.noise_floor(data, y_given)
         note = _unrepeated_periods(data, y_given, spread, cur_err) if spread else None
-        if note is not None:
-            notes.append(note)
-            if remaining is not None:
-                remaining["explanation"] += "; " + note
+    if note is not None:
+        notes.append(note)
+        if remaining is not None:
+            remaining["explanation"] += "; " + note
     element = next((f for f in found if f.effect == "nonlinearity" and f.model is not None), None)
     if remaining is not None and not remaining["within_noise"] and element is not None:
         # compare simulates a linear model: the element's simulation model is what explains

@@ -2213,13 +2213,12 @@ def _measured_mode(lin, maps, residual: np.ndarray, motion: np.ndarray) -> np.nd
     outputs at each sample. With the mode's displacement measured, the spring's force is a
     regressor known from the record, and the level an output-error regression (the linear
     model's motion instead is far from the record's for a spring of a few per cent of the
-    mode's stiffness, see :data:`MODAL_CENTER`). None where the mode's outputs do not
-    determine its state (rank below 1) or it is not in the model's first states' blocks.
+    mode's stiffness, see :data:`MODAL_CENTER`). None where no output sees the mode.
     """
     Cp = maps[1]
     off = int(np.flatnonzero(Cp[0])[0])
     Cb = np.asarray(lin.C, float)[:, off : off + 2]
-    if np.linalg.matrix_rank(Cb) < 1:
+    if not np.any(Cb):
         return None
     dx = np.linalg.lstsq(Cb, residual.T, rcond=None)[0].T
     return motion + dx[:, [0]]
