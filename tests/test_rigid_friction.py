@@ -8,6 +8,8 @@ bodies' coordinates only). Independent of the substep propagation and of the por
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from indepgen import _coulomb_step
@@ -17,6 +19,7 @@ from workbench.core.errors import InputError
 from workbench.diagnosis.nonlinear import (
     PortNonlinearity,
     RigidPorts,
+    coulomb_port_profile,
     fit_port_element,
     simulate_nonlinear,
 )
@@ -128,6 +131,30 @@ def test_the_hard_law_needs_free_rigid_bodies():
     )
     with pytest.raises(InputError, match="double integrators"):
         simulate_nonlinear(lti, _input(), FS, nl)
+
+
+def test_a_ports_profile_is_the_event_exact_motions_error():
+    # each trial level of one port against the oracle's whole motion at that level (the other
+    # port held), sticking included; with a whole-sample delay of the model's input
+    u = _input()
+    y = _exact(u, FC) + 1e-3 * np.random.default_rng(1).standard_normal((N, 2))
+    port = RigidPorts(_model())
+    Bp, Cp = port.maps
+    held = np.array([0.3, 0.25])
+    for j in (0, 1):
+        trial = np.array([0.0, 0.5, 1.0, 4.0]) * FC[j]
+        errs = coulomb_port_profile(port.lti, u, y, FS, Bp, Cp, held, j, trial)
+        for x, e in zip(trial, errs):
+            F = held.copy()
+            F[j] = x
+            ref = np.linalg.norm(y - _exact(u, F)) / np.linalg.norm(y)
+            assert e == pytest.approx(ref, rel=1e-9)
+    m = 2
+    delayed = dataclasses.replace(port.lti, delay_s=m / FS)
+    u_d = np.vstack([np.zeros((m, 2)), u[:-m]])
+    errs = coulomb_port_profile(delayed, u, y, FS, Bp, Cp, FC, 1, [FC[1]])
+    ref = np.linalg.norm(y - _exact(u_d, FC)) / np.linalg.norm(y)
+    assert errs[0] == pytest.approx(ref, rel=1e-9)
 
 
 def test_the_fit_finds_the_rigid_friction():

@@ -1418,7 +1418,7 @@ def _diagnose(
     # a nonlinearity is a finding only when a fitted port element (friction, cubic spring,
     # saturation) in the simulation model lowers the error: a linear misfit at low frequency
     # (a suspension, crosstalk) is not reduced by one, and is no false alarm
-    nl_ev, nl_first_rank, unrepeated = None, False, False
+    nl_ev, nl_first_rank, unrepeated, nl_needed = None, False, False, None
     # the from-rest error well above the noise the periods show (the rigid bodies' friction
     # is then fitted whatever its first-order signature, :func:`_fit_element`)
     drift = time_floor is not None and cur_err > DRIFT_RATIO * time_floor
@@ -1450,6 +1450,19 @@ def _diagnose(
         # simulation model can show
         nl_ev = _misfit_evidence(cur_err, F_end, problem.band_hz)
         nl_first_rank = [f.effect for f in found] == ["suspension_stiffness"]
+    elif (
+        F_end is not None
+        and any(f.effect == "suspension_stiffness" for f in found)
+        and cur_err > FLOOR_RATIO * time_floor
+    ):
+        # a spring to the world found, and the error left above the floor: what stiction
+        # linearizes to (a body held near its position looks sprung), the rest of its
+        # misfit too small for the drift test above (an indepgen closed-loop stage record,
+        # friction subtle: a 0.85 Hz suspension and a lag at 1.13x the floor). The element
+        # must reach the floor, not a large share below the linear findings
+        nl_ev = _misfit_evidence(cur_err, F_end, problem.band_hz)
+        nl_first_rank = [f.effect for f in found] == ["suspension_stiffness"]
+        nl_needed = FLOOR_RATIO * time_floor
     elif unrepeated_note is not None and nl is not None:
         # the periods do not repeat, and the final linear model's residual does not either:
         # the response to a periodic input is not periodic, which no linear time-invariant
@@ -1486,6 +1499,7 @@ def _diagnose(
             direct=nl_ev.n_lines > 0,
             unrepeated=unrepeated,
             drift=drift,
+            needed=nl_needed,
         )
         if finding is None:
             alternatives.append(alt)
