@@ -889,3 +889,30 @@ def test_a_hardening_mode_near_its_jumps_is_fitted_to_the_floor():
     assert top.effect == "nonlinearity" and top.parameters["element"] == "cubic_stiffness"
     assert top.parameters["level"] == pytest.approx(truth["level"], rel=0.02)
     assert top.error_after / floor <= 1.1
+
+
+def test_a_common_lag_far_above_nyquist_is_a_lag_not_a_delay():
+    # indepgen seed 27 (all effects), stage, FRF, actuator lag subtle: one cutoff on all six
+    # inputs, 208 kHz on a 5 kHz grid (83x the band's top). A delay of 0.77 us, the per-input
+    # lags and the per-output lags all reach the floor within 0.02 % of one another; the
+    # per-channel lags fit best (a log-likelihood 17 above the delay's) but with 5 more
+    # parameters, and BIC named the delay. The one-cutoff lag has the delay's one parameter:
+    # the likelihood decides, and the explanation says how close the delay comes
+    draw = (
+        151075291297394272997708195736272854871,
+        218250142745413522186470865394637724367,
+        0,
+        3924236871,
+    )
+    floor = 0.002039811575461325
+    case, top = _one_finding(
+        draw, floor, plant="stage", kind="frf", effects=("actuator_dynamics",), size="subtle"
+    )
+    truth = case.answer["effects"][0]["parameters"]["cutoff_hz"]
+    assert len(set(truth)) == 1
+    assert top.effect == "actuator_dynamics"
+    cut = top.parameters["cutoff_hz"]
+    assert len(set(cut)) == 1 and cut[0] == pytest.approx(truth[0], rel=0.05)
+    assert top.error_after / floor <= 1.01
+    assert "time_delay fits nearly as closely" in top.explanation
+    assert "one lag on every input is the same factor on the response" in top.explanation

@@ -21,6 +21,7 @@ from test_diagnose_gen import beam, beam_params, frf_case, stage, stage_params
 import workbench.diagnosis.fit as fit_engine
 from workbench.diagnosis.effects import (
     ActuatorDynamics,
+    CommonLag,
     MissingMode,
     ModalMismatch,
     ModalModes,
@@ -106,6 +107,7 @@ def test_analytic_jacobians_match_central_differences(plant, params):
     structures = [
         (TimeDelay(), np.array([0.07]), base),
         (ActuatorDynamics(), np.linspace(0.2, 1.5, base.n_u), base),  # T_out allowed
+        (CommonLag(), np.array([0.7]), base),
         (SensorDynamics(), np.linspace(0.3, 2.0, base.n_y), _with_outer(base0)),
         (ModalMismatch(index=1), None, base),
         (ModalPattern(), None, base),
@@ -130,7 +132,7 @@ def test_lines_match_the_model_residual(plant, params):
     """A structure's lines: the model's cost, J^T J and J^T r (where it has a Jacobian)."""
     problem, base0 = _problem(plant, params, "modal_mismatch")
     for base in (base0, _with_outer(base0, T_in=False, T_out=True)):
-        structures = [TimeDelay(), ActuatorDynamics(), ModalPattern(), ModalModes()]
+        structures = [TimeDelay(), ActuatorDynamics(), CommonLag(), ModalPattern(), ModalModes()]
         structures.append(_split_modes(base))
         structures += [
             ModalMismatch(index=k) for k, m in enumerate(base.modes) if m.kind == "flexible"
@@ -332,3 +334,19 @@ def test_line_terms_keep_norms_and_inner_products(m):
     assert abs(rc @ rc / (r @ r) - 1) < 1e-12
     assert np.max(np.abs(Jc.T @ Jc - J.T @ J)) < 1e-12 * np.max(np.abs(J.T @ J))
     assert np.allclose(Jc.T @ rc, J.T @ r, rtol=0, atol=1e-12 * np.sqrt(np.max(J.T @ J) * (r @ r)))
+
+
+@pytest.mark.parametrize("plant,params", [(stage, stage_params), (beam, beam_params)])
+def test_a_common_lag_is_one_lag_on_every_channel_of_either_side(plant, params):
+    # the one-cutoff lag on the inputs is the per-input lag at that cutoff on every input,
+    # and the same response as that lag on every output (a scalar factor: l G = G l)
+    problem, base = _problem(plant, params, "modal_mismatch")
+    common = CommonLag().build(np.array([0.4]), problem, base).model
+    per_input = ActuatorDynamics().build(np.full(base.n_u, 0.4), problem, base).model
+    per_output = SensorDynamics().build(np.full(base.n_y, 0.4), problem, base).model
+    G = problem.predict(common)
+    np.testing.assert_allclose(problem.predict(per_input), G, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(
+        problem.predict(per_output), G, rtol=1e-10, atol=1e-14 * abs(G).max()
+    )
+    assert CommonLag().bounds(problem, base)[1].shape == (1,)

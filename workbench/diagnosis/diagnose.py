@@ -2470,7 +2470,9 @@ def _finding(fr: FitResult, runner, problem, base, data, err_before, floor) -> F
         freq, G_after - G_before, _sigma(problem, fr.model, fr, freq, G_after)
     )
     ins, outs = where.inputs, where.outputs
-    if fr.effect == "actuator_dynamics":
+    if getattr(fr.structure, "common", False):  # one lag on every channel, however fast
+        ins = tuple(range(base.n_u))
+    elif fr.effect == "actuator_dynamics":
         ins = tuple(
             j
             for j, c in enumerate(params["cutoff_hz"])

@@ -55,6 +55,7 @@ __all__ = [
     "ResidualCompliance",
     "UpperResidual",
     "ActuatorDynamics",
+    "CommonLag",
     "SensorDynamics",
     "SuspensionStiffness",
     "RigidSuspension",
@@ -1947,10 +1948,31 @@ LAG_LOG_FLOOR = 1e-3
 
 @dataclass(frozen=True)
 class _Lag:
+    """First-order lags on the channels of one side: a cutoff each, or (``common``) one
+    cutoff for every channel, theta = band top / cutoff.
+
+    One lag on every input is the same factor on the whole response as that lag on every
+    output (``l G = G l``, a scalar): the common lag is offered on the inputs only, its
+    report says so (:mod:`~workbench.diagnosis.explain`). Beside a delay it has the delay's
+    one parameter, so the data's own fit decides between them, not the per-channel lag's
+    extra parameters: a lag far above Nyquist is nearly a delay (an indepgen stage FRF, 6
+    inputs lagged at 208 kHz on a 5 kHz grid: the delay named by BIC, though the lags fitted
+    better by a log-likelihood of 17 with 5 more parameters)."""
+
     side: str = "in"
+    common: bool = False
 
     def _n(self, base):
+        """Channels on this side."""
         return base.n_u if self.side == "in" else base.n_y
+
+    def _k(self, base):
+        """Parameters: one per channel, or one."""
+        return 1 if self.common else self._n(base)
+
+    def _per_channel(self, theta, base) -> np.ndarray:
+        """theta (k,) as one value per channel (n,)."""
+        return np.broadcast_to(np.asarray(theta, float), (self._n(base),))
 
     def _scale(self, problem) -> float:
         return 2 * np.pi * problem.band_hz[1]
@@ -1969,9 +1991,11 @@ class _Lag:
         return levels[levels <= 3 * f_hi / f_lo]
 
     def grid(self, problem, base):
-        n = self._n(base)
+        n = self._k(base)
         levels = self.levels(problem)
         points = [np.full(n, a) for a in (0.0,) + tuple(levels)]
+        if self.common:
+            return points
         # lags on some channels only: the best level per channel alone, then combined
         best = np.zeros(n)
         cost0 = problem.cost(base)
@@ -1993,7 +2017,7 @@ class _Lag:
         return points
 
     def bounds(self, problem, base):
-        n = self._n(base)
+        n = self._k(base)
         f_lo, f_hi = problem.band_hz
         return np.zeros(n), np.full(n, 3 * f_hi / f_lo)
 
@@ -2009,10 +2033,10 @@ class _Lag:
         record's lag + modal mismatch (tests/oraclegen.py seed 1, dual stage) ended with the
         mismatched mode moved onto the lag's pole (1006 Hz, damping 0.36) beside a
         compliance, at the same error as the right pair."""
-        return np.full(self._n(base), LAG_LOG_FLOOR)
+        return np.full(self._k(base), LAG_LOG_FLOOR)
 
     def build(self, theta, problem, base):
-        tau = np.asarray(theta, float) / self._scale(problem)
+        tau = self._per_channel(theta, base) / self._scale(problem)
         if self.side == "in":
             return Realized(replace(base, tau_in=base.lags("in") + tau))
         return Realized(replace(base, tau_out=base.lags("out") + tau))
@@ -2045,7 +2069,8 @@ class _Lag:
             )
             dr = P[at] * problem.w[at] * (dlog[:, j, None])
             Jt[j][at] = dr.view(float).reshape(dr.shape + (2,))
-        return Jt.reshape(n, -1).T
+        J = Jt.reshape(n, -1).T
+        return J.sum(axis=1, keepdims=True) if self.common else J
 
     def lines(self, problem, base):
         """:class:`_Lines` on FRF data without coupling on this side, else None.
@@ -2069,18 +2094,21 @@ class _Lag:
         s, scale, channels = problem.s, self._scale(problem), np.arange(n)
 
         def phi(theta):
-            return 1.0 / (1.0 + s[None, :] * (tau0 + np.asarray(theta, float) / scale)[:, None])
+            tau = tau0 + self._per_channel(theta, base) / scale
+            return 1.0 / (1.0 + s[None, :] * tau[:, None])
 
-        def jac(theta):  # theta_j moves channel j's factor only
-            return lines.jacobian(-s / scale * phi(theta) ** 2, channels)
+        def jac(theta):
+            if self.common:  # the one theta moves every channel's factor
+                return lines.jacobian((-s / scale * phi(theta) ** 2)[None])
+            return lines.jacobian(-s / scale * phi(theta) ** 2, channels)  # theta_j: channel j
 
         return _Lines(lambda th: lines.residual(phi(th)), jac)
 
     def report(self, fr, problem, base):
         f_hi = problem.band_hz[1]
-        th = np.maximum(fr.theta, 1e-12)
+        th = np.maximum(self._per_channel(fr.theta, base), 1e-12)
         fc = f_hi / th
-        sfc = f_hi * fr.theta_std / th**2
+        sfc = f_hi * self._per_channel(fr.theta_std, base) / th**2
         cut = [float(x) if x < 1e9 else None for x in fc]
         return {"cutoff_hz": cut}, {
             "cutoff_hz": [float(x) if np.isfinite(x) and x < 1e12 else None for x in sfc]
@@ -2101,6 +2129,17 @@ class SensorDynamics(_Lag):
     effect: str = "sensor_dynamics"
 
     theta_names: tuple[str, ...] = ("cutoff_norm_per_output",)
+
+
+@dataclass(frozen=True)
+class CommonLag(_Lag):
+    """One first-order lag on every input (equally on every output), one cutoff."""
+
+    side: str = "in"
+    common: bool = True
+    effect: str = "actuator_dynamics"
+
+    theta_names: tuple[str, ...] = ("cutoff_norm_common",)
 
 
 @dataclass(frozen=True)
@@ -2273,7 +2312,7 @@ def candidate_structures(base: ModalModel, problem, *, exclude=()) -> list:
     out: list = [TimeDelay(), MissingMode(), ResidualCompliance(), UpperResidual()]
     if problem.kind == "time":
         out.append(UpperResidual(late=True))
-    out += [ActuatorDynamics(), SensorDynamics()]
+    out += [ActuatorDynamics(), SensorDynamics(), CommonLag()]
     for k, m in enumerate(base.modes):
         if _model_flexible(m) and f_lo / MISMATCH_REACH <= m.freq_hz <= f_hi * MISMATCH_REACH:
             out.append(ModalMismatch(index=k))

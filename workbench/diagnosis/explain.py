@@ -10,6 +10,8 @@ __all__ = ["damping_floor_note", "explain"]
 
 #: a lag whose every cutoff is this many times the band's top leaves no roll-off in it
 FAST_LAG = 100.0
+#: a runner-up within this share of a finding's error "fits nearly as closely"
+ALIKE = 0.01
 
 
 def _hz(f) -> str:
@@ -108,6 +110,11 @@ def explain(effect: str, ev: dict) -> str:
     elif alt[1] <= ev["error_after"]:
         # ranked by BIC: a runner-up at least as close has more parameters
         tail = f"; {alt[0]} fits as closely ({alt[1]:.4g}) but with more parameters."
+    elif alt[1] <= (1 + ALIKE) * ev["error_after"]:
+        tail = (
+            f"; {alt[0]} fits nearly as closely ({alt[1]:.4g}): the record hardly tells them "
+            "apart, and the likelihood for the parameters each takes prefers this one."
+        )
     else:
         tail = f"; the next best explanation, {alt[0]}, only reaches {alt[1]:.4g}."
     if effect == "time_delay":
@@ -162,6 +169,12 @@ def explain(effect: str, ev: dict) -> str:
         side = "inputs (columns)" if effect == "actuator_dynamics" else "outputs (rows)"
         cuts = [c for c in p["cutoff_hz"] if c is not None]
         rng = f"{min(cuts):.4g}-{max(cuts):.4g} Hz" if cuts else "n/a"
+        if cuts and len(cuts) == len(p["cutoff_hz"]) and min(cuts) == max(cuts):
+            # one cutoff for every channel (the common lag): a scalar factor on the response
+            other = "outputs" if effect == "actuator_dynamics" else "inputs"
+            side = f"inputs and outputs alike (one lag on every {side.split()[0][:-1]} is the same "
+            side += f"factor on the response as that lag on every {other[:-1]})"
+            rng = f"{cuts[0]:.4g} Hz, one for all"
         if cuts and min(cuts) > FAST_LAG * hi:
             # no roll-off in the band: only the phase, about hi / cutoff rad at its top
             return (
