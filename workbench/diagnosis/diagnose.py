@@ -1072,6 +1072,23 @@ def _diagnose(
                 # most of the diagnosis (an indep3 shaft suspension, 35 of 47 s, the error
                 # already 1.0001x the noise floor); coloured noise keeps the search going
                 break
+        if (
+            round_ > 0
+            and problem.kind == "frf"
+            and not problem.has_var
+            and detect.white_frf_residual((data.G - problem.predict(current)) * problem.w)
+        ):
+            # an FRF without G_var: the findings so far leave a residual that is noise from
+            # line to line (detect.white_frf_residual), and a further finding must remove a
+            # large share of it (ERROR_RATIO, COST_RATIO), which would correlate it. The
+            # next round refitted every candidate with the findings (an indepgen beam FRF,
+            # a sensor lag found at 1.00x the floor: 10 of the diagnosis's 14 s, none taken)
+            notes.append(
+                f"round {round_ + 1} not searched: the residual is noise from line to line "
+                "(no channel's correlated between neighbouring lines, no line above its "
+                "neighbours)"
+            )
+            break
         structures = candidate_structures(current, problem, exclude=exclude)
         if effects is not None:
             structures = [s for s in structures if s.effect in effects]
