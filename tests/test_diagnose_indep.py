@@ -916,3 +916,25 @@ def test_a_common_lag_far_above_nyquist_is_a_lag_not_a_delay():
     assert top.error_after / floor <= 1.01
     assert "time_delay fits nearly as closely" in top.explanation
     assert "one lag on every input is the same factor on the response" in top.explanation
+
+
+def test_a_suspension_below_the_band_that_the_record_resolves_is_the_number():
+    # indepgen seed 27 (all effects), beam, time, suspension clear: springs at 1.1227 and
+    # 4.599 Hz, the band from 12 Hz. Both fitted to the floor, the lower to 5e-6 of itself
+    # by the record's transient, yet reported "not resolved" (below a tenth of the band's
+    # lowest line) and the number was 4.6 Hz, 310 % off
+    draw = (
+        70173315857184512288361299126444991311,
+        218250142745413522186470865394637724367,
+        0,
+        3593373653,
+    )
+    floor = 0.007155974374453383
+    case, top = _one_finding(
+        draw, floor, plant="beam", kind="time", effects=("suspension_stiffness",), size="clear"
+    )
+    truth = case.answer["effects"][0]["parameters"]
+    assert top.effect == "suspension_stiffness"
+    assert top.parameters["freq_hz"] == pytest.approx(truth["freq_hz"], rel=0.01)
+    assert all(m.get("resolved", True) for m in top.parameters["modes"])
+    assert top.error_after / floor <= 1.01
