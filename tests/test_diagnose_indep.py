@@ -938,3 +938,24 @@ def test_a_suspension_below_the_band_that_the_record_resolves_is_the_number():
     assert top.parameters["freq_hz"] == pytest.approx(truth["freq_hz"], rel=0.01)
     assert all(m.get("resolved", True) for m in top.parameters["modes"])
     assert top.error_after / floor <= 1.01
+
+
+def test_output_lags_far_above_nyquist_are_fitted_beside_the_input_lags():
+    # indepgen seed 23 (all effects), stage, closed-loop time record, sensor lag subtle:
+    # every output lagged at 41-67 kHz, 8-13x Nyquist. The screen kept the input lags among
+    # its five best and not the output lags: named actuator_dynamics at 1.013x the floor, the
+    # output lags never fitted. Fitted beside them they reach the floor at their cutoffs
+    draw = (
+        107272756986874671427419851019304027705,
+        18438579778062455872196599375400725907,
+        1,
+        226327536,
+    )
+    floor = 0.0027069529595340172
+    case, top = _one_finding(
+        draw, floor, plant="stage", kind="time", effects=("sensor_dynamics",), size="subtle"
+    )
+    truth = case.answer["effects"][0]["parameters"]["cutoff_hz"]
+    assert top.effect == "sensor_dynamics"
+    np.testing.assert_allclose(top.parameters["cutoff_hz"], truth, rtol=0.05)
+    assert top.error_after / floor <= 1.01

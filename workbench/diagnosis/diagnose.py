@@ -149,6 +149,8 @@ UNREPEATED_RATIO = 3.0
 NL_STATIONARY = (0.5, 1.2)
 #: candidates refitted jointly with the earlier findings each round
 JOINT_CANDIDATES = 3
+#: the lags' effects: one fitted, every lag structure is (:func:`_diagnose`)
+LAG_EFFECTS = ("actuator_dynamics", "sensor_dynamics")
 #: every pair of effects is fitted jointly in the first round (:func:`_pair_chain`) on an
 #: FRF with G_var whose best single effect leaves the misfit above this many noise floors,
 #: and the best pair taken there when it comes within as many; a diagnosis that ends above
@@ -1111,9 +1113,20 @@ def _diagnose(
             else (len(screened) if problem.kind == "frf" or pair_first else 5)
         )
         results: list[FitResult] = []
+        # a lag on one side fitted, the other side's too: lags far above the band are nearly
+        # delays per channel, and a plant near diagonal tells the sides apart only through
+        # its couplings, which the screen's grid does not resolve (an indepgen stage record,
+        # output lags at 8-13x Nyquist: the input lags fitted, the output lags screened out)
+        lag_fitted = any(
+            i < n_fits and s.effect in LAG_EFFECTS for i, (_, s, _) in enumerate(screened)
+        )
         for i, (_, s, starts) in enumerate(screened):
             # one-parameter structures are cheap and a coarse grid understates them: refine
-            if i < n_fits or len(s.bounds(problem, current)[0]) <= 1:
+            if (
+                i < n_fits
+                or len(s.bounds(problem, current)[0]) <= 1
+                or (lag_fitted and s.effect in LAG_EFFECTS)
+            ):
                 results.append(
                     _first_round(
                         memo,
