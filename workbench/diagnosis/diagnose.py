@@ -149,6 +149,9 @@ UNREPEATED_RATIO = 3.0
 NL_STATIONARY = (0.5, 1.2)
 #: candidates refitted jointly with the earlier findings each round
 JOINT_CANDIDATES = 3
+#: an FRF without G_var: the search stops when at most this share of the residual's power is
+#: more than noise (detect.frf_structure_share), a third of what a finding must remove
+FRF_QUIET = 0.1
 #: the lags' effects: one fitted, every lag structure is (:func:`_diagnose`)
 LAG_EFFECTS = ("actuator_dynamics", "sensor_dynamics")
 #: every pair of effects is fitted jointly in the first round (:func:`_pair_chain`) on an
@@ -1074,23 +1077,21 @@ def _diagnose(
                 # most of the diagnosis (an indep3 shaft suspension, 35 of 47 s, the error
                 # already 1.0001x the noise floor); coloured noise keeps the search going
                 break
-        if (
-            round_ > 0
-            and problem.kind == "frf"
-            and not problem.has_var
-            and detect.white_frf_residual((data.G - problem.predict(current)) * problem.w)
-        ):
-            # an FRF without G_var: the findings so far leave a residual that is noise from
-            # line to line (detect.white_frf_residual), and a further finding must remove a
-            # large share of it (ERROR_RATIO, COST_RATIO), which would correlate it. The
-            # next round refitted every candidate with the findings (an indepgen beam FRF,
-            # a sensor lag found at 1.00x the floor: 10 of the diagnosis's 14 s, none taken)
-            notes.append(
-                f"round {round_ + 1} not searched: the residual is noise from line to line "
-                "(no channel's correlated between neighbouring lines, no line above its "
-                "neighbours)"
-            )
-            break
+        if round_ > 0 and problem.kind == "frf" and not problem.has_var:
+            # an FRF without G_var: no floor. A further finding must remove a large share of
+            # the misfit (ERROR_RATIO, COST_RATIO: about 0.3), and all the findings so far
+            # leave beyond noise from line to line is at most ``share``
+            # (detect.frf_structure_share). The next rounds refitted every candidate with the
+            # findings (an indepgen beam FRF, a sensor lag found at 1.00x the floor in the
+            # first round: 10 of the diagnosis's 14 s, none taken)
+            share = detect.frf_structure_share((data.G - problem.predict(current)) * problem.w)
+            if share < FRF_QUIET:
+                notes.append(
+                    f"round {round_ + 1} not searched: at most {100 * share:.2g} % of the "
+                    "residual's power is more than noise from line to line, where a further "
+                    f"finding must remove {100 * (1 - COST_RATIO):.0f} %"
+                )
+                break
         structures = candidate_structures(current, problem, exclude=exclude)
         if effects is not None:
             structures = [s for s in structures if s.effect in effects]
