@@ -417,8 +417,8 @@ def frf_structure_share(
     What an FRF without ``G_var`` offers in place of a noise floor: a finding must remove a
     large share of the misfit (a third), which the bound rules out when it is small. Noise
     alone leaves about ``0.9 / sqrt(n_f) + 2.6 / sqrt(n_f n_ch)`` (0.06 on 2000 lines of 6
-    channels; more where a few lines hold most of its power); leakage (a Welch estimate's neighbouring bins)
-    correlates noise and raises it, erring towards searching on.
+    channels; more where a few lines hold most of its power); leakage (a Welch estimate's
+    neighbouring bins) correlates noise and raises it, erring towards searching on.
     """
     e = np.asarray(E, complex)
     n_f = e.shape[0]
