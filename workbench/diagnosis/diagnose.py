@@ -2152,7 +2152,8 @@ def _pair_chain(ranked, problem, base: ModalModel, n: int, err0: float):
     (:func:`~workbench.diagnosis.fit.fit_joint`, :data:`PAIR_NFEV` evaluations); the member
     that explained more alone comes first. A crosstalk's two sides are tried apart: the side
     that explains more alone may not be the one beside the other effect (an input delay
-    commutes with crosstalk on the inputs, not on the outputs). The best pair by BIC is
+    commutes with crosstalk on the inputs, not on the outputs); a lag's per-channel and
+    common forms too. The best pair by BIC is
     refined, in the order whose first member lowers the error alone (``err0`` the model's)
     and then ``alone`` is None. Where neither member does but the pair does, the pair is one
     step: the first fit reports the pair's error, and ``alone`` = (effect, its error alone,
@@ -2160,8 +2161,11 @@ def _pair_chain(ranked, problem, base: ModalModel, n: int, err0: float):
     error.
     """
     singles: dict[tuple, FitResult] = {}
-    for r in ranked:  # best first: each effect's best fit, a crosstalk's per side
-        singles.setdefault((r.effect, getattr(r.structure, "side", None)), r)
+    for r in ranked:  # best first: each effect's best fit, a crosstalk's per side, a lag's
+        # per channel and common apart (an indepgen beam record, one input lagged beside a
+        # missing mode: the common lag ranked first alone, and its pair missed the floor)
+        s = r.structure
+        singles.setdefault((r.effect, getattr(s, "side", None), getattr(s, "common", False)), r)
     out, out_bic = None, np.inf
     effects = list(singles)
     for i, e1 in enumerate(effects):
