@@ -171,9 +171,11 @@ def explain(effect: str, ev: dict) -> str:
         rng = f"{min(cuts):.4g}-{max(cuts):.4g} Hz" if cuts else "n/a"
         if cuts and len(cuts) == len(p["cutoff_hz"]) and min(cuts) == max(cuts):
             # one cutoff for every channel (the common lag): a scalar factor on the response
-            other = "outputs" if effect == "actuator_dynamics" else "inputs"
-            side = f"inputs and outputs alike (one lag on every {side.split()[0][:-1]} is the same "
-            side += f"factor on the response as that lag on every {other[:-1]})"
+            own, other = ("input", "output")[:: 1 if effect == "actuator_dynamics" else -1]
+            side = (
+                f"inputs and outputs alike (one lag on every {own} is the same factor on the "
+                f"response as that lag on every {other})"
+            )
             rng = f"{cuts[0]:.4g} Hz, one for all"
         if cuts and min(cuts) > FAST_LAG * hi:
             # no roll-off in the band: only the phase, about hi / cutoff rad at its top
