@@ -152,7 +152,7 @@ JOINT_CANDIDATES = 3
 #: an FRF without G_var: the search stops when at most this share of the residual's power is
 #: more than noise (detect.frf_structure_share), a third of what a finding must remove
 FRF_QUIET = 0.1
-#: the lags' effects: one fitted, every lag structure is (:func:`_diagnose`)
+#: the lags' effects: every structure of theirs is fitted, whatever the screen (:func:`_diagnose`)
 LAG_EFFECTS = ("actuator_dynamics", "sensor_dynamics")
 #: every pair of effects is fitted jointly in the first round (:func:`_pair_chain`) on an
 #: FRF with G_var whose best single effect leaves the misfit above this many noise floors,
@@ -1114,20 +1114,14 @@ def _diagnose(
             else (len(screened) if problem.kind == "frf" or pair_first else 5)
         )
         results: list[FitResult] = []
-        # a lag on one side fitted, the other side's too: lags far above the band are nearly
-        # delays per channel, and a plant near diagonal tells the sides apart only through
-        # its couplings, which the screen's grid does not resolve (an indepgen stage record,
-        # output lags at 8-13x Nyquist: the input lags fitted, the output lags screened out)
-        lag_fitted = any(
-            i < n_fits and s.effect in LAG_EFFECTS for i, (_, s, _) in enumerate(screened)
-        )
         for i, (_, s, starts) in enumerate(screened):
-            # one-parameter structures are cheap and a coarse grid understates them: refine
-            if (
-                i < n_fits
-                or len(s.bounds(problem, current)[0]) <= 1
-                or (lag_fitted and s.effect in LAG_EFFECTS)
-            ):
+            # one-parameter structures are cheap and a coarse grid understates them: refine.
+            # So does it a lag's, on each channel apart: every lag is fitted (an indepgen stage
+            # record, output lags at 8-13x Nyquist: the input lags fitted, the output lags
+            # screened out, a plant near diagonal telling the sides apart only through its
+            # couplings; another, three inputs lagged near the band's top: no lag fitted, a
+            # missing mode and a compliance named at the floor)
+            if i < n_fits or len(s.bounds(problem, current)[0]) <= 1 or s.effect in LAG_EFFECTS:
                 results.append(
                     _first_round(
                         memo,
