@@ -143,7 +143,7 @@ def test_a_ports_profile_is_the_event_exact_motions_error():
     held = np.array([0.3, 0.25])
     for j in (0, 1):
         trial = np.array([0.0, 0.5, 1.0, 4.0]) * FC[j]
-        errs = coulomb_port_profile(port.lti, u, y, FS, Bp, Cp, held, j, trial)
+        errs = coulomb_port_profile(port.lti, u, y, FS, Bp, Cp, held, j)(trial)
         for x, e in zip(trial, errs):
             F = held.copy()
             F[j] = x
@@ -152,7 +152,7 @@ def test_a_ports_profile_is_the_event_exact_motions_error():
     m = 2
     delayed = dataclasses.replace(port.lti, delay_s=m / FS)
     u_d = np.vstack([np.zeros((m, 2)), u[:-m]])
-    errs = coulomb_port_profile(delayed, u, y, FS, Bp, Cp, FC, 1, [FC[1]])
+    errs = coulomb_port_profile(delayed, u, y, FS, Bp, Cp, FC, 1)([FC[1]])
     ref = np.linalg.norm(y - _exact(u_d, FC)) / np.linalg.norm(y)
     assert errs[0] == pytest.approx(ref, rel=1e-9)
 
