@@ -148,6 +148,12 @@ def main(argv=None) -> int:
     ap.add_argument("--nonperiodic", action="store_true", help="time records without period")
     ap.add_argument("--reps", type=int, default=1)
     ap.add_argument(
+        "--diagnose-kinds",
+        default="",
+        help="diagnose only these kinds' cases; every case is still drawn, so the rest are the "
+        "same cases as a run without it (an A/B on one kind)",
+    )
+    ap.add_argument(
         "--dump",
         default="",
         help="folder: write every wrong case there (model, measurement, answer)",
@@ -192,6 +198,8 @@ def main(argv=None) -> int:
             )
         except RuntimeError as exc:
             print(f"skip {plant} {effs} {kind}: {exc}")
+            continue
+        if args.diagnose_kinds and kind not in args.diagnose_kinds.split(","):
             continue
         res, dt = run(case)
         top = res.top

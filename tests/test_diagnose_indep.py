@@ -335,7 +335,8 @@ def test_stage_friction_on_every_rigid_body(name):
 #: ``--kinds time``; seed 3 with ``--kinds time --plants stage,beam`` or ``--plants beam``),
 #: the noise floor as drawn, and the error_after / floor before the modal element. The clear
 #: ones' mismatch moved the mode out of the band at the floor (1.02x, 1.04x), the subtle ones'
-#: left 2.12x and 1.52x
+#: left 2.12x and 1.52x. Seed 27 (all kinds and effects) subtle: a modal mismatch and a
+#: missing mode beside it at 1.045x the floor, compare still failing 52-58 Hz at median z 42
 _CUBIC_DRAWS = {
     "seed0_clear": (
         "clear",
@@ -356,6 +357,16 @@ _CUBIC_DRAWS = {
         "subtle",
         (233754765070044772301018878115510247967, _INC3, 1, 2832159642),
         0.0028079984638176166,
+    ),
+    "seed27_subtle": (
+        "subtle",
+        (
+            304789375582742068766926541799743563711,
+            218250142745413522186470865394637724367,
+            0,
+            3785310157,
+        ),
+        0.005312133459629766,
     ),
 }
 

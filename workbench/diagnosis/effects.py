@@ -1711,12 +1711,19 @@ class CoupledSuspension:
             (Ku, Du), (Kd, Dd) = (self._stiffness_damping(t, base, block) for t in (up, down))
             dK.append((Ku - Kd) / (2 * h))
             dD.append((Du - Dd) / (2 * h))
-        # -(s CX dD XB + CX dK XB): the two products apart, no (n_theta, n_f, n, n) array
-        dG = np.einsum("fyi,kij,fju->kfyu", CX, np.array(dD), XB, optimize=True)
-        dG *= -problem.s[None, :, None, None]
-        dG -= np.einsum("fyi,kij,fju->kfyu", CX, np.array(dK), XB, optimize=True)
+        # -(s CX dD XB + CX dK XB), as one matrix product: CX[f, y, i] XB[f, j, u] per line
+        # and channel (n_f n_y n_u, n^2) times the stacked derivatives (n^2, 2 n_theta); an
+        # einsum over the small n x n blocks spent most of its time in copies (an indepgen
+        # beam FRF, 38 parameters on 1707 lines: 83 ms a Jacobian, 392 of them)
+        n_f, n_y, n_u = s.shape[0], Cm.shape[0], Bm.shape[1]
+        P = CX[:, :, None, :, None] * XB.transpose(0, 2, 1)[:, None, :, None, :]
+        dKD = np.concatenate([np.array(dD), np.array(dK)]).reshape(2 * theta.size, n * n)
+        prod = (P.reshape(-1, n * n) @ dKD.T).reshape(n_f, n_y, n_u, 2, theta.size)
+        dG = prod[..., 0, :] * problem.s[:, None, None, None]
+        dG += prod[..., 1, :]
+        np.negative(dG, out=dG)
         # the outer factors (delay, lags, coupling) are the base's: the block moves modes only
-        return _residual_columns(problem, base, list(dG))
+        return _residual_columns(problem, base, list(np.moveaxis(dG, -1, 0)))
 
     def build(self, theta, problem, base):
         k, Cr, Br = RigidSuspension._factors(base)

@@ -246,8 +246,10 @@ def explain(effect: str, ev: dict) -> str:
         # effect removes, and the fitted element (its numbers follow in the finding's note)
         # (a record without periods measures no period-synchronous residual: f_stat 0)
         lead = (
-            f"a period-synchronous residual {ev['f_stat']:.3g} times its noise for the model as "
-            "given"
+            ev["why"]
+            if ev.get("why")
+            else f"a period-synchronous residual {ev['f_stat']:.3g} times its noise, which the "
+            "linear model leaves"
             if ev["f_stat"] > 0
             else "a residual of the model as given (a record without periods: no noise "
             "estimate from them)"
