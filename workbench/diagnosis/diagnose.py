@@ -852,7 +852,8 @@ def _leaves_the_noise(memo, fr: FitResult, problem, base, data, verdict: bool) -
     G_var (``verdict``) by compare's criterion; on a periodic record refitted there where the
     lines cannot resolve what it adds (:func:`_kept_on_the_record`, memoized as the ranking
     asks for it), within FLOOR_RATIO of the floor the periods give (:func:`_at_time_floor`);
-    elsewhere (no noise reference) False.
+    on an FRF without G_var, at most FRF_QUIET of its residual's power beyond noise from line
+    to line (:func:`detect.frf_structure_share`); elsewhere (no noise reference) False.
 
     A refinement with tens of parameters then has nothing left to explain: an indep3
     planar record with a suspension, the rigid fit 1.00x the floor on the record, its
@@ -864,7 +865,39 @@ def _leaves_the_noise(memo, fr: FitResult, problem, base, data, verdict: bool) -
     if isinstance(data, TimeData) and data.period and getattr(problem, "line_hz", None) is not None:
         kept = _first_round(memo, ("record", id(fr)), _kept_on_the_record, fr, problem, base)[1]
         return _at_time_floor(data, problem, kept.model, kept.error)
+    if problem.kind == "frf" and not problem.has_var:
+        # no floor: what the search's rounds stop on, the residual's share beyond noise from
+        # line to line (an indepgen beam FRF, a suspension at 1.00x the floor: its coupling
+        # to the flexible modes, 38 parameters on 1707 lines, was most of its 25 s)
+        residual = (data.G - problem.predict(fr.model)) * problem.w
+        return detect.frf_structure_share(residual) < FRF_QUIET
     return False
+
+
+def _record_decides(ranked: list, head: list, on_lines: list, data, problem, n: int) -> list:
+    """``ranked`` with the record's choice first where the lines cannot make it.
+
+    ``head``: the best few of ``on_lines`` as the search keeps them (refitted on the whole
+    record where the lines cannot resolve what they add, :func:`_on_the_record`). A refitted
+    one that leaves only the record's noise (:func:`_at_time_floor`) goes first, the lowest
+    BIC among such, when the lines' best does not: its lines' cost is not what tells it
+    apart (the lines leave its mode undetermined, and that cost is the lines' optimum's or
+    near it). An indepgen beam record, two suspension modes at 3.0 and 4.2 Hz below the
+    lowest excited line (4.9 Hz): the rigid suspension first by the lines' BIC (5
+    parameters, 4.2x the floor on the record), the two modes refitted on the record 1.00x
+    (6 parameters, the lines' cost 0.2 % above); the search went on to 2.8x the floor in 48 s,
+    a rerun on the whole record found the two modes in 20 s more.
+    """
+    if not ranked or not (isinstance(data, TimeData) and data.period):
+        return ranked
+    refit = [k for k, r in zip(head, on_lines) if k is not r]
+    if not refit or _at_time_floor(data, problem, ranked[0].model, ranked[0].error):
+        return ranked
+    at_floor = [k for k in refit if _at_time_floor(data, problem, k.model, k.error)]
+    if not at_floor:
+        return ranked
+    first = min(at_floor, key=lambda r: _bic(r.cost, n, r.n_params))
+    return [first] + [r for r in ranked if r is not first]
 
 
 def _kept_on_the_record(fr: FitResult, problem, base) -> tuple:
@@ -1133,16 +1166,23 @@ def _diagnose(
                         starts=starts,
                     )
                 )
-        best_first = min(results, key=lambda r: _bic(r.cost, n, r.n_params), default=None)
+        by_bic = sorted(results, key=lambda r: _bic(r.cost, n, r.n_params))
+        best_first = by_bic[0] if by_bic else None
         for r in list(results):
             for s, start in refinements(r, current, problem):
                 if fit_budget(s) > MAX_NFEV and (
                     r is not best_first
-                    or _leaves_the_noise(memo, r, problem, current, data, per_round_verdict)
+                    or any(
+                        _leaves_the_noise(memo, b, problem, current, data, per_round_verdict)
+                        for b in by_bic[:JOINT_CANDIDATES]
+                    )
                 ):
                     # a costly refinement (a coupled suspension: tens of parameters, hundreds
                     # of evaluations) only where its structure already explains the data
-                    # best, and leaves more than the noise
+                    # best, and neither it nor the next best leaves only the noise (an
+                    # indepgen beam record, the rigid suspension first by the lines' BIC at
+                    # 4.2x the floor, two suspension modes next at 1.00x on the record: its
+                    # coupling's fit was 20 of the diagnosis's 27 s)
                     continue
                 results.append(
                     _first_round(
@@ -1165,11 +1205,13 @@ def _diagnose(
         # loses to a structure the lines fit better (an indepgen beam, a missing mode at
         # 35.1 Hz, zeta 0.016: 1.05x the floor on the lines against residual compliance's
         # 1.00x; refitted on the record 1.0006x at the true mode, and the fewer parameters)
+        on_lines = ranked[:JOINT_CANDIDATES]
         head = [
             _first_round(memo, ("record", id(r)), _kept_on_the_record, r, problem, current)[1]
-            for r in ranked[:JOINT_CANDIDATES]
+            for r in on_lines
         ]
         ranked = sorted(head + ranked[JOINT_CANDIDATES:], key=lambda r: _bic(r.cost, n, r.n_params))
+        ranked = _record_decides(ranked, head, on_lines, data, problem, n)
         best = ranked[0]
         pair, alone = None, None
         # FRF with G_var: the floor is known in the first round, and a best single effect

@@ -248,8 +248,8 @@ def explain(effect: str, ev: dict) -> str:
         lead = (
             ev["why"]
             if ev.get("why")
-            else f"a period-synchronous residual {ev['f_stat']:.3g} times its noise, which the "
-            "linear model leaves"
+            else f"a period-synchronous residual {ev['f_stat']:.3g} times its noise, left by the "
+            "linear model"
             if ev["f_stat"] > 0
             else "a residual of the model as given (a record without periods: no noise "
             "estimate from them)"
