@@ -1543,7 +1543,11 @@ def _diagnose(
         # linear search named a modal mismatch to 88 Hz that lowered the error by 7 %)
         nl_ev = _unrepeated_evidence(data, y_end, time_floor, nl)
         unrepeated, nl_first_rank = True, True
-    elif F_end is not None and not (linear_left := _remaining(current, data))["within_noise"]:
+    elif (
+        F_end is not None
+        and (linear_left := _remaining(current, data)) is not None
+        and not linear_left["within_noise"]
+    ):
         # compare still fails where the linear findings are near the floor: what a weak
         # spring on a mode leaves (its describing function is a shifted mode whose shift
         # follows the amplitude, which no linear mode reproduces on every excited line; an

@@ -245,15 +245,18 @@ def explain(effect: str, ev: dict) -> str:
         # no distortion measured on unexcited lines: the evidence is the residual no linear
         # effect removes, and the fitted element (its numbers follow in the finding's note)
         # (a record without periods measures no period-synchronous residual: f_stat 0)
-        lead = (
-            ev["why"]
-            if ev.get("why")
-            else f"a period-synchronous residual {ev['f_stat']:.3g} times its noise, left by the "
-            "linear model"
-            if ev["f_stat"] > 0
-            else "a residual of the model as given (a record without periods: no noise "
-            "estimate from them)"
-        )
+        if ev.get("why"):
+            lead = ev["why"]
+        elif ev["f_stat"] > 0:
+            lead = (
+                f"a period-synchronous residual {ev['f_stat']:.3g} times its noise, left by the "
+                "linear model"
+            )
+        else:
+            lead = (
+                "a residual of the model as given (a record without periods: no noise "
+                "estimate from them)"
+            )
         return (
             f"{lead}, which no linear effect of the vocabulary explains as well as a port "
             "nonlinearity: the response is not linear in the input; about "
