@@ -235,6 +235,19 @@ _DRAWS = {
         (256822951687814569811498793452118232642, _INC2, 1, 1097172331),
         0.018814222098612506,
     ),
+    # seed 37 (all effects): ten periods, each input clipped at its two largest peaks (20
+    # samples); the saturation screen's peak sweep took 12 samples, found nothing, and the
+    # record was named 'none' at 3.35x the floor. The sweep takes 12 peaks a period now
+    "beam_saturation_subtle_seed37": (
+        ("beam", "nonlinearity", "subtle"),
+        (
+            307762612849641932549417860504706859497,
+            70782546554204343252291554031180047225,
+            0,
+            319296586,
+        ),
+        0.006880733832622751,
+    ),
 }
 
 

@@ -3547,6 +3547,7 @@ def _fit_element(
             motion=motion,
             ports=not saturation_only,
             saturation=saturation_screened.get(i),
+            period=data.period,
         )
         if "saturation" in fo:  # the linear model's, whatever the ports (~0.1 s each)
             saturation_screened[i] = fo["saturation"]
