@@ -893,7 +893,9 @@ def _record_decides(ranked: list, head: list, on_lines: list, data, problem, n: 
     refit = [k for k, r in zip(head, on_lines) if k is not r]
     if not refit or _at_time_floor(data, problem, ranked[0].model, ranked[0].error):
         return ranked
-    at_floor = [k for k in refit if _at_time_floor(data, problem, k.model, k.error)]
+    at_floor = [
+        k for k in refit if k is not ranked[0] and _at_time_floor(data, problem, k.model, k.error)
+    ]
     if not at_floor:
         return ranked
     first = min(at_floor, key=lambda r: _bic(r.cost, n, r.n_params))
@@ -1608,7 +1610,10 @@ def _diagnose(
             if weak is not None:
                 notes.append(weak)
     found = _coupling_read_back(found, current, base)
-    remaining = linear_left if current is linear_end and linear_left else _remaining(current, data)
+    if linear_left is not None and current is linear_end:
+        remaining = linear_left  # compare's verdict on this model, asked above
+    else:
+        remaining = _remaining(current, data)
     note = None
     if time_floor is not None and nl_early is None:
         note = unrepeated_note
@@ -2498,7 +2503,6 @@ def _remaining(model: ModalModel, data) -> dict | None:
         "failing_bands": [b.as_dict() for b in bands[:N_REMAINING_BANDS]],
         "criterion": cmp.criterion,
     }
-    names_out, names_in = data.output_names, data.input_names
     if cmp.within_noise:
         out["explanation"] = (
             f"compare finds the final model within noise (z_mean {cmp.z_mean:.3g}, no failing band)"
@@ -2506,9 +2510,7 @@ def _remaining(model: ModalModel, data) -> dict | None:
     else:
         where = []
         for b in bands[:3]:
-            ch = names_out[b.output] if b.output < len(names_out) else str(b.output)
-            if b.input is not None:
-                ch += "/" + (names_in[b.input] if b.input < len(names_in) else str(b.input))
+            ch = _channel_words(data, b.output, b.input)
             where.append(f"{ch} {b.f_lo_hz:.4g}-{b.f_hi_hz:.4g} Hz (median z {b.median:.3g})")
         out["explanation"] = (
             f"not explained by any effect found: compare still fails in {len(bands)} band(s) "
@@ -3035,13 +3037,21 @@ def _resolved(params: dict, params_std: dict) -> bool:
     return sf < RESOLVED * z * f and sz < RESOLVED * z
 
 
+def _channel_words(data, output: int, input_: int | None) -> str:
+    """A failing band's channel by the record's names ("y2", "y1/u0"; indices past them as
+    numbers)."""
+    names_out, names_in = data.output_names, data.input_names
+    ch = names_out[output] if output < len(names_out) else str(output)
+    if input_ is not None:
+        ch += "/" + (names_in[input_] if input_ < len(names_in) else str(input_))
+    return ch
+
+
 def _compare_left_words(found: list, err: float, left: dict, data) -> str:
     """Why an element is tried where the linear findings ``found`` reach ``err`` and
     compare still fails on their model (``left``, :func:`_remaining`'s dict): its words."""
     band = left["failing_bands"][0]
-    ch = data.output_names[band["output"]]
-    if band.get("input") is not None:
-        ch += "/" + data.input_names[band["input"]]
+    ch = _channel_words(data, band["output"], band.get("input"))
     lo, hi = band["band_hz"]
     effects = ", ".join(dict.fromkeys(f.effect for f in found)) or "no linear finding"
     return (
