@@ -45,6 +45,7 @@ TOL = {
     "residual_compliance": 0.30,
 }
 ERROR_FACTOR = 2.0
+LAG = {"actuator_dynamics", "sensor_dynamics"}
 INVISIBLE = 2.0
 
 
@@ -114,9 +115,12 @@ def param_error(
             return abs(scale / truth["pattern"]["freq_scale"] - 1)
         modes = found.get("modes") or [found]
         return _nearest_rel([m.get("freq_hz") for m in modes], truth["freq_hz"])
-    if effect in ("actuator_dynamics", "sensor_dynamics"):
+    if effect in LAG:
         f, t = found.get("cutoff_hz"), truth["cutoff_hz"]
-        f = _as_list(f) if isinstance(f, list) else [f] * len(t)
+        if found.get("common"):  # one factor on the response: every true cutoff against it
+            f = [(_as_list(f) or [None])[0]] * len(t)
+        elif not isinstance(f, list):
+            f = [f] * len(t)
         pairs = [(a, b) for a, b in zip(f, t) if a is not None]
         if len(pairs) < len(t):
             return float("inf")
@@ -161,11 +165,19 @@ def score(case, res) -> dict:
     top = res.top
     others = [f.parameters for f in res.findings if f.effect == "missing_mode"]
     fs = a["fs"] if a["kind"] == "time" else None
-    right = top.effect == a["effect"] or (
-        # a truncated mode that rings in the sampled record, named as a missing mode
-        a["effect"] == "residual_compliance"
-        and top.effect == "missing_mode"
-        and bool(_named_truncated(a["parameters"], top.parameters, fs))
+    right = (
+        top.effect == a["effect"]
+        or (
+            # a common lag is one scalar factor on the response (l G = G l): the same lag on
+            # every channel of the other side
+            {top.effect, a["effect"]} <= LAG and bool(top.parameters.get("common"))
+        )
+        or (
+            # a truncated mode that rings in the sampled record, named as a missing mode
+            a["effect"] == "residual_compliance"
+            and top.effect == "missing_mode"
+            and bool(_named_truncated(a["parameters"], top.parameters, fs))
+        )
     )
     perr = param_error(top.effect, a["parameters"], top.parameters, others, fs) if right else None
     p_ok = right and (perr is None or perr <= TOL[top.effect])

@@ -1008,6 +1008,7 @@ def test_a_common_lag_far_above_nyquist_is_a_lag_not_a_delay():
     assert top.effect == "actuator_dynamics"
     cut = top.parameters["cutoff_hz"]
     assert len(set(cut)) == 1 and cut[0] == pytest.approx(truth[0], rel=0.05)
+    assert top.parameters["common"] is True
     assert top.error_after / floor <= 1.01
     assert "time_delay fits nearly as closely" in top.explanation
     assert "one lag on every input is the same factor on the response" in top.explanation

@@ -2137,9 +2137,12 @@ class _Lag:
         fc = f_hi / th
         sfc = f_hi * self._per_channel(fr.theta_std, base) / th**2
         cut = [float(x) if x < 1e9 else None for x in fc]
-        return {"cutoff_hz": cut}, {
-            "cutoff_hz": [float(x) if np.isfinite(x) and x < 1e12 else None for x in sfc]
-        }
+        out: dict = {"cutoff_hz": cut}
+        if self.common or self._n(base) == 1:
+            # one scalar factor on the whole response (l G = G l): this lag on every channel
+            # of the other side fits the same, and the finding says so for a reader
+            out["common"] = True
+        return out, {"cutoff_hz": [float(x) if np.isfinite(x) and x < 1e12 else None for x in sfc]}
 
 
 @dataclass(frozen=True)
