@@ -1080,3 +1080,28 @@ def test_lags_on_some_inputs_near_the_band_top_are_fitted_whatever_the_screen():
         [c for c in got if c is not None], [c for c in truth if c is not None], rtol=0.05
     )
     assert top.error_after / floor <= 1.01
+
+
+def test_two_truncated_modes_near_the_band_top_are_one_compliance_at_the_floor():
+    # indepgen seed 38 (all effects), stage, FRF, residual compliance clear: modes at 4944
+    # and 6446 Hz (1.24x and 1.61x the 4 kHz grid's top), each on its own channels. One
+    # pseudo-mode (at 4622 Hz) left 2.87x the noise floor and compare failing above 1.2 kHz
+    # on 36 channels; the two-pole upper residual, refined from it, reaches the floor with
+    # its poles at the truncated modes
+    draw = (
+        333094746469029822103299559446938807603,
+        83116957542241617309460614540412402693,
+        1,
+        2499597333,
+    )
+    floor = 0.004039046598932557
+    case, top = _one_finding(
+        draw, floor, plant="stage", kind="frf", effects=("residual_compliance",), size="clear"
+    )
+    truth = case.answer["effects"][0]["parameters"]
+    assert top.effect == "residual_compliance"
+    assert top.error_after / floor <= 1.05
+    found = sorted(top.parameters["upper_freq_hz"])
+    assert found == pytest.approx(sorted(m["freq_hz"] for m in truth["modes"]), rel=0.01)
+    R, Rt = np.asarray(top.parameters["matrix"]), np.asarray(truth["matrix"])
+    assert np.linalg.norm(R - Rt) <= 0.3 * np.linalg.norm(Rt)

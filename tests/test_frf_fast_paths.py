@@ -34,6 +34,7 @@ from workbench.diagnosis.effects import (
 from workbench.diagnosis.fit import structure_lines
 from workbench.diagnosis.modal import decompose
 from workbench.diagnosis.problem import FrfProblem
+from workbench.modal.model import Mode
 
 
 def _problem(plant, params, effect: str):
@@ -254,6 +255,61 @@ def test_added_term_fits_match_per_channel_least_squares():
         cols = np.stack([h[:, i, j], h[:, i, j] / d_u, h[:, i, j] * s / d_u], -1)
         ref = _lstsq_channel(problem, cols, e, i, j)
         assert np.allclose([dD[i, j], U0[i, j], U1[i, j]], ref, rtol=1e-6, atol=0)
+
+
+def test_two_pseudo_modes_are_fitted_jointly_with_d_per_channel():
+    # the two-pole upper residual: D and both pseudo-modes' numerators in one least squares
+    problem, base0 = _problem(beam, beam_params, "missing_mode")
+    base = _with_outer(base0)
+    e = (problem.data.G - problem.predict(base)) @ np.linalg.inv(base.T_in)
+    h = base.channel_factor(problem.freq)
+    s = problem.s
+    dens = np.array(
+        [
+            [2 * z * w, w * w]
+            for w, z in (
+                (2 * np.pi * 1.2 * problem.band_hz[1], 0.05),
+                (2 * np.pi * 2.1 * problem.band_hz[1], 0.02),
+            )
+        ]
+    )
+    dD, U0, U1, sD, s0, s1 = problem.fit_upper_residual(base, dens)
+    assert U0.shape == U1.shape == s0.shape == (2, *dD.shape)
+    d = [s**2 + a1 * s + a0 for a1, a0 in dens]
+    for i, j in ((0, 0), (2, 1), (4, 2)):
+        hij = h[:, i, j]
+        cols = np.stack([hij, hij / d[0], hij * s / d[0], hij / d[1], hij * s / d[1]], -1)
+        ref = _lstsq_channel(problem, cols, e, i, j)
+        got = [dD[i, j], U0[0, i, j], U1[0, i, j], U0[1, i, j], U1[1, i, j]]
+        assert np.allclose(got, ref, rtol=1e-6, atol=0)
+
+
+def test_two_pseudo_modes_reach_two_truncated_modes_exactly():
+    # a noiseless FRF of two modes above the band, each with its own rank-one residue: one
+    # pseudo-mode leaves a misfit, two at the modes' poles fit it to rounding, and the
+    # static matrix is the modes' compliance (b c^T / w^2 summed)
+    problem, base = _problem(stage, stage_params, "missing_mode")
+    rng = np.random.default_rng(8)
+    f_hi = problem.band_hz[1]
+    extra = tuple(
+        Mode(
+            "flexible", a * f_hi, 0.02, rng.standard_normal(base.n_u), rng.standard_normal(base.n_y)
+        )
+        for a in (1.2, 1.6)
+    )
+    truth = replace(base, modes=base.modes + extra)
+    G = truth.frf(problem.freq)
+    exact = FrfProblem(replace(problem.data, G=G))
+    theta = np.log([[m.freq_hz, m.damping] for m in extra]).ravel()
+    two = UpperResidual(n_poles=2).build(theta, exact, base)
+    assert exact.error(two.model) < 1e-9
+    compliance = sum(np.outer(m.c, m.b) / m.omega**2 for m in extra)
+    np.testing.assert_allclose(
+        two.linear["matrix"], compliance, rtol=1e-6, atol=1e-9 * abs(compliance).max()
+    )
+    one = UpperResidual()
+    best = min(exact.error(one.build(g, exact, base).model) for g in one.grid(exact, base))
+    assert best > 1e3 * exact.error(two.model)
 
 
 @pytest.mark.parametrize(

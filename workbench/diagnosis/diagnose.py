@@ -1986,7 +1986,7 @@ def _in_band_image(accepted, problem, base: ModalModel, err: float, err0: float)
     """
     fs = getattr(problem.data, "fs", None)
     for i, a in enumerate(accepted):
-        if not isinstance(a.structure, UpperResidual):
+        if not isinstance(a.structure, UpperResidual) or a.structure.n_poles != 1:
             continue
         f, z = (float(x) for x in np.exp(a.theta))
         folded = fs is not None and f > 0.5 * fs
@@ -2659,10 +2659,17 @@ def _refresh_added(found: list[Finding], model: ModalModel, base: ModalModel) ->
             p.update(matrix=_static_part(m).tolist(), freq_hz_fitted=m.freq_hz)
             p.update(damping_fitted=m.damping)
         elif f.effect == "residual_compliance" and upper and "upper_freq_hz" in p:
-            m = upper[0]
+            # one pseudo-mode, or (a list) the two of a two-pole upper residual
+            ms = upper if isinstance(p["upper_freq_hz"], list) else upper[:1]
             late = [x for x in model.modes if x.effect == "late_compliance"]
-            static = model.D - base.D + sum(_static_part(x) for x in [m] + late)
-            p.update(matrix=static.tolist(), upper_freq_hz=m.freq_hz, upper_damping=m.damping)
+            static = model.D - base.D + sum(_static_part(x) for x in ms + late)
+            fq, zq = [m.freq_hz for m in ms], [m.damping for m in ms]
+            one = not isinstance(p["upper_freq_hz"], list)
+            p.update(
+                matrix=static.tolist(),
+                upper_freq_hz=fq[0] if one else fq,
+                upper_damping=zq[0] if one else zq,
+            )
         out.append(replace(f, parameters=p))
     return out
 

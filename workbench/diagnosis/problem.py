@@ -425,8 +425,8 @@ class FrfProblem:
         return self.residual(model)
 
     def added_term_residual(self, model: ModalModel, mode: Mode, dD=None) -> np.ndarray:
-        """:meth:`residual` of ``model`` with ``mode`` appended (and ``dD`` (n_y, n_u) added
-        to its D), (n_obs,).
+        """:meth:`residual` of ``model`` with ``mode`` (a Mode, or a tuple of them) appended
+        (and ``dD`` (n_y, n_u) added to its D), (n_obs,).
 
         The model's weighted misfit minus the mode's response through the channel factor
         (both kept for the last model asked: a fit adds hundreds of trial modes to one
@@ -441,7 +441,10 @@ class FrfProblem:
             e = lin[4] if lin is not None and lin[0] is model else self.data.G - self.predict(model)
             last = (model, e * self.w, self._factor_weights(model)[2])
             self._added_last = last
-        r = mode.response(self.s)
+        modes = mode if isinstance(mode, tuple) else (mode,)  # an upper residual's several
+        r = modes[0].response(self.s)
+        for m in modes[1:]:
+            r += m.response(self.s)
         if dD is not None:
             r += dD
         r *= last[2]
@@ -451,17 +454,20 @@ class FrfProblem:
     def fit_upper_residual(self, model: ModalModel, den: np.ndarray):
         """Residual terms of modes above the band: D + (N1 s + N0) / den(s), jointly per channel.
 
-        ``den`` = (a1, a0) of a pseudo-mode above the band (``s^2 + a1 s + a0``).
-        Returns dD, N0, N1 (n_y, n_u) and their standard deviations (unit noise scale).
+        ``den`` = (a1, a0) of a pseudo-mode above the band (``s^2 + a1 s + a0``), or (k, 2):
+        k pseudo-modes, each with its numerators, all solved jointly with D.
+        Returns dD, N0, N1 (n_y, n_u; N0, N1 (k, n_y, n_u) for k pseudo-modes) and their
+        standard deviations (unit noise scale).
         """
-        d = self.s**2 + den[0] * self.s + den[1]
-        wr = np.sqrt(max(den[1], 1e-300))
-        phi = np.stack([np.ones_like(d), wr**2 / d, self.s * wr / d], -1)
-        x, std = _solve_basis(*_normal_parts(phi, *self._linear_data(model)))
-        scale = np.array([1.0, wr**2, wr])  # N0 = x_1 w^2, N1 = x_2 w
-        return tuple(x[..., k] * scale[k] for k in range(3)) + tuple(
-            std[..., k] * scale[k] for k in range(3)
-        )
+        dens = np.atleast_2d(den)
+        cols, scale = [np.ones_like(self.s)], [1.0]
+        for a1, a0 in dens:
+            d = self.s**2 + a1 * self.s + a0
+            wr = np.sqrt(max(a0, 1e-300))
+            cols += [wr**2 / d, self.s * wr / d]
+            scale += [wr**2, wr]  # N0 = x w^2, N1 = x w
+        x, std = _solve_basis(*_normal_parts(np.stack(cols, -1), *self._linear_data(model)))
+        return _upper_parts(x * np.array(scale), std * np.array(scale), np.ndim(den) == 1)
 
     @staticmethod
     def _unmixed(model: ModalModel, e: np.ndarray) -> np.ndarray:
@@ -548,6 +554,18 @@ def _peaks(freq: np.ndarray, power: np.ndarray, n: int) -> list[float]:
         if len(out) == n:
             break
     return out
+
+
+def _upper_parts(x: np.ndarray, std: np.ndarray, one: bool) -> tuple:
+    """(dD, N0, N1, sD, s0, s1) from the coefficients (n_y, n_u, 1 + 2k) of an upper residual
+    ordered [D, N0_1, N1_1, N0_2, ...]; N0, N1 of k pseudo-modes stacked first (k, n_y, n_u),
+    of one (``one``) as (n_y, n_u)."""
+
+    def split(a):
+        N0, N1 = np.moveaxis(a[..., 1::2], -1, 0), np.moveaxis(a[..., 2::2], -1, 0)
+        return (a[..., 0], N0[0], N1[0]) if one else (a[..., 0], N0, N1)
+
+    return split(x) + split(std)
 
 
 def _orthonormal_columns(B: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
@@ -998,7 +1016,8 @@ class _FilteredProblem:
         """:meth:`residual` of ``model`` with ``mode`` (and a feedthrough ``dD`` (n_y, n_u), or
         the mode ``late``) appended, (n_obs,), where :meth:`added_terms_exact`: the model's
         weighted misfit minus the terms' output (rounding ~1e-16 of the misfit)."""
-        terms = [(mode.denominator(), *mode.numerator())]
+        modes = mode if isinstance(mode, tuple) else (mode,)  # an upper residual's several
+        terms = [(m.denominator(), *m.numerator()) for m in modes]
         if dD is not None:
             terms.append((None, dD, None))
         if late is not None:
@@ -1050,12 +1069,16 @@ class _FilteredProblem:
         X0, groups = self._filtered(model, late, u_in)
         if late is not None:
             X0 = X0 * late[1]  # 1/den has the static gain 1/a0
-        X, _ = self._filtered(model, den, u_in)
-        n_u = model.n_u
-        Xc = np.concatenate([X0[..., 0], X[..., 0], X[..., 1]], axis=-1)
-        coef, std = self._regress(model, Xc, groups, den)
-        parts = [slice(0, n_u), slice(n_u, 2 * n_u), slice(2 * n_u, 3 * n_u)]
-        return tuple(coef[:, p] for p in parts) + tuple(std[:, p] for p in parts)
+        cols = [X0[..., 0]]
+        for d in np.atleast_2d(den):
+            X, _ = self._filtered(model, d, u_in)
+            cols += [X[..., 0], X[..., 1]]
+        n_u, n_y = model.n_u, self.target.shape[1]
+        coef, std = self._regress(model, np.concatenate(cols, axis=-1), groups, den)
+        # (n_y, n_u * (1 + 2k)) as (n_y, n_u, 1 + 2k): [D, N0_1, N1_1, ...] per input
+        coef = np.moveaxis(coef.reshape(n_y, -1, n_u), 1, -1)
+        std = np.moveaxis(std.reshape(n_y, -1, n_u), 1, -1)
+        return _upper_parts(coef, std, np.ndim(den) == 1)
 
     def fit_crosstalk(self, model: ModalModel, side: str):
         ym = self.fitted(model)
@@ -1438,17 +1461,22 @@ class PeriodicProblem(_FilteredProblem):
         fit adds leaks from its own poles too, and the model it builds is costed with them
         (:meth:`_start_basis`); without them its numerator is biased by that leakage (on the
         whole record, ~1 % for a 170 Hz mode of tests/test_record_problem.py)."""
-        if den is None or len(den) != 2 or not den[1] > 0:
+        dens = None if den is None else np.atleast_2d(den)
+        if dens is None or dens.shape[1] != 2 or not np.all(dens[:, 1] > 0):
             return self._start_basis(model)
-        w = float(np.sqrt(den[1]))
-        term = Mode(
-            "flexible",
-            w / (2 * np.pi),
-            float(den[0]) / (2 * w),
-            np.zeros(model.n_u),
-            np.zeros(model.n_y),
-        )
-        return self._start_basis(replace(model, modes=model.modes + (term,)))
+        terms = []
+        for a1, a0 in dens:  # every pseudo-mode of an upper residual's (k, 2)
+            w = float(np.sqrt(a0))
+            terms.append(
+                Mode(
+                    "flexible",
+                    w / (2 * np.pi),
+                    float(a1) / (2 * w),
+                    np.zeros(model.n_u),
+                    np.zeros(model.n_y),
+                )
+            )
+        return self._start_basis(replace(model, modes=model.modes + tuple(terms)))
 
     def _columns(self, poles, drift: bool, n_delay: int = 0, first_delay: int = 0) -> np.ndarray:
         """Transient columns (n_l, k) complex: the rigid body's drift (``drift``), the delay
