@@ -2322,7 +2322,7 @@ def _model_flexible(m: Mode) -> bool:
 RECORD_COUPLING = 24
 
 
-def refinements(fr: FitResult, base: ModalModel, problem) -> list[tuple]:
+def refinements(fr: FitResult, base: ModalModel, problem, *, settled=None) -> list[tuple]:
     """Structures to fit from a fitted one's optimum: (structure, start theta) pairs.
 
     A shared-factor :class:`ModalPattern` is refined mode by mode
@@ -2341,12 +2341,19 @@ def refinements(fr: FitResult, base: ModalModel, problem) -> list[tuple]:
     in few steps: an indep3 beam record from rest (seed 4, 27 parameters) 2-3 s, where the
     rigid suspension had left crosstalk, a mismatch and a mode standing in at 1.8x the
     noise floor (77 s); a shaft (seed 2) 1.3 s, 25 -> 3 s in all, one finding at the floor.
+    An upper residual whose one pseudo-mode leaves the data above the noise (``settled``,
+    a callable ``fr -> bool`` where the caller has a noise test; else the problem's
+    ``noise_floor`` within :data:`UPPER_SPLIT`) is refined with two
+    (:meth:`UpperResidual.second_pole`).
     """
     s = fr.structure
     if type(s) is UpperResidual and s.n_poles == 1:
-        # two pseudo-modes where one leaves the data above the noise
-        floor = problem.noise_floor
-        if floor is None or not fr.error > UPPER_SPLIT * floor:
+        # two pseudo-modes where one leaves the data above the noise: by ``settled`` (a
+        # callable fr -> bool, the caller's noise test), else by the problem's floor
+        if settled is not None:
+            if settled(fr):
+                return []
+        elif problem.noise_floor is None or not fr.error > UPPER_SPLIT * problem.noise_floor:
             return []
         start = s.second_pole(fr.theta, problem, base)
         return [] if start is None else [(replace(s, n_poles=2), start)]
