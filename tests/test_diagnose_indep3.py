@@ -242,13 +242,3 @@ def test_sensor_lags_on_a_single_input_plant_are_one_lag_on_the_response():
         assert "inputs and outputs alike" in res.top.explanation
     assert row["right"] and row["param_ok"], row
     assert row["ratio"] <= 1.05, row
-
-
-def test_truncated_modes_far_above_nyquist_on_a_record_without_periods():
-    """Held-out seed 14, a planar record without periods at 7.7 kHz from rest, modes at 20.0
-    and 21.8 kHz left out: one pseudo-mode left 1.47x the floor and a coloured residual; the
-    search added a missing mode at 3.85 kHz beside the compliance (91 s, the matrix 53 %
-    off). Its two-pole refinement reaches the floor, the matrix to 0.4 %."""
-    row = _compliance_record(14, "planar")
-    assert row["findings"] == ["residual_compliance"], row
-    assert row["param_err"] <= 0.05, row
