@@ -1227,6 +1227,8 @@ def _diagnose(
         )
         for r in list(results):
             for s, start in refinements(r, current, problem, settled=settled):
+                if isinstance(s, UpperResidual) and _rings_in_band(start, problem):
+                    continue  # its fit would be dropped (_pole_rings_in_band): not fitted
                 if fit_budget(s) > MAX_NFEV and (
                     r is not best_first
                     or any(
@@ -2904,11 +2906,19 @@ def _pole_rings_in_band(fr: FitResult, problem, base: ModalModel) -> bool:
     sampled at 2 kHz, ringing at 500 and 600 Hz: the two poles took both images as one
     compliance, where each is a missing mode."""
     s = fr.structure
+    if not (isinstance(s, UpperResidual) and s.n_poles > 1):
+        return False
+    return _rings_in_band(fr.theta, problem)
+
+
+def _rings_in_band(theta: np.ndarray, problem) -> bool:
+    """Whether a pole of ``theta`` ((ln f, ln z) per pole) folds into a sampled record's
+    excited band as a resonance there (:func:`_pole_rings_in_band`)."""
     fs = getattr(problem.data, "fs", None)
-    if not (isinstance(s, UpperResidual) and s.n_poles > 1 and problem.kind == "time" and fs):
+    if not (problem.kind == "time" and fs):
         return False
     top = min(problem.band_hz[1], 0.5 * fs)
-    for f, z in np.exp(fr.theta).reshape(-1, 2):
+    for f, z in np.exp(theta).reshape(-1, 2):
         f_img = abs(f - fs * np.round(f / fs))
         z_img = min(z * f / f_img, 0.5) if f_img > 0 else 0.5
         if problem.band_hz[0] < f_img and f_img * (1 + z_img) < top:
