@@ -194,13 +194,8 @@ def _compliance_record(seed: int, plant: str) -> dict:
     return row
 
 
-def test_a_suspension_at_the_floor_is_not_refined_with_its_coupling(monkeypatch):
-    """A planar stage on springs, a periodic record from rest: the rigid suspension,
-    refitted on the record, is at the floor the periods give, so its coupling to the
-    flexible modes (37 parameters by differences, most of the diagnosis's time) is not
-    fitted; the finding is the generator's suspension at the noise floor all the same."""
-    from indepgen3 import make_suite
-
+def _fits_recorded(monkeypatch) -> list:
+    """The names of the structures diagnose fits, recorded as it runs."""
     diagnose_module = sys.modules["workbench.diagnosis.diagnose"]
     fitted = []
     fit = diagnose_module.fit
@@ -209,6 +204,17 @@ def test_a_suspension_at_the_floor_is_not_refined_with_its_coupling(monkeypatch)
         "fit",
         lambda s, *a, **k: fitted.append(type(s).__name__) or fit(s, *a, **k),
     )
+    return fitted
+
+
+def test_a_suspension_at_the_floor_is_not_refined_with_its_coupling(monkeypatch):
+    """A planar stage on springs, a periodic record from rest: the rigid suspension,
+    refitted on the record, is at the floor the periods give, so its coupling to the
+    flexible modes (37 parameters by differences, most of the diagnosis's time) is not
+    fitted; the finding is the generator's suspension at the noise floor all the same."""
+    from indepgen3 import make_suite
+
+    fitted = _fits_recorded(monkeypatch)
     ((plant, effect, kind, rng),) = make_suite(
         9, kinds=("time",), plants=("planar",), effects=("suspension_stiffness",)
     )
@@ -252,14 +258,7 @@ def test_lags_beyond_the_screen_are_not_fitted_where_the_best_leaves_white_noise
     finding is the crosstalk at the floor all the same."""
     from indepgen3 import make_suite
 
-    diagnose_module = sys.modules["workbench.diagnosis.diagnose"]
-    fitted = []
-    fit = diagnose_module.fit
-    monkeypatch.setattr(
-        diagnose_module,
-        "fit",
-        lambda s, *a, **k: fitted.append(type(s).__name__) or fit(s, *a, **k),
-    )
+    fitted = _fits_recorded(monkeypatch)
     ((plant, effect, kind, rng),) = make_suite(
         14, kinds=("time",), plants=("beam",), effects=("crosstalk",)
     )

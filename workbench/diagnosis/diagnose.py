@@ -879,15 +879,22 @@ def _leaves_the_noise(memo, fr: FitResult, problem, base, data, verdict: bool) -
     return False
 
 
-def _settled(head: list, memo, problem, base, data, verdict: bool, fr: FitResult) -> bool:
+def _settled(best, memo, problem, base, data, verdict: bool, fr: FitResult) -> bool:
     """Whether ``fr`` needs no refinement that pays only where its structure falls short: it
-    is not among ``head`` (the best by BIC), or it leaves only the noise
+    is not ``best`` (the round's first by BIC), or it leaves only the noise
     (:func:`_leaves_the_noise`). Asked of the best few, an indepgen stage record with a
     crosstalk had its upper residual (second by BIC) refined in both rounds: 2.4 -> 5.2 s,
     the same finding."""
-    if all(fr is not b for b in head):
-        return True
-    return _leaves_the_noise(memo, fr, problem, base, data, verdict)
+    return fr is not best or _leaves_the_noise(memo, fr, problem, base, data, verdict)
+
+
+def _fitted(memo, pairs, problem, base) -> list:
+    """The first round's memoized fits (:func:`_first_round`) of ``pairs`` (structure, its
+    screened starts) on ``base``."""
+    return [
+        _first_round(memo, ("fit", s, _starts_key(starts)), fit, s, problem, base, starts=starts)
+        for s, starts in pairs
+    ]
 
 
 def _record_decides(ranked: list, head: list, on_lines: list, data, problem, n: int) -> list:
@@ -1177,17 +1184,7 @@ def _diagnose(
             # indep3 beam record without periods, crosstalk at the floor: the lags' fits 5.8
             # of its 17 s)
             if i < n_fits or len(s.bounds(problem, current)[0]) <= 1:
-                results.append(
-                    _first_round(
-                        memo,
-                        ("fit", s, _starts_key(starts)),
-                        fit,
-                        s,
-                        problem,
-                        current,
-                        starts=starts,
-                    )
-                )
+                results += _fitted(memo, [(s, starts)], problem, current)
             elif s.effect in LAG_EFFECTS:
                 deferred.append((s, starts))
         lead = min(results, key=lambda r: _bic(r.cost, n, r.n_params)) if results else None
@@ -1196,35 +1193,14 @@ def _diagnose(
             and lead.effect not in LAG_EFFECTS  # a lag is told from the other side's by fit
             and _leaves_the_noise(memo, lead, problem, current, data, per_round_verdict)
         ):
-            for s, starts in deferred:
-                results.append(
-                    _first_round(
-                        memo,
-                        ("fit", s, _starts_key(starts)),
-                        fit,
-                        s,
-                        problem,
-                        current,
-                        starts=starts,
-                    )
-                )
+            results += _fitted(memo, deferred, problem, current)
         by_bic = sorted(results, key=lambda r: _bic(r.cost, n, r.n_params))
         best_first = by_bic[0] if by_bic else None
-        # where the data give a noise test, a refinement that only pays where its structure
-        # falls short (a second pseudo-mode of an upper residual) is asked of it, for the
-        # best candidate (an indepgen stage FRF, modes at 4.9 and 6.4 kHz over a 4 kHz grid:
-        # one pseudo-mode 2.87x the floor, two 1.00x)
-        noise_test = (
-            per_round_verdict
-            or isinstance(data, TimeData)
-            or (problem.kind == "frf" and not problem.has_var)
-        )
-
-        settled = (
-            partial(_settled, by_bic[:1], memo, problem, current, data, per_round_verdict)
-            if noise_test
-            else None
-        )
+        # a refinement that only pays where its structure falls short (a second pseudo-mode
+        # of an upper residual) is asked of the search's noise test, for the best candidate
+        # (an indepgen stage FRF, modes at 4.9 and 6.4 kHz over a 4 kHz grid: one pseudo-mode
+        # 2.87x the floor, two 1.00x)
+        settled = partial(_settled, best_first, memo, problem, current, data, per_round_verdict)
         for r in list(results):
             for s, start in refinements(r, current, problem, settled=settled):
                 if isinstance(s, UpperResidual) and _rings_in_band(start, problem):

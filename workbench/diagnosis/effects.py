@@ -1926,20 +1926,17 @@ class UpperResidual:
         the first held; None where no point lowers the cost."""
         two = replace(self, n_poles=2)
         lines = two.lines(problem, base)
-
-        def cost(s, th):
-            if lines is not None:
-                r = (s.lines(problem, base) if s is self else lines).residual(th)
-                return float(r @ r)
-            return problem.cost(s.build(th, problem, base).model)
-
-        best, best_cost = None, cost(self, theta)
+        best, best_cost = None, problem.cost(self.build(theta, problem, base).model)
         for g in self.grid(problem, base):
             if abs(g[0] - theta[0]) < 0.1:
                 continue
             start = np.concatenate([theta, g]) if g[0] > theta[0] else np.concatenate([g, theta])
             try:
-                c = cost(two, start)
+                if lines is None:
+                    c = problem.cost(two.build(start, problem, base).model)
+                else:
+                    r = lines.residual(start)  # the built model's residual, none built
+                    c = float(r @ r)
             except (np.linalg.LinAlgError, ValueError, FloatingPointError):
                 continue
             if c < best_cost:
