@@ -134,3 +134,58 @@ def test_a_lag_moved_on_one_input_refilters_that_input_only(monkeypatch):
     again = S.mixed_inputs(moved, den, N0, N1, u, FS, outputs=outputs)
     assert runs["n"] == 1  # the moved input's filter; the other two were kept
     assert np.array_equal(again, S.mixed_inputs(moved, den, N0, N1, u, FS))
+
+
+def test_a_search_stalled_far_above_a_rivals_cost_is_given_up_at_its_best_point():
+    """fit's ``bar``: a search whose best cost stays above HOPELESS_RATIO bars, falling less
+    than HOPELESS_FALL-fold over HOPELESS_STEPS steps' evaluations, is given up with the
+    best point it reached; one still falling fast enough, or below the limit, goes on."""
+    n_theta, bar = 2, 1.0
+    window = fit_engine.HOPELESS_STEPS * (n_theta + 1)
+    r_of = lambda c: np.array([np.sqrt(c)])  # noqa: E731 (a residual of cost c)
+
+    stalled = fit_engine._Progress(bar, n_theta)
+    costs = 1e3 * (1 + 0.01 * np.arange(window + 1))[::-1]  # creeping down 1 % in all
+    with pytest.raises(fit_engine._Hopeless) as stop:
+        for k, c in enumerate(costs):
+            stalled.check(np.array([k, 0.0]), r_of(c))
+    assert stop.value.result.x[0] == window  # the last and best point
+    assert np.isclose(2 * stop.value.result.cost, costs[-1])
+    assert str(stop.value.result.message).startswith(fit_engine.ABANDONED)
+
+    falling = fit_engine._Progress(bar, n_theta)  # halving every HOPELESS_STEPS / 2 steps
+    for k in range(4 * window):
+        falling.check(np.zeros(2), r_of(1e9 * 0.5 ** (2 * k / window)))
+    near = fit_engine._Progress(bar, n_theta)  # stalled, but within the limit
+    for k in range(4 * window):
+        near.check(np.zeros(2), r_of(0.99 * fit_engine.HOPELESS_RATIO * bar))
+
+
+def test_a_fit_given_a_bar_it_cannot_approach_is_abandoned_above_the_full_fits_cost(
+    monkeypatch,
+):
+    """The same structure fitted with and without a bar far below anything it reaches
+    (one step's window: its first Jacobian's differences stall): the given-up fit is
+    marked, its stds NaN, its cost no lower than the full fit's, in fewer evaluations."""
+    model, problem, _ = _lagged("in")
+    structure = SensorDynamics()
+    calls = {"n": 0}
+    residual = problem.residual
+
+    def counted(model_):
+        calls["n"] += 1
+        return residual(model_)
+
+    monkeypatch.setattr(problem, "residual", counted)
+    full = fit(structure, problem, model, n_starts=1)
+    n_full, calls["n"] = calls["n"], 0
+    assert not full.abandoned and full.status == "ok"
+    monkeypatch.setattr(fit_engine, "HOPELESS_STEPS", 1)
+    given_up = fit(structure, problem, model, n_starts=1, bar=1e-6 * full.cost)
+    assert given_up.abandoned and np.all(np.isnan(given_up.theta_std))
+    assert given_up.cost >= full.cost - 0.05 * full.sigma2
+    assert calls["n"] < n_full
+    # a bar it reaches: the search runs to its end
+    calls["n"] = 0
+    kept = fit(structure, problem, model, n_starts=1, bar=full.cost)
+    assert not kept.abandoned and np.isclose(kept.cost, full.cost)

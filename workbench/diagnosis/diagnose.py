@@ -888,13 +888,37 @@ def _settled(best, memo, problem, base, data, verdict: bool, fr: FitResult) -> b
     return fr is not best or _leaves_the_noise(memo, fr, problem, base, data, verdict)
 
 
-def _fitted(memo, pairs, problem, base) -> list:
+def _fitted(memo, pairs, problem, base, bar=None) -> list:
     """The first round's memoized fits (:func:`_first_round`) of ``pairs`` (structure, its
-    screened starts) on ``base``."""
+    screened starts) on ``base``; ``bar``: :func:`fit`'s."""
     return [
-        _first_round(memo, ("fit", s, _starts_key(starts)), fit, s, problem, base, starts=starts)
+        _first_round(
+            memo,
+            ("fit", s, _starts_key(starts), bar),
+            fit,
+            s,
+            problem,
+            base,
+            starts=starts,
+            bar=bar,
+        )
         for s, starts in pairs
     ]
+
+
+def _bar(memo, fr: FitResult, problem, base, data, verdict: bool) -> float | None:
+    """``fr``'s cost where it leaves only the noise on a record (:func:`_leaves_the_noise`),
+    the bar the round's later searches are given up against (:func:`fit`), else None.
+
+    On a record only: there each evaluation of a search is a simulation or a whole record's
+    lines, and a wrong structure's search grinds for seconds (FRF searches take a fraction
+    of one). A fit above FLOOR_RATIO of a known floor is not tested."""
+    if not isinstance(data, TimeData):
+        return None
+    floor = problem.noise_floor
+    if floor is not None and fr.error > FLOOR_RATIO * floor:
+        return None
+    return fr.cost if _leaves_the_noise(memo, fr, problem, base, data, verdict) else None
 
 
 def _record_decides(ranked: list, head: list, on_lines: list, data, problem, n: int) -> list:
@@ -1173,6 +1197,7 @@ def _diagnose(
         )
         results: list[FitResult] = []
         deferred: list = []
+        bar = None  # the cost of a fit that leaves only the noise, once there is one (_bar)
         for i, (_, s, starts) in enumerate(screened):
             # one-parameter structures are cheap and a coarse grid understates them: refine.
             # So does it a lag's, on each channel apart: every lag is fitted (an indepgen stage
@@ -1184,7 +1209,9 @@ def _diagnose(
             # indep3 beam record without periods, crosstalk at the floor: the lags' fits 5.8
             # of its 17 s)
             if i < n_fits or len(s.bounds(problem, current)[0]) <= 1:
-                results += _fitted(memo, [(s, starts)], problem, current)
+                results += _fitted(memo, [(s, starts)], problem, current, bar)
+                if bar is None and not results[-1].abandoned:
+                    bar = _bar(memo, results[-1], problem, current, data, per_round_verdict)
             elif s.effect in LAG_EFFECTS:
                 deferred.append((s, starts))
         lead = min(results, key=lambda r: _bic(r.cost, n, r.n_params)) if results else None
@@ -1193,7 +1220,7 @@ def _diagnose(
             and lead.effect not in LAG_EFFECTS  # a lag is told from the other side's by fit
             and _leaves_the_noise(memo, lead, problem, current, data, per_round_verdict)
         ):
-            results += _fitted(memo, deferred, problem, current)
+            results += _fitted(memo, deferred, problem, current, bar)
         by_bic = sorted(results, key=lambda r: _bic(r.cost, n, r.n_params))
         best_first = by_bic[0] if by_bic else None
         # a refinement that only pays where its structure falls short (a second pseudo-mode
@@ -1202,6 +1229,8 @@ def _diagnose(
         # 2.87x the floor, two 1.00x)
         settled = partial(_settled, best_first, memo, problem, current, data, per_round_verdict)
         for r in list(results):
+            if r.abandoned:
+                continue  # far above a rival that leaves only the noise: nothing to refine
             for s, start in refinements(r, current, problem, settled=settled):
                 if isinstance(s, UpperResidual) and _rings_in_band(start, problem):
                     continue  # its fit would be dropped (_pole_rings_in_band): not fitted
@@ -1222,7 +1251,7 @@ def _diagnose(
                 results.append(
                     _first_round(
                         memo,
-                        ("refine", s, _starts_key([start])),
+                        ("refine", s, _starts_key([start]), bar),
                         fit,
                         s,
                         problem,
@@ -1230,6 +1259,7 @@ def _diagnose(
                         starts=[start],
                         n_starts=1,
                         max_nfev=fit_budget(s),
+                        bar=bar,
                     )
                 )
         results = [
@@ -2440,8 +2470,8 @@ def _on_the_record(fr: FitResult, problem, base) -> FitResult:
     refit's model replaces ``fr``'s when its record error is lower; its cost stays the
     lines' (the search compares costs on the lines).
     """
-    if not _between_lines(fr.model, problem, base):
-        return fr
+    if fr.abandoned or not _between_lines(fr.model, problem, base):
+        return fr  # (a search given up far above a rival's cost: nothing to settle)
     return _refit_on_record(fr, problem, base)
 
 

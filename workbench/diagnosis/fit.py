@@ -125,6 +125,12 @@ class FitResult:
         return self.realized.model
 
     @property
+    def abandoned(self) -> bool:
+        """Whether its search was given up far above a rival's cost (:func:`fit`'s ``bar``):
+        ``theta`` is the best point it reached, ``theta_std`` NaN."""
+        return self.status.startswith(ABANDONED)
+
+    @property
     def effect(self) -> str:
         return self.structure.effect
 
@@ -175,6 +181,20 @@ def fit_budget(structure) -> int:
 
 #: relative finite-difference step of a Jacobian column (scipy's ``diff_step``)
 DIFF_STEP = 1e-4
+
+#: a search given a ``bar`` (:func:`fit`: the cost of a rival that leaves only the noise) is
+#: given up where its best cost stays above HOPELESS_RATIO bars while it fell less than
+#: HOPELESS_FALL-fold over its last HOPELESS_STEPS steps' evaluations (a step: n_theta + 1,
+#: a Jacobian by differences and the trial point). Such a search can no longer matter: to
+#: rank at all it would have to come down a hundredfold, to where the rival already
+#: explains everything. Wrong structures grinding on a whole record cost most of a
+#: diagnosis (an indep3 planar record without periods, crosstalk fitted to the floor in
+#: 0.03 s: two suspensions then took 9 and 6 s at 2600x its cost, their best 1000x)
+HOPELESS_RATIO = 100.0
+HOPELESS_FALL = 2.0
+HOPELESS_STEPS = 10
+#: the status of a search given up (:attr:`FitResult.abandoned`)
+ABANDONED = "abandoned"
 
 #: how fit() refines a structure without analytic hooks on FRF data and on a periodic
 #: record's lines: "lm" (Levenberg-Marquardt on the normal equations of a finite-difference
@@ -429,6 +449,7 @@ def fit(
     starts: list[np.ndarray] | None = None,
     n_starts: int = 2,
     max_nfev: int = MAX_NFEV,
+    bar: float | None = None,
 ) -> FitResult:
     """Fit ``structure`` on top of ``base`` to the data of ``problem``.
 
@@ -445,6 +466,10 @@ def fit(
         Number of distinct start points refined by least squares.
     max_nfev : int
         Residual evaluations per refinement.
+    bar : float, optional
+        The cost (sum of squared weighted residuals) of a rival that already leaves only
+        the noise: a search that stalls far above it is given up (:data:`HOPELESS_RATIO`),
+        the result :attr:`~FitResult.abandoned`, at the best point it reached.
     """
 
     infeasible: list[float] = []
@@ -453,6 +478,7 @@ def fit(
     size = [problem.n_obs]
 
     basin: list = [None]  # the first search's optimum, once there is one (_Basin)
+    progress: list = [None]  # the current search's, where there is a bar (_Progress)
 
     def residual(theta):
         try:
@@ -460,6 +486,8 @@ def fit(
             size[0] = r.size
             if basin[0] is not None:
                 basin[0].check(theta, r)
+            if progress[0] is not None:
+                progress[0].check(theta, r)
             return r
         except NUMERICAL_FAILURES:
             # a trial point the structure cannot realize (an overdamped coupled mode): a
@@ -503,18 +531,26 @@ def fit(
         jac = None if normal is not None else _trust_region_jacobian(structure, problem, base)
         for th0 in starts:
             th0 = np.clip(th0, lo + inner, hi - inner)
+            if bar is not None:
+                progress[0] = _Progress(bar, n_theta)
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)
                 try:
                     res = coords.search(residual, normal, th0, max_nfev, structure, jac)
                 except _SameBasin:
                     continue
+                except _Hopeless as stop:
+                    res = stop.result
             if best is None or res.cost < best.cost:
                 best = res
                 basin[0] = _Basin.of(best, lo.size, problem.n_obs)
         theta, jac, gram = best.x, best.get("jac"), best.get("gram")
         if not best.success:
-            status = f"least squares stopped: {best.message}"
+            status = (
+                best.message
+                if str(best.message).startswith(ABANDONED)
+                else f"least squares stopped: {best.message}"
+            )
         theta = _over_kinks(structure, problem, base, theta)
     realized = structure.build(theta, problem, base)
     r = problem.residual(realized.model)
@@ -523,7 +559,10 @@ def fit(
     sigma2 = cost / max(problem.n_obs - n_params, 1)
     if status != "ok" and _settled(best, lo, hi, sigma2):
         status = "ok"
-    theta_std = parameter_std(jac, sigma2, gram=gram) if n_theta else np.zeros(0)
+    if n_theta and jac is None and gram is None:  # a search given up: no Jacobian at its end
+        theta_std = np.full(n_theta, np.nan)
+    else:
+        theta_std = parameter_std(jac, sigma2, gram=gram) if n_theta else np.zeros(0)
     lin_std = {k: np.asarray(v) * np.sqrt(sigma2) for k, v in realized.linear_std.items()}
     realized = Realized(realized.model, realized.linear, lin_std)
     return FitResult(
@@ -630,6 +669,48 @@ def _trust_region_jacobian(structure, problem, base):
 
 class _SameBasin(Exception):
     """A later start's search reached the first search's optimum (:class:`_Basin`)."""
+
+
+class _Hopeless(Exception):
+    """A search given up (:class:`_Progress`); ``result`` its best point as scipy's
+    OptimizeResult (``x``, ``fun``, ``cost`` as scipy's half sum of squares)."""
+
+    def __init__(self, result: scipy.optimize.OptimizeResult):
+        super().__init__(result.message)
+        self.result = result
+
+
+class _Progress:
+    """A search's best cost, evaluation by evaluation, against a ``bar`` (:func:`fit`):
+    :meth:`check` raises :class:`_Hopeless` where the search stalls far above it
+    (:data:`HOPELESS_RATIO`)."""
+
+    def __init__(self, bar: float, n_theta: int):
+        self.limit = HOPELESS_RATIO * bar
+        self.window = HOPELESS_STEPS * (n_theta + 1)
+        self.best, self.x, self.r = np.inf, None, None
+        self.path: list[float] = []  # the best cost after each evaluation
+
+    def check(self, theta, r) -> None:
+        c = float(r @ r)
+        if c < self.best:
+            self.best, self.x, self.r = c, np.array(theta, float), r
+        self.path.append(self.best)
+        if (
+            len(self.path) > self.window
+            and self.best > self.limit
+            and self.path[-1 - self.window] < HOPELESS_FALL * self.best
+        ):
+            message = (
+                f"{ABANDONED} after {len(self.path)} evaluations at {self.best / self.limit:.3g}x "
+                f"{HOPELESS_RATIO:g} times a rival's cost, falling less than "
+                f"{HOPELESS_FALL:g}-fold in its last {HOPELESS_STEPS} steps"
+            )
+            raise _Hopeless(
+                scipy.optimize.OptimizeResult(
+                    x=self.x, fun=self.r, cost=0.5 * self.best, success=False, message=message
+                )
+            )
 
 
 class _Basin:
