@@ -53,6 +53,7 @@ import hashlib
 import itertools
 import math
 import re
+from contextvars import ContextVar
 from dataclasses import dataclass, field, replace
 from functools import partial
 from typing import Any
@@ -392,12 +393,16 @@ def diagnose(
     # the rerun's first round repeats the greedy search's (same model and record): the model's
     # decomposition, the problem and the first round's screens and fits are shared
     kw["shared"] = {}
-    with limited_blas(blas_threads):
-        result = _searched(model, data, kw)
-        result = _split_by_cause(_springs_from_given(result, kw["shared"]), kw["shared"])
-        if isinstance(data, TimeData) and moving_start(data):
-            result = _compare_measured(result, model, data, delay_s, kw["shared"])
-        return result
+    token = _JOINT_FITS.set({})
+    try:
+        with limited_blas(blas_threads):
+            result = _searched(model, data, kw)
+            result = _split_by_cause(_springs_from_given(result, kw["shared"]), kw["shared"])
+            if isinstance(data, TimeData) and moving_start(data):
+                result = _compare_measured(result, model, data, delay_s, kw["shared"])
+            return result
+    finally:
+        _JOINT_FITS.reset(token)
 
 
 def _searched(model, data, kw: dict) -> Diagnosis:
@@ -1882,7 +1887,7 @@ def _joint_candidates(accepted, chosen, problem, base: ModalModel, n: int, *, re
     # the one taken, with every parameter free, from where the held fit ended
     full = [a.structure for a in accepted] + [fits[-1].structure]
     start = [f.theta if h is None else h.full(f.theta) for h, f in zip(held, fits[:-1])]
-    return fit_joint(full, start + [fits[-1].theta], problem, base)
+    return _fit_joint(full, start + [fits[-1].theta], problem, base)
 
 
 def _best_joint(parts, thetas, chosen, problem, base: ModalModel, n: int):
@@ -1897,7 +1902,7 @@ def _best_joint(parts, thetas, chosen, problem, base: ModalModel, n: int):
     """
 
     def joint(r, max_nfev=MAX_NFEV):
-        return fit_joint(
+        return _fit_joint(
             parts + [r.structure], thetas + [r.theta], problem, base, max_nfev=max_nfev
         )
 
@@ -1908,7 +1913,7 @@ def _best_joint(parts, thetas, chosen, problem, base: ModalModel, n: int):
         return joint(chosen[0])
     short = min((joint(r, PAIR_NFEV) for r in chosen), key=bic)
     fits = short[0]
-    return fit_joint([f.structure for f in fits], [f.theta for f in fits], problem, base)
+    return _fit_joint([f.structure for f in fits], [f.theta for f in fits], problem, base)
 
 
 def _backfitted(fits, problem, base: ModalModel) -> list:
@@ -2156,7 +2161,7 @@ def _refined_if_near(parts, thetas, problem, base: ModalModel, err: float, **kw)
     where the refit cost seconds to no end: a casegen beam FRF, the compliance's pseudo-mode
     folded into the band beside a searched crosstalk matrix, 4 of its 7.5 s.
     """
-    short, sb = fit_joint(parts, thetas, problem, base, max_nfev=PAIR_NFEV)
+    short, sb = _fit_joint(parts, thetas, problem, base, max_nfev=PAIR_NFEV)
     if not short[-1].error <= IMAGE_SCREEN * err:
         return short, sb, False
     fits, fb = _joint_refined(parts, thetas, problem, base, **kw)
@@ -2207,7 +2212,7 @@ def _pruned(
             starts.append(back)
         for thetas in starts:
             try:
-                fits, fb = (_joint_refined if on_record else fit_joint)(
+                fits, fb = (_joint_refined if on_record else _fit_joint)(
                     [a.structure for a in rest], thetas, problem, base
                 )
             except NUMERICAL_FAILURES:
@@ -2308,15 +2313,26 @@ def _pair_chain(ranked, problem, base: ModalModel, n: int, err0: float):
                 continue  # a pair of distinct effects
             first, second = sorted((singles[e1], singles[e2]), key=lambda r: r.error)
             parts = [first.structure, second.structure]
+            held = [_pair_held(r, problem, base) for r in (first, second)]
             try:
-                fits, _ = fit_joint(
-                    parts, [first.theta, second.theta], problem, base, max_nfev=PAIR_NFEV
+                fits, _ = _fit_joint(
+                    [h or r.structure for h, r in zip(held, (first, second))],
+                    [
+                        r.theta if h is None else r.theta[list(h.free)]
+                        for h, r in zip(held, (first, second))
+                    ],
+                    problem,
+                    base,
+                    max_nfev=PAIR_NFEV,
                 )
             except NUMERICAL_FAILURES:
                 continue
-            bic = _bic(fits[-1].cost, n, fits[-1].n_params)
+            # the held entries count, as they do once the pair is refined in full
+            extra = sum(len(r.theta) - len(h.free) for h, r in zip(held, (first, second)) if h)
+            bic = _bic(fits[-1].cost, n, fits[-1].n_params + extra)
             if bic < out_bic:
-                out, out_bic = (parts, [f.theta for f in fits]), bic
+                thetas = [f.theta if h is None else h.full(f.theta) for h, f in zip(held, fits)]
+                out, out_bic = (parts, thetas), bic
     if out is None:
         return None
     # the best pair refined to convergence, from where the short search left it
@@ -2337,12 +2353,56 @@ def _pair_chain(ranked, problem, base: ModalModel, n: int, err0: float):
     return [replace(fits[0], error=fits[1].error), fits[1]], bases, alone
 
 
+#: the joint fits of one :func:`diagnose` call (:func:`_fit_joint`), None outside one
+_JOINT_FITS: ContextVar[dict | None] = ContextVar("_JOINT_FITS", default=None)
+
+
+def _fit_joint(parts, thetas, problem, base: ModalModel, **kw):
+    """:func:`~workbench.diagnosis.fit.fit_joint`, or what the same call of this
+    :func:`diagnose` returned (the same parts, start values, problem and base objects).
+
+    A rerun (:func:`_searched`) that reaches the greedy search's chain refits it as the
+    greedy search did, and so do the chain's simplification and the pairs' refinement (an
+    indep3 beam record without periods, a coupled suspension and a crosstalk refined to
+    convergence three times, 10 s each). The memo holds the problem and base, so no other
+    object takes their ids."""
+    memo = _JOINT_FITS.get()
+    if memo is None:
+        return fit_joint(parts, thetas, problem, base, **kw)
+    try:
+        key = (
+            tuple(parts),
+            tuple(np.asarray(t, float).tobytes() for t in thetas),
+            id(problem),
+            id(base),
+            tuple(sorted(kw.items())),
+        )
+        hit = memo.get(key)
+    except TypeError:  # a part that does not hash: fitted afresh
+        return fit_joint(parts, thetas, problem, base, **kw)
+    if hit is None:
+        hit = memo[key] = (problem, base, fit_joint(parts, thetas, problem, base, **kw))
+    fits, bases = hit[2]
+    return list(fits), list(bases)
+
+
+def _pair_held(fr: FitResult, problem, base: ModalModel):
+    """A pair's member ``fr`` as :func:`_pair_chain`'s short search fits it: a coupled
+    suspension with its coupling held (:class:`~workbench.diagnosis.fit.Held`), else None
+    (the structure itself). The coupling is what the flexible modes' lines showed its
+    single fit; each pair's search by differences paid for it again (an indep3 beam record
+    without periods, a coupled suspension of 27 parameters in eight pairs: 36 s of the
+    rerun's pairs). The best pair is refined with it free (:func:`_joint_refined`)."""
+    s = fr.structure
+    return s.held(fr.theta, problem, base) if isinstance(s, CoupledSuspension) else None
+
+
 def _joint_refined(parts, thetas, problem, base: ModalModel, *, from_start: bool = False):
     """``parts`` fitted jointly to convergence (:func:`~workbench.diagnosis.fit.fit_joint`),
     then on a periodic record's whole record (:func:`_joint_on_the_record`). ``from_start``:
     the record's fit starts from ``thetas`` (a start the record gave), not from the lines'
     optimum."""
-    fits, bases = fit_joint(parts, thetas, problem, base)
+    fits, bases = _fit_joint(parts, thetas, problem, base)
     return _joint_on_the_record(fits, bases, problem, base, start=thetas if from_start else None)
 
 
@@ -2382,7 +2442,7 @@ def _joint_on_the_record(fits, bases, problem, base: ModalModel, *, start=None):
     parts = [h or f.structure for h, f in zip(held, fits)]
     theta = [t if h is None else np.asarray(t)[list(h.free)] for h, t in zip(held, start)]
     try:
-        on_record, record_bases = fit_joint(parts, theta, problem.time, base)
+        on_record, record_bases = _fit_joint(parts, theta, problem.time, base)
     except NUMERICAL_FAILURES:
         return fits, bases
     if not on_record[-1].error < fits[-1].error:
