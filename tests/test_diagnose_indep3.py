@@ -295,3 +295,24 @@ def test_searches_stalled_far_above_a_fit_at_the_noise_are_given_up(monkeypatch)
     given_up = [r for r in results if r.abandoned]
     assert {type(r.structure).__name__ for r in given_up} >= {"SuspensionModes"}
     assert all(r.cost > 100 * crosstalk.cost for r in given_up)
+
+
+def test_a_model_that_leaves_a_white_residual_on_a_record_without_periods_is_not_searched(
+    monkeypatch,
+):
+    """Held-out seed 16, a planar record without periods, in motion, nothing missing: the
+    model as given leaves a white residual, the rounds' own stop on such a record, so the
+    search stops before its first round (every structure screened and the best few fitted
+    took 5.9 s) and says why."""
+    from indepgen3 import make_suite
+
+    fitted = _fits_recorded(monkeypatch)
+    ((plant, effect, kind, rng),) = make_suite(
+        16, kinds=("time",), plants=("planar",), effects=("none",)
+    )
+    case = make_case(effect, plant, kind, rng)
+    assert not case.answer["periodic"]
+    res = diagnose(case.nominal, to_measurement(case))
+    assert [f.effect for f in res.findings] == ["none"] and not fitted
+    assert "white residual" in res.findings[0].explanation
+    assert "no effect was fitted" in res.findings[0].explanation

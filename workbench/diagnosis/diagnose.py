@@ -1157,12 +1157,15 @@ def _diagnose(
                 # all the same; after it, what the findings leave unrepeated is the
                 # nonlinearity test's, not more linear terms')
                 break
-            if round_ > 0 and not data.period and detect.white_residual(data.y - predicted):
+            if not data.period and detect.white_residual(data.y - predicted):
                 # no periods, no floor: a residual left white by the findings so far is the
                 # sensor noise of an output-error fit, nothing a further effect would explain
                 # through the plant's dynamics (coloured). The next round's joint refits cost
                 # most of the diagnosis (an indep3 shaft suspension, 35 of 47 s, the error
-                # already 1.0001x the noise floor); coloured noise keeps the search going
+                # already 1.0001x the noise floor); coloured noise keeps the search going.
+                # So does the model as given, before the first round: the FRF's verdict and
+                # the periods' floor stop there too (an indep3 planar record, nothing
+                # missing: every structure screened and the best few fitted, 5.9 s)
                 break
         if round_ > 0 and problem.kind == "frf" and not problem.has_var:
             # an FRF without G_var: no floor. A further finding must remove a large share of
@@ -3990,6 +3993,14 @@ def _none_finding(
             f"the error {cur_err:.4g} is at the noise floor {floor:.4g} computed from G_var; the "
             "noise-normalized "
             f"misfit is {chi:.3g} per element ({right} when the model is right)"
+        )
+    elif not alternatives and isinstance(data, TimeData) and not data.period:
+        # the search stopped before its first round (_diagnose): nothing was fitted
+        reason = (
+            f"the error {cur_err:.4g} leaves a white residual (Ljung-Box, "
+            "detect.white_residual): on a record without periods, the sensor noise an "
+            "output-error fit leaves, nothing an effect would explain through the plant's "
+            "dynamics; no effect was fitted"
         )
     else:
         reason = (
