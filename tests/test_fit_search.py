@@ -189,3 +189,31 @@ def test_a_fit_given_a_bar_it_cannot_approach_is_abandoned_above_the_full_fits_c
     calls["n"] = 0
     kept = fit(structure, problem, model, n_starts=1, bar=full.cost)
     assert not kept.abandoned and np.isclose(kept.cost, full.cost)
+
+
+def test_a_mismatch_far_inside_the_grids_finest_step_is_screened_at_its_gauss_newton_point():
+    """The 180 Hz mode (damping 0.005) 0.02 % low, z0 / 25, below the grid's finest step
+    (z0 / 16): the screen's Gauss-Newton point from the model as given lands within a quarter
+    of the shift of the truth (one step in a curved valley), and costs less than every point
+    of the grid."""
+    from workbench.diagnosis.effects import ModalMismatch
+
+    rng = np.random.default_rng(5)
+    model = _model(rng, n_y=3, n_u=2)
+    mode = model.modes[1]
+    f_true = mode.freq_hz * (1 - 2e-4)
+    truth = replace(
+        model, modes=(model.modes[0], mode.moved(f_true, mode.damping)) + model.modes[2:]
+    )
+    problem = _record(truth, rng, noise=1e-4)
+    structure = ModalMismatch(index=1)
+    grid = structure.grid(problem, model)
+    near = structure._near(problem, model)
+    assert len(near) == 2 and all(any(np.array_equal(p, g) for g in grid) for p in near)
+    f_near = np.exp(near[0][0])
+    assert abs(f_near - f_true) < 0.25 * abs(mode.freq_hz - f_true)
+
+    def cost(theta):
+        return problem.cost(structure.build(theta, problem, model).model)
+
+    assert cost(near[0]) < min(cost(g) for g in grid[: -len(near)])
