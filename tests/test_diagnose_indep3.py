@@ -26,6 +26,18 @@ from indepgen3 import make_case  # noqa: E402
 
 from workbench.diagnosis import diagnose  # noqa: E402
 
+
+def _time_case(seed: int, plant: str, effect: str):
+    """The held-out time record of ``seed``, ``plant`` and ``effect`` (as the benchmark
+    draws it with ``--kinds time``)."""
+    from indepgen3 import make_suite
+
+    ((plant, effect, kind, rng),) = make_suite(
+        seed, kinds=("time",), plants=(plant,), effects=(effect,)
+    )
+    return make_case(effect, plant, kind, rng)
+
+
 #: (plant, effect): quick FRF cases, one per plant and a clean one
 CI_CASES = [
     ("shaft", "time_delay"),
@@ -87,8 +99,6 @@ def test_record_without_periods_stops_where_the_residual_is_white(monkeypatch):
     """A record without periods has no noise floor of its own: once the findings leave a
     white residual, no further round is searched (its joint refits were most of the time,
     for nothing), and the finding is the generator's effect at the noise floor."""
-    from indepgen3 import make_suite
-
     # the module (the package's name ``diagnose`` is the function)
     diagnose_module = sys.modules["workbench.diagnosis.diagnose"]
 
@@ -97,10 +107,7 @@ def test_record_without_periods_stops_where_the_residual_is_white(monkeypatch):
     monkeypatch.setattr(
         diagnose_module, "fit_joint", lambda *a, **k: calls.append(1) or joint(*a, **k)
     )
-    ((plant, effect, kind, rng),) = make_suite(
-        0, kinds=("time",), plants=("shaft",), effects=("time_delay",)
-    )
-    case = make_case(effect, plant, kind, rng)
+    case = _time_case(0, "shaft", "time_delay")
     assert not case.answer["periodic"]
     res = diagnose(case.nominal, to_measurement(case))
     row = score(case, res)
@@ -114,12 +121,7 @@ def test_compliance_whose_image_reaches_past_nyquist_stays_a_compliance():
     10 256 Hz left out: the residual compliance's image at 2667 Hz (zeta 0.06) reaches past
     Nyquist, so it is no resonance the band shows; it was swapped for a missing mode that
     went to 2706 Hz, above Nyquist. The compliance stays, its matrix in tolerance."""
-    from indepgen3 import make_suite
-
-    ((plant, effect, kind, rng),) = make_suite(
-        1, kinds=("time",), plants=("planar",), effects=("residual_compliance",)
-    )
-    case = make_case(effect, plant, kind, rng)
+    case = _time_case(1, "planar", "residual_compliance")
     res = diagnose(case.nominal, to_measurement(case))
     row = score(case, res)
     assert row["top"] == "residual_compliance" and row["param_ok"], row
@@ -133,12 +135,7 @@ def test_a_pair_that_explains_less_than_the_best_single_effect_is_not_taken():
     noise, and the rerun's pair (suspension and crosstalk, better on the lines' cost, 1.14x on
     the record) had replaced it, with a zero delay and a null mismatch after it at 1.13x. A
     pair whose error is not below the best single effect's is not taken: one finding."""
-    from indepgen3 import make_suite
-
-    ((plant, effect, kind, rng),) = make_suite(
-        7, kinds=("time",), plants=("beam",), effects=("suspension_stiffness",)
-    )
-    case = make_case(effect, plant, kind, rng)
+    case = _time_case(7, "beam", "suspension_stiffness")
     res = diagnose(case.nominal, to_measurement(case))
     row = score(case, res)
     assert row["findings"] == ["suspension_stiffness"] and row["param_ok"], row
@@ -182,12 +179,7 @@ def test_a_compliance_on_a_record_without_periods_is_found_near_the_floor():
 def _compliance_record(seed: int, plant: str) -> dict:
     """The held-out residual compliance time record of ``seed`` and ``plant``, diagnosed and
     scored: the compliance on top, its matrix in tolerance, within 1.3x the floor."""
-    from indepgen3 import make_suite
-
-    ((plant, effect, kind, rng),) = make_suite(
-        seed, kinds=("time",), plants=(plant,), effects=("residual_compliance",)
-    )
-    case = make_case(effect, plant, kind, rng)
+    case = _time_case(seed, plant, "residual_compliance")
     row = score(case, diagnose(case.nominal, to_measurement(case)))
     assert row["top"] == "residual_compliance" and row["param_ok"], row
     assert row["ratio"] <= 1.3, row
@@ -217,13 +209,8 @@ def test_a_suspension_at_the_floor_is_not_refined_with_its_coupling(monkeypatch)
     refitted on the record, is at the floor the periods give, so its coupling to the
     flexible modes (37 parameters by differences, most of the diagnosis's time) is not
     fitted; the finding is the generator's suspension at the noise floor all the same."""
-    from indepgen3 import make_suite
-
     fitted = _fits_recorded(monkeypatch)
-    ((plant, effect, kind, rng),) = make_suite(
-        9, kinds=("time",), plants=("planar",), effects=("suspension_stiffness",)
-    )
-    case = make_case(effect, plant, kind, rng)
+    case = _time_case(9, "planar", "suspension_stiffness")
     assert case.answer["periodic"] and case.answer["at_rest"]
     res = diagnose(case.nominal, to_measurement(case))
     row = score(case, res)
@@ -239,12 +226,7 @@ def test_sensor_lags_on_a_single_input_plant_are_one_lag_on_the_response():
     one-cutoff lag reached 1.00003x the floor, the two sensor lags 0.99999x with one more
     parameter. The finding says it is that scalar factor (``common``), and is scored against
     every true cutoff."""
-    from indepgen3 import make_suite
-
-    ((plant, effect, kind, rng),) = make_suite(
-        12, kinds=("time",), plants=("shaft",), effects=("sensor_dynamics",)
-    )
-    case = make_case(effect, plant, kind, rng)
+    case = _time_case(12, "shaft", "sensor_dynamics")
     res = diagnose(case.nominal, to_measurement(case))
     row = score(case, res)
     assert row["top"] in ("actuator_dynamics", "sensor_dynamics"), row
@@ -261,13 +243,8 @@ def test_lags_beyond_the_screen_are_not_fitted_where_the_best_leaves_white_noise
     crosstalk fitted among the screen's best few leaves a white residual, so the per-channel
     lags the screen ranked below them are not fitted (5.8 of the diagnosis's 17 s); the
     finding is the crosstalk at the floor all the same."""
-    from indepgen3 import make_suite
-
     fitted = _fits_recorded(monkeypatch)
-    ((plant, effect, kind, rng),) = make_suite(
-        14, kinds=("time",), plants=("beam",), effects=("crosstalk",)
-    )
-    case = make_case(effect, plant, kind, rng)
+    case = _time_case(14, "beam", "crosstalk")
     assert not case.answer["periodic"]
     row = score(case, diagnose(case.nominal, to_measurement(case)))
     assert row["findings"] == ["crosstalk"] and row["ratio"] <= 1.05, row
@@ -280,14 +257,9 @@ def test_searches_stalled_far_above_a_fit_at_the_noise_are_given_up(monkeypatch)
     crosstalk, first by the screen, is fitted to a white residual in a few evaluations; the
     suspensions after it crept down at more than 1000x its cost (9 and 6 s of a 29 s
     diagnosis). They are given up at their best point, and the finding is the same."""
-    from indepgen3 import make_suite
-
     results: list = []
     _fits_recorded(monkeypatch, results)
-    ((plant, effect, kind, rng),) = make_suite(
-        16, kinds=("time",), plants=("planar",), effects=("crosstalk",)
-    )
-    case = make_case(effect, plant, kind, rng)
+    case = _time_case(16, "planar", "crosstalk")
     assert not case.answer["periodic"]
     row = score(case, diagnose(case.nominal, to_measurement(case)))
     assert row["findings"] == ["crosstalk"] and row["ratio"] <= 1.05, row
@@ -304,13 +276,8 @@ def test_a_model_that_leaves_a_white_residual_on_a_record_without_periods_is_not
     model as given leaves a white residual, the rounds' own stop on such a record, so the
     search stops before its first round (every structure screened and the best few fitted
     took 5.9 s) and says why."""
-    from indepgen3 import make_suite
-
     fitted = _fits_recorded(monkeypatch)
-    ((plant, effect, kind, rng),) = make_suite(
-        16, kinds=("time",), plants=("planar",), effects=("none",)
-    )
-    case = make_case(effect, plant, kind, rng)
+    case = _time_case(16, "planar", "none")
     assert not case.answer["periodic"]
     res = diagnose(case.nominal, to_measurement(case))
     assert [f.effect for f in res.findings] == ["none"] and not fitted

@@ -30,6 +30,19 @@ def _record(truth, rng, n=6000, noise=2e-3):
     return TimeProblem(TimeData(fs=FS, u=u, y=y), transient=False)
 
 
+def _counted(monkeypatch, problem) -> dict:
+    """``problem.residual``'s evaluations, counted as they run (``["n"]``)."""
+    calls = {"n": 0}
+    residual = problem.residual
+
+    def counted(model_):
+        calls["n"] += 1
+        return residual(model_)
+
+    monkeypatch.setattr(problem, "residual", counted)
+    return calls
+
+
 def _lagged(side: str):
     """A model, its truth with lags on two of three channels (none on the middle one)."""
     rng = np.random.default_rng(11)
@@ -69,14 +82,7 @@ def test_a_second_start_in_the_first_starts_basin_is_stopped_with_the_same_resul
     # two starts on either side of the optimum, more than 5 % of the bounds apart (fit's
     # distinct starts): both end at it
     starts = [np.full(n, 0.3), np.full(n, 0.1 * structure.bounds(problem, model)[1][0])]
-    calls = {"n": 0}
-    residual = problem.residual
-
-    def counted(model_):
-        calls["n"] += 1
-        return residual(model_)
-
-    monkeypatch.setattr(problem, "residual", counted)
+    calls = _counted(monkeypatch, problem)
     stopped = fit(structure, problem, model, starts=starts)
     n_stopped = calls["n"]
     calls["n"] = 0
@@ -169,14 +175,7 @@ def test_a_fit_given_a_bar_it_cannot_approach_is_abandoned_above_the_full_fits_c
     marked, its stds NaN, its cost no lower than the full fit's, in fewer evaluations."""
     model, problem, _ = _lagged("in")
     structure = SensorDynamics()
-    calls = {"n": 0}
-    residual = problem.residual
-
-    def counted(model_):
-        calls["n"] += 1
-        return residual(model_)
-
-    monkeypatch.setattr(problem, "residual", counted)
+    calls = _counted(monkeypatch, problem)
     full = fit(structure, problem, model, n_starts=1)
     n_full, calls["n"] = calls["n"], 0
     assert not full.abandoned and full.status == "ok"

@@ -2317,13 +2317,14 @@ def _pair_chain(ranked, problem, base: ModalModel, n: int, err0: float):
             first, second = sorted((singles[e1], singles[e2]), key=lambda r: r.error)
             parts = [first.structure, second.structure]
             held = [_pair_held(r, problem, base) for r in (first, second)]
+            searched = [
+                (r.structure, r.theta) if h is None else (h, r.theta[list(h.free)])
+                for h, r in zip(held, (first, second))
+            ]
             try:
                 fits, _ = _fit_joint(
-                    [h or r.structure for h, r in zip(held, (first, second))],
-                    [
-                        r.theta if h is None else r.theta[list(h.free)]
-                        for h, r in zip(held, (first, second))
-                    ],
+                    [p for p, _ in searched],
+                    [t for _, t in searched],
                     problem,
                     base,
                     max_nfev=PAIR_NFEV,
@@ -2331,7 +2332,7 @@ def _pair_chain(ranked, problem, base: ModalModel, n: int, err0: float):
             except NUMERICAL_FAILURES:
                 continue
             # the held entries count, as they do once the pair is refined in full
-            extra = sum(len(r.theta) - len(h.free) for h, r in zip(held, (first, second)) if h)
+            extra = first.theta.size + second.theta.size - sum(t.size for _, t in searched)
             bic = _bic(fits[-1].cost, n, fits[-1].n_params + extra)
             if bic < out_bic:
                 thetas = [f.theta if h is None else h.full(f.theta) for h, f in zip(held, fits)]
