@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import scipy.signal
 
-from workbench._filter_kernel import iir_streams
+from workbench._filter_kernel import iir_streams, transposed
 from workbench.diagnosis.problem import TimeProblem
 from workbench.io.formats import TimeData
 from workbench.modal import simulate as S
@@ -42,6 +42,40 @@ def test_iir_streams_normalizes_a():
     x = rng.standard_normal((1, 2, 500))
     ref = scipy.signal.lfilter(b[0], a, x[0], axis=-1)
     assert np.allclose(iir_streams(b, a, x), ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+
+
+@pytest.mark.parametrize(
+    "S_, C, n", [(1, 1, 2), (1, 4, 2), (2, 5, 2), (1, 5, 3), (2, 2, 4), (2, 1, 4)]
+)
+def test_iir_streams_takes_the_streams_apart(S_, C, n):
+    """Streams given one by one (read-only, as the cached mixed inputs are) filter as the
+    stacked array does, for an odd and an even number of signals (the kernels run two
+    signals per pass and the last one alone), and as lfilter summed."""
+    rng = np.random.default_rng(100 * S_ + 10 * C + n)
+    a = np.poly(rng.uniform(0.5, 0.99, n))
+    b = rng.standard_normal((S_, n + 2 if n > 2 else 4))
+    x = rng.standard_normal((S_, C, 2000))
+    streams = [np.ascontiguousarray(x[k]) for k in range(S_)]
+    for s_ in streams:
+        s_.flags.writeable = False
+    out = iir_streams(b, a, streams)
+    assert np.array_equal(out, iir_streams(b, a, x))
+    ref = sum(scipy.signal.lfilter(b[k], a, x[k], axis=-1) for k in range(S_))
+    assert np.max(np.abs(out - ref)) <= 1e-11 * np.max(np.abs(ref))
+
+
+def test_transposed_is_the_record_layout():
+    x = np.random.default_rng(1).standard_normal((5, 1001))
+    y = transposed(x)
+    assert y.flags.c_contiguous and np.array_equal(y, x.T)
+
+
+def test_a_record_cache_keeps_its_newest_entries_within_its_bytes():
+    store: dict = {}
+    for k in range(10):
+        S._keep(store, k, np.full(100, float(k)), 3 * 800)
+    assert list(store) == [7, 8, 9]
+    assert not store[9].flags.writeable
 
 
 def _expm_coefficients(num, den, dt, frac):

@@ -29,7 +29,7 @@ from typing import NamedTuple
 import numpy as np
 import scipy.linalg
 
-from workbench._filter_kernel import iir_streams
+from workbench._filter_kernel import iir_streams, transposed
 from workbench.sim import c2d_zoh, split_delay
 
 __all__ = [
@@ -60,12 +60,26 @@ def _channel_filters(model, den, numerator_s: bool):
         form: no eigenvalue computation per filter), else None.
     groups : tuple of int arrays
         Output indices sharing one sensor lag.
+
+    Cached by the denominator and the lags (read-only arrays): a fit evaluates the same
+    mode behind the same lags many times.
     """
-    groups, lag_sets = _channel_layout(
-        np.round(model.lags("out"), 15).tobytes(), np.round(model.lags("in"), 15).tobytes()
+    return _filters_of(
+        None if den is None else np.asarray(den, float).tobytes(),
+        np.round(model.lags("out"), 15).tobytes(),
+        np.round(model.lags("in"), 15).tobytes(),
+        bool(numerator_s),
     )
+
+
+@functools.lru_cache(maxsize=1024)
+def _filters_of(den_bytes, out_bytes: bytes, in_bytes: bytes, numerator_s: bool):
+    """:func:`_channel_filters` from the denominator's and the lags' bytes."""
+    den = None if den_bytes is None else np.frombuffer(den_bytes)
+    groups, lag_sets = _channel_layout(out_bytes, in_bytes)
     two = den is not None and len(den) == 2 and numerator_s
     base = np.array([1.0]) if den is None else np.concatenate([[1.0], den])
+    base.flags.writeable = False
     nums = _NUMS_TWO if two else _NUMS_ONE
     filters = []
     den_roots = None
@@ -76,10 +90,12 @@ def _channel_filters(model, den, numerator_s: bool):
         if den_roots is None:
             den_roots = _den_roots(den)
         # np.convolve is np.polymul without its poly1d wrapping (both leading terms are
-        # nonzero: nothing to trim), a tenth of the cost on a fit's hot path
+        # nonzero: nothing to trim)
         d = np.convolve(base, lag)
-        filters.append(_Filter(g, cols, nums, d, flat, np.array(den_roots + lag_roots, complex)))
-    return filters, groups
+        roots = np.array(den_roots + lag_roots, complex)
+        d.flags.writeable = roots.flags.writeable = False
+        filters.append(_Filter(g, cols, nums, d, flat, roots))
+    return tuple(filters), groups
 
 
 class _Filter(NamedTuple):
@@ -91,6 +107,11 @@ class _Filter(NamedTuple):
     d: np.ndarray
     flat: np.ndarray
     roots: np.ndarray | None
+
+    @property
+    def roots_bytes(self) -> bytes:
+        """``roots`` as :func:`_zoh_parts` takes them (empty: found there)."""
+        return b"" if self.roots is None else self.roots.tobytes()
 
 
 def _den_roots(den) -> list:
@@ -187,80 +208,108 @@ def mixed_inputs(
     Hz. ``products``: a cache of the mixed inputs for this ``u`` (the caller keeps one per
     ``u``), keyed by the numerator and the filter's rows and columns: a moved mode keeps
     its numerator. ``outputs``: a cache of each filter's recursion output for this ``u``
-    (the caller keeps one per ``u``, as ``products``), keyed by its coefficients and the
-    inputs it filters: a lag moved on one channel (a lag fit's difference quotient) leaves
-    the other channels' filters as they were, and they are found here (with four input
-    lags, one recursion in four). The same output as mixing :func:`filtered_inputs` (the
-    additions in another order: rounding).
+    (the caller keeps one per ``u``, as ``products``), keyed by its denominator, delay and
+    the inputs it filters: a lag moved on one channel (a lag fit's difference quotient)
+    leaves the other channels' filters as they were, and they are found here (with four
+    input lags, one recursion in four). The same output as mixing :func:`filtered_inputs`
+    (the additions in another order: rounding).
+
+    The filters' outputs are summed along the samples of each output, (n_y, N), and
+    transposed once: adding each into columns of an (N, n_y) array strode across it (with
+    a sensor lag per output, once per output) and cost more than the recursions.
     """
     filters, groups = _channel_filters(model, den, True)
     dt = 1.0 / fs
     m_int, frac = split_delay(model.delay_s, dt)
     N = u.shape[0]
-    y = np.zeros((N, N0.shape[0]))
+    yT = np.zeros((N0.shape[0], N))
     numerators = (N0, N1) if N1 is not None and np.any(N1) else (N0,)
     for f in filters:
         rows = groups[f.g]
-        coefficients = []
-        for num in f.nums[: len(numerators)]:
-            (num,), dm = _monic([num], f.d)
-            if num[0] or dm.size == 1:
-                raise ValueError("mixed_inputs: a mode's strictly proper filters only")
-            roots = b"" if f.roots is None else f.roots.tobytes()
-            coefficients.append(_zoh_parts(num.tobytes(), dm.tobytes(), dt, frac, roots))
-        a, k = coefficients[0][1], coefficients[0][2]
-        key = None
+        n = min(len(f.nums), len(numerators))
+        coefficients = _filter_parts(f.d.tobytes(), n, dt, frac, f.roots_bytes)
+        blocks = tuple(_block(N_k, rows, f.cols) for N_k in numerators[:n])
+        key = out = None
         if outputs is not None:
-            key = (
-                k,
-                a.tobytes(),
-                tuple(b.tobytes() for b, _, _ in coefficients),
-                tuple(N_k[np.ix_(rows, f.cols)].tobytes() for N_k in numerators),
-                rows.tobytes(),
-                f.cols.tobytes(),
-            )
+            key = (f.d.tobytes(), n, dt, frac, tuple(b.tobytes() for b in blocks), f.flat.tobytes())
             out = outputs.get(key)
-        if key is None or out is None:
-            out = _filter_record(coefficients, a, k, numerators, u, rows, f.cols, products)
+        if out is None:
+            a, k = coefficients[0][1], coefficients[0][2]
+            out = _filter_record(coefficients, a, k, numerators, blocks, u, rows, f.cols, products)
             if key is not None:
-                if len(outputs) >= RECORD_OUTPUTS_KEPT:
-                    outputs.pop(next(iter(outputs)))
-                out.flags.writeable = False
-                outputs[key] = out
+                _keep(outputs, key, out, RECORD_OUTPUTS_BYTES)
         if m_int < N:
-            y[m_int:, rows] += out[:, : N - m_int].T
-    return y
+            for j, r in enumerate(rows):
+                yT[r, m_int:] += out[j, : N - m_int]
+    return transposed(yT)
 
 
-#: numerators whose mixed inputs a ``products`` cache of :func:`mixed_inputs` keeps (each
-#: n_y N floats: 0.4 MB for a 16 384-sample record with 3 outputs)
-RECORD_PRODUCTS_KEPT = 64
+#: bytes of mixed inputs a ``products`` cache of :func:`mixed_inputs` keeps (each n_rows N
+#: floats: a model's modes times its output groups, twice (N0, N1); with a sensor lag per
+#: output, 8 modes of a 5-output beam are 80 entries, which a count of 64 cycled through
+#: on every evaluation)
+RECORD_PRODUCTS_BYTES = 64 * 2**20
 
-#: filter outputs an ``outputs`` cache of :func:`mixed_inputs` keeps: a model's modes times
-#: its lag sets, twice over (a difference quotient's point beside its base point); each
-#: n_rows N floats (at most ~50 MB for 16 384 samples and 3 outputs)
-RECORD_OUTPUTS_KEPT = 128
+#: bytes of filter outputs an ``outputs`` cache of :func:`mixed_inputs` keeps: a model's
+#: modes times its lag sets, twice over (a difference quotient's point beside its base point)
+RECORD_OUTPUTS_BYTES = 64 * 2**20
 
 
-def _filter_record(coefficients, a, k: int, numerators, u, rows, cols, products) -> np.ndarray:
+def _keep(store: dict, key, value: np.ndarray, budget: int) -> None:
+    """``store[key] = value`` (read-only), the oldest entries dropped while the store holds
+    more than ``budget`` bytes (its entries of one size: a count from the first's)."""
+    value.flags.writeable = False
+    while store and (len(store) + 1) * value.nbytes > budget:
+        store.pop(next(iter(store)))
+    store[key] = value
+
+
+def _block(N: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """``N[np.ix_(rows, cols)]``, without ``np.ix_`` where the block is all of N or one row
+    (a fit's hot path: the index arrays cost more than the copy)."""
+    if cols.size == N.shape[1]:
+        return N if rows.size == N.shape[0] else N[rows]
+    if rows.size == 1:
+        return N[rows[0], cols][None]
+    return N[np.ix_(rows, cols)]
+
+
+@functools.lru_cache(maxsize=1024)
+def _filter_parts(d_bytes: bytes, n: int, dt: float, frac: float, roots_bytes: bytes) -> tuple:
+    """(b, a, k) of :func:`_zoh_parts` for the first ``n`` of ``1/d``, ``s/d`` (``d`` a
+    filter's denominator, not monic behind a lag), cached by the filter: one lookup per
+    filter where the numerators made monic and looked up each cost as much again."""
+    d = np.frombuffer(d_bytes)
+    parts = []
+    for num in _NUMS_TWO[:n]:
+        (num,), dm = _monic([num], d)
+        if num[0] or dm.size == 1:
+            raise ValueError("mixed_inputs: a mode's strictly proper filters only")
+        parts.append(_zoh_parts(num.tobytes(), dm.tobytes(), dt, frac, roots_bytes))
+    return tuple(parts)
+
+
+def _filter_record(
+    coefficients, a, k: int, numerators, blocks, u, rows, cols, products
+) -> np.ndarray:
     """One filter's output (n_rows, N) of :func:`mixed_inputs`: its inputs mixed by each
-    numerator and run through ``b_j / (a (1 - z^-1)^k)`` (:func:`_zoh_parts`) in one
-    recursion and ``k`` running sums."""
+    numerator (``blocks``: ``N_k[rows, cols]``) and run through ``b_j / (a (1 - z^-1)^k)``
+    (:func:`_zoh_parts`) in one recursion and ``k`` running sums."""
     if 2 * cols.size < rows.size and len(coefficients) == 2:
         # a lag on one input of many outputs: its column through 1/d and s/d (two
         # recursions) and mixed after, fewer than one recursion per output
         x = np.ascontiguousarray(u[:, cols].T)[None]
         out = 0.0
-        for (b, _, _), N_k in zip(coefficients, numerators):
+        for (b, _, _), block in zip(coefficients, blocks):
             X = _recursion(b[None], a, k, x)  # (n_cols, N)
-            out = out + N_k[np.ix_(rows, cols)] @ X
+            out = out + block @ X
         return out
     bs = np.stack([b for b, _, _ in coefficients])
-    xs = np.stack([_mixed_record(u, N_k, rows, cols, products) for N_k in numerators[: len(bs)]])
+    xs = [_mixed_record(u, N_k, rows, cols, products) for N_k in numerators[: len(coefficients)]]
     return _recursion(bs, a, k, xs)  # (n_rows, N)
 
 
-def _recursion(bs: np.ndarray, a: np.ndarray, k: int, xs: np.ndarray) -> np.ndarray:
+def _recursion(bs: np.ndarray, a: np.ndarray, k: int, xs) -> np.ndarray:
     """:func:`~workbench._filter_kernel.iir_streams` through ``a``, then ``k`` running sums
     (the integrators ``1 / (1 - z^-1)`` of :func:`_zoh_parts`) along the samples."""
     out = iir_streams(bs, a, xs)
@@ -274,7 +323,7 @@ def _mixed_record(u: np.ndarray, N: np.ndarray, rows, cols, products: dict | Non
     the ``products`` cache when given."""
     key = None
     if products is not None:
-        key = (N.tobytes(), np.asarray(rows).tobytes(), np.asarray(cols).tobytes())
+        key = (N.tobytes(), rows.tobytes(), cols.tobytes())
         out = products.get(key)
         if out is not None:
             return out
@@ -284,10 +333,7 @@ def _mixed_record(u: np.ndarray, N: np.ndarray, rows, cols, products: dict | Non
         x = (u[:, cols] @ N[np.ix_(rows, cols)].T).T
     x = np.ascontiguousarray(x)
     if products is not None:
-        if len(products) >= RECORD_PRODUCTS_KEPT:
-            products.pop(next(iter(products)))
-        x.flags.writeable = False
-        products[key] = x
+        _keep(products, key, x, RECORD_PRODUCTS_BYTES)
     return x
 
 
