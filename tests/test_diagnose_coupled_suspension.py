@@ -564,3 +564,28 @@ def test_the_analytic_frf_jacobian_is_the_residual_s_derivative(per_mode):
     assert np.allclose(held.jacobian(free, problem, base), J[:, list(held.free)])
     record = make_problem(_periodic_record()[0], domain="time")
     assert cs.jacobian(theta, record, base) is None  # differences there
+
+
+def test_a_coupled_suspension_is_fitted_by_levenberg_marquardt_on_a_record_too():
+    """On a record simulated in the time domain a coupled suspension gets the normal
+    equations of difference quotients (Levenberg-Marquardt, as on FRF data: scipy's trust
+    region had stopped far above the optimum on a strongly coupled beam record); another
+    structure there keeps the trust region."""
+    from workbench.diagnosis import fit as fit_engine
+
+    class Record:
+        domain = "time"
+
+    def residual(theta):
+        return np.array([theta[0] - 1.0, 2.0 * theta[1], theta[0] * theta[1]])
+
+    lo, hi = np.full(2, -5.0), np.full(2, 5.0)
+    normal = fit_engine._normal_equations(CoupledSuspension(), Record(), None, residual, lo, hi)
+    theta = np.array([0.5, 0.25])
+    JTJ, JTr = normal(theta, residual(theta))
+    J = np.array([[1.0, 0.0], [0.0, 2.0], [theta[1], theta[0]]])
+    assert np.allclose(JTJ, J.T @ J, rtol=1e-5) and np.allclose(
+        JTr, J.T @ residual(theta), rtol=1e-5
+    )
+    other = SuspensionStiffness()
+    assert fit_engine._normal_equations(other, Record(), None, residual, lo, hi) is None

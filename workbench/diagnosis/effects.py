@@ -1572,9 +1572,18 @@ class CoupledSuspension:
     max_nfev: int = 400
     #: started at the rigid fit's optimum: the trust region's Jacobian by secant updates
     #: between difference quotients (:data:`workbench.diagnosis.fit.TIME_JACOBIAN`; indep3
-    #: shaft time record, 17 parameters: 669 -> 366 evaluations)
+    #: shaft time record, 17 parameters: 669 -> 366 evaluations), where the trust region
+    #: searches (``solver``)
     secant = True
     per_mode_damping: bool = False
+    #: Levenberg-Marquardt on the normal equations of difference quotients on a record too
+    #: (:func:`workbench.diagnosis.fit._normal_equations`), as on FRF data: scipy's trust
+    #: region stopped by its own tolerances far above the optimum on a strongly coupled
+    #: beam record (indep3 seed 18: springs at 14.7 / 26.5 Hz under a first bending mode
+    #: below 73 Hz; cost 58 from 392 with secant updates, 12.6 with difference quotients,
+    #: the floor ~0.25, which Levenberg-Marquardt reached; a 22 % crosstalk and a mode had
+    #: stood in beside the suspension, 200 s CPU; now the suspension alone, 74 s)
+    solver: str = "lm"
 
     @property
     def _rigid(self) -> RigidSuspension:

@@ -251,15 +251,21 @@ def _normal_equations(structure, problem, base, residual, lo, hi, lines=None) ->
     ``jacobian`` hook (analytic; it
     returns None where it has none for the problem: the lines of a periodic record), else
     :func:`finite_difference_jacobian`, with scipy's default stops (1e-8: what the
-    trust-region search used, and all a difference quotient resolves). Elsewhere (a record
-    simulated in the time domain, or the reference ``FRF_SOLVER == "trf"``): None.
+    trust-region search used, and all a difference quotient resolves). On a record
+    simulated in the time domain the same for a structure whose ``solver`` is "lm"
+    (:class:`~workbench.diagnosis.effects.CoupledSuspension`). Elsewhere (any other
+    structure on such a record, or the reference ``FRF_SOLVER == "trf"``): None.
     """
     if callable(getattr(structure, "normal_equations", None)):
         return _Normal(lambda th, r: structure.normal_equations(th, problem, base, r), {})
-    if getattr(problem, "domain", "time") != "frequency" or FRF_SOLVER != "lm":
-        return None
-    if getattr(structure, "solver", None) == "trf":
+    solver = getattr(structure, "solver", None)
+    if solver == "trf":
         return None  # the structure asks for scipy's trust region (see RigidSuspension)
+    if getattr(problem, "domain", "time") != "frequency":
+        if solver != "lm":
+            return None  # a record: trf, unless the structure asks (CoupledSuspension)
+    elif FRF_SOLVER != "lm":
+        return None
     jac = getattr(structure, "jacobian", None)
 
     def normal(theta, r):
