@@ -206,8 +206,8 @@ def mixed_inputs(
     fits). ``den`` (a mode's, :meth:`Mode.denominator`; not None), ``N0``, ``N1`` (n_y,
     n_u; ``N1`` None or zero: ``1/d`` only), ``u`` (N, n_u) after the input coupling, ``fs``
     Hz. ``products``: a cache of the mixed inputs for this ``u`` (the caller keeps one per
-    ``u``), keyed by the numerator and the filter's rows and columns: a moved mode keeps
-    its numerator. ``outputs``: a cache of each filter's recursion output for this ``u``
+    ``u``), keyed by the numerator's block of the filter's rows and columns: a moved mode
+    keeps its numerator. ``outputs``: a cache of each filter's recursion output for this ``u``
     (the caller keeps one per ``u``, as ``products``), keyed by its denominator, delay and
     the inputs it filters: a lag moved on one channel (a lag fit's difference quotient)
     leaves the other channels' filters as they were, and they are found here (with four
@@ -234,8 +234,7 @@ def mixed_inputs(
             key = (f.d.tobytes(), n, dt, frac, tuple(b.tobytes() for b in blocks), f.flat.tobytes())
             out = outputs.get(key)
         if out is None:
-            a, k = coefficients[0][1], coefficients[0][2]
-            out = _filter_record(coefficients, a, k, numerators, blocks, u, rows, f.cols, products)
+            out = _filter_record(coefficients, blocks, u, f.cols, products)
             if key is not None:
                 _keep(outputs, key, out, RECORD_OUTPUTS_BYTES)
         if m_int < N:
@@ -289,13 +288,13 @@ def _filter_parts(d_bytes: bytes, n: int, dt: float, frac: float, roots_bytes: b
     return tuple(parts)
 
 
-def _filter_record(
-    coefficients, a, k: int, numerators, blocks, u, rows, cols, products
-) -> np.ndarray:
+def _filter_record(coefficients, blocks, u, cols, products) -> np.ndarray:
     """One filter's output (n_rows, N) of :func:`mixed_inputs`: its inputs mixed by each
     numerator (``blocks``: ``N_k[rows, cols]``) and run through ``b_j / (a (1 - z^-1)^k)``
-    (:func:`_zoh_parts`) in one recursion and ``k`` running sums."""
-    if 2 * cols.size < rows.size and len(coefficients) == 2:
+    (``coefficients``: :func:`_zoh_parts`, one ``a`` and ``k``) in one recursion and ``k``
+    running sums."""
+    a, k = coefficients[0][1], coefficients[0][2]
+    if 2 * cols.size < blocks[0].shape[0] and len(coefficients) == 2:
         # a lag on one input of many outputs: its column through 1/d and s/d (two
         # recursions) and mixed after, fewer than one recursion per output
         x = np.ascontiguousarray(u[:, cols].T)[None]
@@ -305,7 +304,7 @@ def _filter_record(
             out = out + block @ X
         return out
     bs = np.stack([b for b, _, _ in coefficients])
-    xs = [_mixed_record(u, N_k, rows, cols, products) for N_k in numerators[: len(coefficients)]]
+    xs = [_mixed_record(u, block, cols, products) for block in blocks]
     return _recursion(bs, a, k, xs)  # (n_rows, N)
 
 
@@ -318,22 +317,18 @@ def _recursion(bs: np.ndarray, a: np.ndarray, k: int, xs) -> np.ndarray:
     return out
 
 
-def _mixed_record(u: np.ndarray, N: np.ndarray, rows, cols, products: dict | None):
-    """``(u[:, cols] N[rows][:, cols]^T)^T`` (n_rows, N_samples), C-contiguous, from / into
-    the ``products`` cache when given."""
+def _mixed_record(u: np.ndarray, block: np.ndarray, cols, products: dict | None):
+    """``block u[:, cols]^T`` (n_rows, N_samples), C-contiguous (``block``: a numerator's
+    rows and columns of one filter), from / into the ``products`` cache when given."""
     key = None
     if products is not None:
-        key = (N.tobytes(), rows.tobytes(), cols.tobytes())
+        key = (block.shape, block.tobytes(), cols.tobytes())
         out = products.get(key)
         if out is not None:
             return out
-    # N u^T straight into the (n_rows, N) layout: BLAS reads u^T as a flag on u, where
-    # (u N^T)^T and its contiguous copy took ~10x longer (a 16 384 x 3 record: 485 vs 49 us)
-    if cols.size == u.shape[1]:
-        x = N[rows] @ u.T
-    else:
-        x = N[np.ix_(rows, cols)] @ u[:, cols].T
-    x = np.ascontiguousarray(x)
+    # block u^T straight into the (n_rows, N) layout: BLAS reads u^T as a flag on u, where
+    # (u block^T)^T and its contiguous copy took ~10x longer (16 384 x 3: 485 vs 49 us)
+    x = np.ascontiguousarray(block @ (u.T if cols.size == u.shape[1] else u[:, cols].T))
     if products is not None:
         _keep(products, key, x, RECORD_PRODUCTS_BYTES)
     return x
