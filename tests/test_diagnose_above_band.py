@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import control
 import numpy as np
+import scipy.signal
 from scipy.linalg import block_diag
 
 from workbench.diagnosis import diagnose
+from workbench.diagnosis.problem import _time_band
 from workbench.io.formats import TimeData
 from workbench.sim import simulate_zoh
 
@@ -48,3 +50,20 @@ def test_a_mode_ringing_above_the_band_of_a_record_from_rest_stays_a_mode():
     assert abs(res.top.parameters["freq_hz"] / 780.0 - 1) < 1e-3
     assert abs(res.top.parameters["damping"] / 0.009 - 1) < 0.1
     assert "above the excited band" in res.top.explanation
+
+
+def test_the_band_of_low_passed_noise_ends_where_the_filter_does_not_at_nyquist():
+    # 4th-order Butterworth (bilinear) noise without periods: its power is 1e-6 of the peak
+    # where tan(pi f / fs) = 10^0.75 tan(pi fc / fs). The unwindowed periodogram leaked a
+    # floor from the step between the record's ends (~1 / sin^2(pi f / fs)) over that
+    # threshold up to Nyquist
+    fs, fc, n = 6900.0, 2600.0, 16384
+    b, a = scipy.signal.butter(4, fc / (fs / 2))
+    r = scipy.signal.lfilter(b, a, np.random.default_rng(5).standard_normal((n, 2)), axis=0)
+    data = TimeData(
+        fs=fs, u=r, y=r, r=r, loop="closed", input_names=("F1", "F2"), output_names=("x1", "x2")
+    )
+    lo, hi = _time_band(data)
+    edge = fs / np.pi * np.arctan(10**0.75 * np.tan(np.pi * fc / fs))  # 3290 Hz
+    assert lo == fs / n
+    assert 0.95 * edge < hi < 1.02 * edge < 0.5 * fs, (hi, edge)
