@@ -261,10 +261,9 @@ def _normal_equations(structure, problem, base, residual, lo, hi, lines=None) ->
     solver = getattr(structure, "solver", None)
     if solver == "trf":
         return None  # the structure asks for scipy's trust region (see RigidSuspension)
-    if getattr(problem, "domain", "time") != "frequency":
-        if solver != "lm":
-            return None  # a record: trf, unless the structure asks (CoupledSuspension)
-    elif FRF_SOLVER != "lm":
+    # on a record the structure chooses (CoupledSuspension asks for "lm"), on lines FRF_SOLVER
+    on_record = getattr(problem, "domain", "time") != "frequency"
+    if (solver if on_record else FRF_SOLVER) != "lm":
         return None
     jac = getattr(structure, "jacobian", None)
 
