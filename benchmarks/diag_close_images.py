@@ -157,9 +157,7 @@ def main() -> int:
     print(f"model as given                         {ratio(base):8.3f}x the floor")
     chain = base
     for f, z in TRUTH:  # the true poles, each residue solved on what the ones before leave
-        chain = (
-            AliasedMode(fold=1, side=-1 if f < 5000 else 1).build(np.log([f, z]), pb, chain).model
-        )
+        chain = AliasedMode(1, -1 if f < 5000 else 1).build(np.log([f, z]), pb, chain).model
     print(f"true poles, residues in a chain        {ratio(chain):8.3f}x")
     for sweeps in (4, 20, 100):
         fitted = backfit(chain, pb, d0=base.D, sweeps=sweeps)

@@ -1196,8 +1196,7 @@ class Composite:
         """
         thetas = self.split(theta, problem)
         first = self._first_pass(thetas, problem, base)
-        built = _recoupled(self.parts, thetas, problem, base, first)
-        return _joint_modes(self.parts, problem, built)
+        return _recoupled(self.parts, thetas, problem, base, first)
 
     def _first_pass(self, thetas, problem, base) -> list[Realized]:
         out = []
@@ -1384,7 +1383,6 @@ def stack(parts: list, thetas: list[np.ndarray], problem, base: ModalModel):
         base,
         _built(sorted_parts, sorted_thetas, problem, base),
     )
-    built = _joint_modes(sorted_parts, problem, built)
     realized = {i: r for i, r in zip(order, built)}
     return built[-1].model, [realized[i] for i in range(len(parts))]
 
@@ -1457,52 +1455,6 @@ def _recoupled(parts, thetas, problem, base: ModalModel, first: list[Realized]) 
     linear = dict(r.linear)
     linear["matrix"] = coupling_added(model, base, parts[-1].side)
     return out[:-1] + [Realized(model, linear, r.linear_std)]
-
-
-#: rounds of the added modes' joint rank-one solve (:func:`_joint_modes`)
-JOINT_MODE_ROUNDS = 3
-
-
-def _joint_modes(parts, problem, built: list[Realized]) -> list[Realized]:
-    """``built`` (the parts' Realized in stacking order) with the residues of the modes two or
-    more :class:`~workbench.diagnosis.effects.MissingMode` parts added solved jointly
-    (:meth:`~workbench.diagnosis.problem._FilteredProblem.fit_mode_residues`), where that
-    lowers the cost; else ``built``.
-
-    Each part's residue is solved on what the parts before it leave, so modes whose
-    responses overlap take each other's share, and a joint fit of their poles minimizes
-    that biased cost: started at the true poles of three truncated modes whose images fall
-    at 660, 855 and 875 Hz, it walked off to 3.8x the noise floor
-    (benchmarks/diag_close_images.py). On time records (the problem's filtered inputs);
-    not with a crosstalk (:func:`_recoupled` solves the parts under its coupling).
-    """
-    if not hasattr(problem, "fit_mode_residues") or any(p.effect == "crosstalk" for p in parts):
-        return built
-    idx = [i for i, p in enumerate(parts) if p.effect == "missing_mode"]
-    if len(idx) < 2:
-        return built
-    model = built[-1].model
-    added = [built[i].model.modes[-1] for i in idx]  # each part appends its mode
-    where = [next((j for j, m in enumerate(model.modes) if m is a), None) for a in added]
-    if any(j is None for j in where):
-        return built
-    rest = replace(model, modes=tuple(m for j, m in enumerate(model.modes) if j not in where))
-    try:
-        residues = problem.fit_mode_residues(rest, added, JOINT_MODE_ROUNDS)
-    except NUMERICAL_FAILURES:
-        return built
-    modes = list(model.modes)
-    for j, a, (N0, N1) in zip(where, added, residues):
-        U, S, Vt = np.linalg.svd(N0)
-        modes[j] = replace(a, b=Vt[0] * np.sqrt(S[0]), c=U[:, 0] * np.sqrt(S[0]), N0=N0, N1=N1)
-    joint = replace(model, modes=tuple(modes))
-    if not problem.cost(joint) < problem.cost(model):
-        return built
-    out = list(built)
-    for i, (N0, N1) in zip(idx, residues):
-        out[i] = Realized(out[i].model, {**out[i].linear, "N0": N0, "N1": N1}, out[i].linear_std)
-    out[-1] = Realized(joint, out[-1].linear, out[-1].linear_std)
-    return out
 
 
 def _error_or_inf(problem, model) -> float:

@@ -1054,69 +1054,6 @@ class _FilteredProblem:
         coef, std = self._regress(model, Xc, groups, den, term=("term", _key(den)))
         return coef[:, :n_u], coef[:, n_u:], std[:, :n_u], std[:, n_u:]
 
-    def fit_mode_residues(self, model: ModalModel, modes, n_iter: int):
-        """The rank-one residues of ``modes`` added to ``model``, solved jointly: [(N0, N1)]
-        (n_y, n_u) each, ``N0 = c0 b^T`` and ``N1 = c1 b^T``.
-
-        Alternating least squares over all modes at once: every mode's (c0, c1) given the
-        b's, per output; every mode's b given the c's, all outputs together; ``n_iter``
-        rounds, from the b's of the modes' full residues solved jointly (the stacked
-        ``[N0; w N1]``'s first right singular vector each). All on the triangular factor of
-        the modes' filtered inputs, one QR per output group (a round costs no pass over
-        the rows).
-
-        Solved one after another (each on what the ones before leave, as a chain of
-        :class:`~workbench.diagnosis.effects.MissingMode` builds does), modes whose
-        responses overlap bias each other: an indepgen stage record, three truncated modes
-        whose images fall at 660, 855 and 875 Hz, at their true poles 5.04x the noise floor
-        in a chain, 1.0001x jointly (benchmarks/diag_close_images.py).
-        """
-        u_in = self._u_in(model)
-        Q = self._regress_basis(model, np.vstack([m.denominator() for m in modes]))
-        cols, groups = [], None
-        for m in modes:
-            Xm, groups = self._filtered(model, m.denominator(), u_in)
-            # (n_groups, n_rows, n_u, 2) -> [u | s u] columns, the free responses removed
-            Xm = np.concatenate([Xm[..., 0], Xm[..., 1]], axis=-1)
-            cols.append(np.moveaxis(_remove(Q, np.moveaxis(Xm, 1, 0)), 0, 1) / self.scale)
-        X = np.concatenate(cols, axis=-1)  # (n_groups, n_rows, K 2 n_u): mode, order, input
-        e = self._misfit(model)
-        n_y, n_u, K = e.shape[1], model.n_u, len(modes)
-        # each group's columns reduced to their triangular factor (X = Q R: the least squares
-        # in R and Q^T e are X's, without the normal equations' squared conditioning)
-        group_of = np.zeros(n_y, int)
-        R, Qe = [], np.zeros((n_y, X.shape[-1]))
-        for g, rows in enumerate(groups):
-            group_of[rows] = g
-            Qg, Rg = np.linalg.qr(X[g])
-            R.append(Rg.reshape(-1, K, 2, n_u))
-            Qe[rows] = (Qg.T @ e[:, rows]).T
-        full = np.stack(
-            [
-                np.linalg.lstsq(R[group_of[i]].reshape(len(Qe[i]), -1), Qe[i], rcond=None)[0]
-                for i in range(n_y)
-            ]
-        ).reshape(n_y, K, 2, n_u)
-        b = np.stack(
-            [
-                np.linalg.svd(np.vstack([full[:, k, 0], m.omega * full[:, k, 1]]))[2][0]
-                for k, m in enumerate(modes)
-            ]
-        )  # (K, n_u)
-        c = np.zeros((n_y, K, 2))
-        for _ in range(n_iter):
-            for i in range(n_y):  # (c0, c1) of every mode given the b's
-                A = np.einsum("rkpu,ku->rkp", R[group_of[i]], b).reshape(len(Qe[i]), 2 * K)
-                c[i] = np.linalg.lstsq(A, Qe[i], rcond=None)[0].reshape(K, 2)
-            # every b given the c's: all outputs' rows together
-            A = np.concatenate(
-                [np.einsum("rkpu,kp->rku", R[group_of[i]], c[i]) for i in range(n_y)]
-            )
-            b = np.linalg.lstsq(A.reshape(A.shape[0], K * n_u), Qe.ravel(), rcond=None)[0].reshape(
-                K, n_u
-            )
-        return [(np.outer(c[:, k, 0], b[k]), np.outer(c[:, k, 1], b[k])) for k in range(K)]
-
     def fit_feedthrough(self, model: ModalModel):
         X, groups = self._filtered(model, None, self._u_in(model))
         coef, std = self._regress(model, X[..., 0], groups)
